@@ -1,0 +1,25 @@
+//! Calibrated camera models.
+//!
+//! - [`Intrinsics`]: pinhole focal lengths and principal point (pixels, OpenCV convention: pixel
+//!   centres at integer coordinates, `u = fx * x + cx`).
+//! - [`Distortion`]: Brown-Conrady radial-tangential distortion `(k1, k2, p1, p2, k3)`, the model and
+//!   coefficient order of OpenCV and of BigBIRD's `calibration.h5`, with exact forward distortion
+//!   and iterative (Newton) undistortion.
+//! - [`CameraModel`]: intrinsics + distortion + image size; `project` and `backproject`.
+//! - [`RgbdSensor`]: a depth camera and a colour camera calibrated against each other, with the
+//!   raw-depth scale; maps depth pixels into the colour image.
+
+mod distortion;
+mod error;
+mod intrinsics;
+mod model;
+mod sensor;
+
+pub use distortion::Distortion;
+pub use error::CameraError;
+pub use intrinsics::Intrinsics;
+pub use model::{CameraModel, ImageSize};
+pub use sensor::RgbdSensor;
+
+/// A 2-D pixel position `(u, v)` in pixels.
+pub type Pixel = nalgebra::Point2<f64>;

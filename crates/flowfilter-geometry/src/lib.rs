@@ -1,0 +1,29 @@
+//! Shared geometric vocabulary of the Flow Filter workspace.
+//!
+//! Every stage crate speaks in these types: [`Pose`] (a rigid transform in SE(3), an alias of
+//! nalgebra's `Isometry3<f64>`), [`PointCloud`] (points with optional normals, colours and the
+//! pixel each point came from), the validation of 4x4 matrices read from files
+//! ([`rigid_from_matrix`]), twist exponential/logarithm for Gauss-Newton on SE(3)
+//! ([`se3`]) and the weighted Kabsch/Umeyama solver ([`kabsch`]).
+
+pub mod cloud;
+pub mod kabsch;
+pub mod rigid;
+pub mod se3;
+
+pub use cloud::{CloudError, PointCloud};
+pub use kabsch::{KabschError, weighted_kabsch};
+pub use rigid::{RigidTransformError, matrix_from_pose, nearest_rotation, rigid_from_matrix, rotation_angle_deg};
+
+/// A rigid transform in SE(3), mapping points of one frame into another.
+///
+/// By convention in this project `T_ab` maps points expressed in frame `b` into frame `a`
+/// (`p_a = T_ab * p_b`), and the relative object motion `T_12` maps model-frame points onto the
+/// same object points in the target frame (`P_target = T_12 * P_model`).
+pub type Pose = nalgebra::Isometry3<f64>;
+
+/// A 3-D point in metres.
+pub type Point3 = nalgebra::Point3<f64>;
+
+/// A 3-D vector.
+pub type Vector3 = nalgebra::Vector3<f64>;
