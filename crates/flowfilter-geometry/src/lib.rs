@@ -7,11 +7,13 @@
 //! ([`se3`]) and the weighted Kabsch/Umeyama solver ([`kabsch`]).
 
 pub mod cloud;
+pub mod grid;
 pub mod kabsch;
 pub mod rigid;
 pub mod se3;
 
 pub use cloud::{CloudError, PointCloud};
+pub use grid::{DepthMap, Grid, GridSizeError, Mask, RawDepth};
 pub use kabsch::{KabschError, weighted_kabsch};
 pub use rigid::{RigidTransformError, matrix_from_pose, nearest_rotation, rigid_from_matrix, rotation_angle_deg};
 

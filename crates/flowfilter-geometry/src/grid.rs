@@ -1,0 +1,137 @@
+//! Row-major 2-D rasters: masks, depth maps, flow components.
+
+use serde::{Deserialize, Serialize};
+
+/// A row-major raster of `width x height` cells (`data[y * width + x]`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Grid<T> {
+    width: usize,
+    height: usize,
+    data: Vec<T>,
+}
+
+/// Object mask: `true` where the object is.
+pub type Mask = Grid<bool>;
+/// Raw sensor depth (device units; 0 = no reading).
+pub type RawDepth = Grid<u16>;
+/// Metric depth in metres (0 or NaN = no depth, as documented by the producer).
+pub type DepthMap = Grid<f32>;
+
+/// A buffer whose length does not match the stated raster size.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("raster of {width}x{height} needs {} cells, buffer has {found}", width * height)]
+pub struct GridSizeError {
+    /// Stated width.
+    pub width: usize,
+    /// Stated height.
+    pub height: usize,
+    /// Buffer length found.
+    pub found: usize,
+}
+
+impl<T: Clone> Grid<T> {
+    /// A raster filled with `value`.
+    pub fn filled(width: usize, height: usize, value: T) -> Self {
+        Self { width, height, data: vec![value; width * height] }
+    }
+}
+
+impl<T> Grid<T> {
+    /// Wrap a row-major buffer.
+    pub fn from_vec(width: usize, height: usize, data: Vec<T>) -> Result<Self, GridSizeError> {
+        if data.len() != width * height {
+            return Err(GridSizeError { width, height, found: data.len() });
+        }
+        Ok(Self { width, height, data })
+    }
+
+    /// Build from a function of `(x, y)`.
+    pub fn from_fn(width: usize, height: usize, mut f: impl FnMut(usize, usize) -> T) -> Self {
+        let mut data = Vec::with_capacity(width * height);
+        for y in 0..height {
+            for x in 0..width {
+                data.push(f(x, y));
+            }
+        }
+        Self { width, height, data }
+    }
+
+    /// Width (columns).
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// Height (rows).
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    /// `(width, height)`.
+    pub fn dims(&self) -> (usize, usize) {
+        (self.width, self.height)
+    }
+
+    /// The row-major cells.
+    pub fn as_slice(&self) -> &[T] {
+        &self.data
+    }
+
+    /// The row-major cells, mutable.
+    pub fn as_mut_slice(&mut self) -> &mut [T] {
+        &mut self.data
+    }
+
+    /// The buffer.
+    pub fn into_vec(self) -> Vec<T> {
+        self.data
+    }
+
+    /// Cell `(x, y)`, `None` outside.
+    pub fn get(&self, x: usize, y: usize) -> Option<&T> {
+        (x < self.width && y < self.height).then(|| &self.data[y * self.width + x])
+    }
+
+    /// Cell `(x, y)`; panics outside (use [`Grid::get`] for untrusted coordinates).
+    pub fn at(&self, x: usize, y: usize) -> &T {
+        &self.data[y * self.width + x]
+    }
+
+    /// Mutable cell `(x, y)`; panics outside.
+    pub fn at_mut(&mut self, x: usize, y: usize) -> &mut T {
+        &mut self.data[y * self.width + x]
+    }
+
+    /// Row `y`.
+    pub fn row(&self, y: usize) -> &[T] {
+        &self.data[y * self.width..(y + 1) * self.width]
+    }
+
+    /// A raster of the same size with `f` applied to every cell.
+    pub fn map<U>(&self, f: impl FnMut(&T) -> U) -> Grid<U> {
+        Grid { width: self.width, height: self.height, data: self.data.iter().map(f).collect() }
+    }
+}
+
+impl Mask {
+    /// Number of `true` cells.
+    pub fn count(&self) -> usize {
+        self.data.iter().filter(|&&b| b).count()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn indexing_is_row_major() {
+        let g = Grid::from_fn(3, 2, |x, y| 10 * y + x);
+        assert_eq!(g.as_slice(), &[0, 1, 2, 10, 11, 12]);
+        assert_eq!(*g.at(2, 1), 12);
+        assert_eq!(g.get(3, 0), None);
+        assert_eq!(g.row(1), &[10, 11, 12]);
+        assert!(Grid::from_vec(2, 2, vec![0u8; 3]).is_err());
+        let m: Mask = g.map(|v| v % 2 == 0);
+        assert_eq!(m.count(), 4);
+    }
+}
