@@ -235,6 +235,17 @@ fn read_bytes(path: &Path) -> Result<Vec<u8>> {
 /// Decode a colour JPEG (any format `image` reads) into RGB8.
 pub(crate) fn read_color(path: &Path) -> Result<RgbImage> {
     let bytes = read_bytes(path)?;
+    if bytes.starts_with(&[0xFF, 0xD8]) {
+        // JPEG decoders fill a truncated scan with grey instead of failing: require the
+        // end-of-image marker (allowing trailing padding after it).
+        let end = bytes.iter().rposition(|&b| b != 0 && b != b'\n' && b != b'\r').map_or(0, |i| i + 1);
+        if end < 4 || bytes[end - 2..end] != [0xFF, 0xD9] {
+            return Err(BigBirdError::Image {
+                path: path.into(),
+                message: "JPEG is truncated (no end-of-image marker FF D9)".into(),
+            });
+        }
+    }
     let img = image::load_from_memory(&bytes)
         .map_err(|e| BigBirdError::Image { path: path.into(), message: e.to_string() })?;
     Ok(img.to_rgb8())

@@ -34,7 +34,7 @@ impl RgbdSensor {
 
     /// Metric depth of a raw depth value (`None` for 0, "no reading").
     pub fn metric_depth(&self, raw: u16) -> Option<f64> {
-        (raw != 0).then(|| raw as f64 * self.metres_per_unit)
+        (raw != 0).then_some(raw as f64 * self.metres_per_unit)
     }
 
     /// The 3-D point, in the colour camera frame, of depth pixel `(u, v)` with metric depth `z`.
