@@ -1,6 +1,7 @@
 //! `flowfilter`: the command-line front end of the Flow Filter workspace.
 
 mod inspect;
+mod synth;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -17,6 +18,8 @@ struct Cli {
 enum Command {
     /// Validate every file of a BigBIRD-layout object directory and print a summary.
     Inspect(inspect::InspectArgs),
+    /// Render a synthetic turntable capture of one object in the BigBIRD layout.
+    Synth(synth::SynthArgs),
 }
 
 fn main() -> ExitCode {
@@ -27,6 +30,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Inspect(args) => inspect::run(&args),
+        Command::Synth(args) => synth::run(&args),
     };
     match result {
         Ok(code) => code,
