@@ -6,6 +6,8 @@
 //!   coefficient order of OpenCV and of BigBIRD's `calibration.h5`, with exact forward distortion
 //!   and iterative (Newton) undistortion.
 //! - [`CameraModel`]: intrinsics + distortion + image size; `project` and `backproject`.
+//! - [`raster`]: a z-buffer triangle rasteriser over projected vertices (perspective-correct
+//!   barycentrics), shared by the renderer and by depth registration.
 //! - [`RgbdSensor`]: a depth camera and a colour camera calibrated against each other, with the
 //!   raw-depth scale; maps depth pixels into the colour image.
 
@@ -13,12 +15,15 @@ mod distortion;
 mod error;
 mod intrinsics;
 mod model;
+pub mod raster;
+mod rays;
 mod sensor;
 
 pub use distortion::Distortion;
 pub use error::CameraError;
 pub use intrinsics::Intrinsics;
 pub use model::{CameraModel, ImageSize};
+pub use rays::RayTable;
 pub use sensor::RgbdSensor;
 
 /// A 2-D pixel position `(u, v)` in pixels.

@@ -9,12 +9,14 @@
 pub mod cloud;
 pub mod grid;
 pub mod kabsch;
+pub mod knn;
 pub mod rigid;
 pub mod se3;
 
 pub use cloud::{CloudError, PointCloud};
 pub use grid::{DepthMap, Grid, GridSizeError, Mask, RawDepth};
 pub use kabsch::{KabschError, weighted_kabsch};
+pub use knn::{KnnIndex, Neighbour};
 pub use rigid::{RigidTransformError, matrix_from_pose, nearest_rotation, rigid_from_matrix, rotation_angle_deg};
 
 /// A rigid transform in SE(3), mapping points of one frame into another.

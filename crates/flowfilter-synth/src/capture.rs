@@ -2,11 +2,11 @@
 
 use crate::error::SynthError;
 use crate::noise::{DepthNoiseInput, DepthNoiseTruth, NoiseProfile, add_color_noise, apply_depth_noise, gaussian_blur};
-use crate::raster::{GBuffer, NO_TRIANGLE, ScreenVertex, rasterize};
 use crate::rig::{Rig, RigSensor, world_from_table};
 use crate::scene::Scene;
 use flowfilter_bigbird::{FrameId, H5Format, ObjectWriter, SensorId};
 use flowfilter_camera::CameraModel;
+use flowfilter_camera::raster::{GBuffer, NO_TRIANGLE, ScreenVertex, rasterize};
 use flowfilter_geometry::{DepthMap, Mask, Pose, RawDepth};
 use image::{Rgb, RgbImage};
 use nalgebra::{Point3, Vector3};

@@ -1,0 +1,200 @@
+//! Organised point clouds from depth maps, normals, voxel downsampling, outlier removal.
+
+use flowfilter_camera::RayTable;
+use flowfilter_geometry::{DepthMap, KnnIndex, Mask, Point3, PointCloud, Vector3};
+use image::RgbImage;
+use nalgebra::Matrix3;
+use rayon::prelude::*;
+use std::collections::BTreeMap;
+
+/// An organised cloud: one point per pixel with depth (inside `mask` when given), in the
+/// camera frame of `rays`, with pixel coordinates and (when `color` is given) colours. Also
+/// returns, per pixel, the index of its point (`u32::MAX` for none).
+pub fn organized_cloud(
+    depth: &DepthMap,
+    rays: &RayTable,
+    color: Option<&RgbImage>,
+    mask: Option<&Mask>,
+) -> (PointCloud, Vec<u32>) {
+    let w = depth.width();
+    let (mut points, mut pixels, mut colors) = (Vec::new(), Vec::new(), Vec::new());
+    let mut index = vec![u32::MAX; depth.as_slice().len()];
+    for (k, &z) in depth.as_slice().iter().enumerate() {
+        if z <= 0.0 || mask.is_some_and(|m| !m.as_slice()[k]) {
+            continue;
+        }
+        let (x, y) = (k % w, k / w);
+        let Some(p) = rays.backproject(x, y, f64::from(z)) else { continue };
+        index[k] = points.len() as u32;
+        points.push(p);
+        pixels.push([x as f32, y as f32]);
+        if let Some(c) = color {
+            colors.push(c.get_pixel(x as u32, y as u32).0);
+        }
+    }
+    let cloud = PointCloud { points, normals: None, colors: color.map(|_| colors), pixels: Some(pixels) };
+    (cloud, index)
+}
+
+/// Orient `n` towards the camera centre (the origin) as seen from `p`.
+fn towards_viewpoint(n: Vector3, p: &Point3) -> Vector3 {
+    if n.dot(&p.coords) > 0.0 { -n } else { n }
+}
+
+/// Normals of an organised cloud from central differences `step` pixels apart on the grid
+/// (`index` from [`organized_cloud`]); differences across more than `max_step_m` in depth are
+/// not used; points without two usable directions get the normal from the viewing ray.
+pub fn organized_normals(
+    cloud: &PointCloud,
+    index: &[u32],
+    width: usize,
+    step: usize,
+    max_step_m: f64,
+) -> Vec<Vector3> {
+    let pixels = cloud.pixels.as_ref().expect("organised cloud has pixels");
+    let height = index.len() / width;
+    let at = |x: isize, y: isize| -> Option<Point3> {
+        if x < 0 || y < 0 || x >= width as isize || y >= height as isize {
+            return None;
+        }
+        let i = index[y as usize * width + x as usize];
+        (i != u32::MAX).then(|| cloud.points[i as usize])
+    };
+    cloud
+        .points
+        .par_iter()
+        .zip(pixels.par_iter())
+        .map(|(p, px)| {
+            let (x, y, s) = (px[0] as isize, px[1] as isize, step as isize);
+            let diff = |a: Option<Point3>, b: Option<Point3>| -> Option<Vector3> {
+                let near = |q: &Point3| (q.z - p.z).abs() <= max_step_m;
+                match (a.filter(near), b.filter(near)) {
+                    (Some(a), Some(b)) => Some(b - a),
+                    (Some(a), None) => Some(p - a),
+                    (None, Some(b)) => Some(b - p),
+                    (None, None) => None,
+                }
+            };
+            let n = match (diff(at(x - s, y), at(x + s, y)), diff(at(x, y - s), at(x, y + s))) {
+                (Some(du), Some(dv)) => du.cross(&dv).try_normalize(1e-12),
+                _ => None,
+            };
+            towards_viewpoint(n.unwrap_or_else(|| -p.coords.normalize()), p)
+        })
+        .collect()
+}
+
+/// Normals by PCA over the `k` nearest neighbours (smallest-eigenvalue eigenvector of the
+/// neighbourhood covariance), oriented towards `viewpoint`, as Open3D's `estimate_normals`
+/// with `KDTreeSearchParamKNN` and `orient_normals_towards_camera_location`.
+pub fn knn_normals(points: &[Point3], k: usize, viewpoint: &Point3) -> Vec<Vector3> {
+    let index = KnnIndex::new(points);
+    points
+        .par_iter()
+        .map(|p| {
+            let nb = index.k_nearest(p, k);
+            let mean = nb.iter().fold(Vector3::zeros(), |a, n| a + points[n.index].coords) / nb.len().max(1) as f64;
+            let cov = nb.iter().fold(Matrix3::zeros(), |a, n| {
+                let d = points[n.index].coords - mean;
+                a + d * d.transpose()
+            });
+            let eig = cov.symmetric_eigen();
+            let i = eig.eigenvalues.imin();
+            let n: Vector3 = eig.eigenvectors.column(i).into_owned();
+            let n = n.try_normalize(1e-12).unwrap_or_else(Vector3::z);
+            if n.dot(&(viewpoint - p)) < 0.0 { -n } else { n }
+        })
+        .collect()
+}
+
+/// Voxel-grid downsampling: one point per occupied voxel of edge `voxel` metres, the mean of
+/// its points (colours and normals averaged too; normals renormalised). Voxels are emitted in
+/// lexicographic order of their integer coordinates, so the result is deterministic.
+pub fn voxel_downsample(cloud: &PointCloud, voxel: f64) -> PointCloud {
+    let mut cells: BTreeMap<[i64; 3], (Vector3, Vector3, [f64; 3], usize)> = BTreeMap::new();
+    for (i, p) in cloud.points.iter().enumerate() {
+        let key = [(p.x / voxel).floor() as i64, (p.y / voxel).floor() as i64, (p.z / voxel).floor() as i64];
+        let e = cells.entry(key).or_insert((Vector3::zeros(), Vector3::zeros(), [0.0; 3], 0));
+        e.0 += p.coords;
+        if let Some(n) = &cloud.normals {
+            e.1 += n[i];
+        }
+        if let Some(c) = &cloud.colors {
+            for (acc, v) in e.2.iter_mut().zip(c[i]) {
+                *acc += f64::from(v);
+            }
+        }
+        e.3 += 1;
+    }
+    let mut out = PointCloud {
+        normals: cloud.normals.as_ref().map(|_| Vec::new()),
+        colors: cloud.colors.as_ref().map(|_| Vec::new()),
+        ..Default::default()
+    };
+    for (sum, nsum, csum, count) in cells.into_values() {
+        let n = count as f64;
+        out.points.push(Point3::from(sum / n));
+        if let Some(v) = &mut out.normals {
+            v.push(nsum.try_normalize(1e-12).unwrap_or_else(Vector3::z));
+        }
+        if let Some(v) = &mut out.colors {
+            v.push(csum.map(|c| (c / n).round() as u8));
+        }
+    }
+    out
+}
+
+/// Statistical outlier removal (as Open3D's `remove_statistical_outlier`): drop points whose
+/// mean distance to their `k` nearest neighbours exceeds the cloud-wide mean of that quantity by
+/// more than `std_ratio` standard deviations. Returns the kept cloud and the kept indices.
+pub fn remove_statistical_outliers(cloud: &PointCloud, k: usize, std_ratio: f64) -> (PointCloud, Vec<usize>) {
+    if cloud.len() <= k {
+        return (cloud.clone(), (0..cloud.len()).collect());
+    }
+    let index = KnnIndex::new(&cloud.points);
+    let mean_d: Vec<f64> = cloud
+        .points
+        .par_iter()
+        .map(|p| {
+            let nb = index.k_nearest(p, k + 1); // the point itself comes first
+            nb.iter().skip(1).map(|n| n.dist2.sqrt()).sum::<f64>() / k as f64
+        })
+        .collect();
+    let n = mean_d.len() as f64;
+    let mu = mean_d.iter().sum::<f64>() / n;
+    let sd = (mean_d.iter().map(|d| (d - mu).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
+    let keep: Vec<usize> = (0..cloud.len()).filter(|&i| mean_d[i] <= mu + std_ratio * sd).collect();
+    (cloud.select(&keep), keep)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn plane() -> Vec<Point3> {
+        (0..400)
+            .map(|i| Point3::new((i % 20) as f64 * 0.01, (i / 20) as f64 * 0.01, 1.0 + 0.5 * (i % 20) as f64 * 0.01))
+            .collect()
+    }
+
+    #[test]
+    fn knn_normals_of_a_plane_face_the_camera() {
+        let pts = plane();
+        let expected = Vector3::new(0.5, 0.0, -1.0).normalize();
+        for n in knn_normals(&pts, 10, &Point3::origin()) {
+            assert!((n - expected).norm() < 1e-9, "{n:?}");
+        }
+    }
+
+    #[test]
+    fn voxel_grid_averages_and_outliers_are_removed() {
+        let mut cloud = PointCloud::from_points(plane());
+        let down = voxel_downsample(&cloud, 0.02);
+        assert_eq!(down.len(), 100);
+        assert!((down.points[0] - Point3::new(0.005, 0.005, 1.0025)).norm() < 1e-12);
+        cloud.points.push(Point3::new(0.1, 0.1, 3.0));
+        let (kept, idx) = remove_statistical_outliers(&cloud, 8, 2.0);
+        assert_eq!(kept.len(), 400);
+        assert!(!idx.contains(&400));
+    }
+}

@@ -1,0 +1,169 @@
+//! Edge filters: the BigBIRD discontinuity filter and the paper's Gaussian window filter.
+//!
+//! Both work on metric depth maps (0 = no depth) of any grid and return the filtered map and the
+//! number of pixels they rejected. Only valid pixels take part in window statistics.
+
+use crate::config::{GaussianFilterConfig, WindowEstimator};
+use flowfilter_geometry::{DepthMap, RawDepth};
+use rayon::prelude::*;
+
+/// Raw sensor depth to metres (`raw * metres_per_unit`, 0 stays 0).
+pub fn metric_depth(raw: &RawDepth, metres_per_unit: f64) -> DepthMap {
+    raw.map(|&d| if d == 0 { 0.0 } else { (f64::from(d) * metres_per_unit) as f32 })
+}
+
+/// Separable sliding min and max over valid pixels in a `window x window` square.
+fn window_min_max(depth: &DepthMap, window: usize) -> (Vec<f32>, Vec<f32>) {
+    let (w, h) = depth.dims();
+    let r = window / 2;
+    let src = depth.as_slice();
+    let mut row_min = vec![f32::INFINITY; w * h];
+    let mut row_max = vec![f32::NEG_INFINITY; w * h];
+    row_min.par_chunks_mut(w).zip(row_max.par_chunks_mut(w)).enumerate().for_each(|(y, (mn, mx))| {
+        let row = &src[y * w..(y + 1) * w];
+        for x in 0..w {
+            let (lo, hi) = (x.saturating_sub(r), (x + r).min(w - 1));
+            for &z in &row[lo..=hi] {
+                if z > 0.0 {
+                    mn[x] = mn[x].min(z);
+                    mx[x] = mx[x].max(z);
+                }
+            }
+        }
+    });
+    let mut out_min = vec![f32::INFINITY; w * h];
+    let mut out_max = vec![f32::NEG_INFINITY; w * h];
+    out_min.par_chunks_mut(w).zip(out_max.par_chunks_mut(w)).enumerate().for_each(|(y, (mn, mx))| {
+        let (lo, hi) = (y.saturating_sub(r), (y + r).min(h - 1));
+        for yy in lo..=hi {
+            for x in 0..w {
+                mn[x] = mn[x].min(row_min[yy * w + x]);
+                mx[x] = mx[x].max(row_max[yy * w + x]);
+            }
+        }
+    });
+    (out_min, out_max)
+}
+
+/// The BigBIRD tools' discontinuity filter: reject a pixel when the largest or smallest valid
+/// depth in its `window x window` neighbourhood differs from it by more than `threshold_m`
+/// (BigBIRD: 7x7 and 1000 raw units = 10 cm).
+pub fn bigbird_discontinuity(depth: &DepthMap, window: usize, threshold_m: f64) -> (DepthMap, usize) {
+    let (mn, mx) = window_min_max(depth, window);
+    let t = threshold_m as f32;
+    let mut rejected = 0;
+    let out: Vec<f32> = depth
+        .as_slice()
+        .iter()
+        .enumerate()
+        .map(|(k, &z)| {
+            if z > 0.0 && (mx[k] - z > t || z - mn[k] > t) {
+                rejected += 1;
+                0.0
+            } else {
+                z
+            }
+        })
+        .collect();
+    (DepthMap::from_vec(depth.width(), depth.height(), out).expect("same size"), rejected)
+}
+
+/// The paper's Gaussian window filter (eqs. 9-11): fit `N(mu, sigma^2)` to the valid depths of
+/// the `k x k` window around each pixel and reject the pixel when
+/// `|z - mu| > k_sigma * max(sigma, sigma_floor)`, or when the window holds fewer than
+/// `min_support` valid depths. With [`WindowEstimator::Robust`], `mu` is the median and `sigma`
+/// is 1.4826 times the median absolute deviation.
+pub fn gaussian_window(depth: &DepthMap, cfg: &GaussianFilterConfig) -> (DepthMap, usize) {
+    let (w, h) = depth.dims();
+    let r = cfg.window / 2;
+    let src = depth.as_slice();
+    let mut out = vec![0.0f32; w * h];
+    out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        let mut vals: Vec<f32> = Vec::with_capacity(cfg.window * cfg.window);
+        let mut devs: Vec<f32> = Vec::with_capacity(cfg.window * cfg.window);
+        for x in 0..w {
+            let z = src[y * w + x];
+            if z <= 0.0 {
+                continue;
+            }
+            vals.clear();
+            for yy in y.saturating_sub(r)..=(y + r).min(h - 1) {
+                for &v in &src[yy * w + x.saturating_sub(r)..=yy * w + (x + r).min(w - 1)] {
+                    if v > 0.0 {
+                        vals.push(v);
+                    }
+                }
+            }
+            if vals.len() < cfg.min_support {
+                continue;
+            }
+            let (mu, sigma) = match cfg.estimator {
+                WindowEstimator::MeanStd => {
+                    let n = vals.len() as f64;
+                    let mean = vals.iter().map(|&v| f64::from(v)).sum::<f64>() / n;
+                    let var = vals.iter().map(|&v| (f64::from(v) - mean).powi(2)).sum::<f64>() / n;
+                    (mean, var.sqrt())
+                }
+                WindowEstimator::Robust => {
+                    let mid = vals.len() / 2;
+                    let med = *vals.select_nth_unstable_by(mid, f32::total_cmp).1;
+                    devs.clear();
+                    devs.extend(vals.iter().map(|&v| (v - med).abs()));
+                    let mad = *devs.select_nth_unstable_by(mid, f32::total_cmp).1;
+                    (f64::from(med), 1.4826 * f64::from(mad))
+                }
+            };
+            if (f64::from(z) - mu).abs() <= cfg.k_sigma * sigma.max(cfg.sigma_floor_m) {
+                row[x] = z;
+            }
+        }
+    });
+    let rejected = src.iter().zip(&out).filter(|(a, b)| **a > 0.0 && **b <= 0.0).count();
+    (DepthMap::from_vec(w, h, out).expect("same size"), rejected)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn step_edge_with_flyer() -> DepthMap {
+        // Left half at 0.6 m, right half at 0.9 m, one flying pixel at 0.75 m on the edge.
+        let mut d = DepthMap::from_fn(20, 20, |x, _| if x < 10 { 0.6 } else { 0.9 });
+        *d.at_mut(10, 10) = 0.75;
+        d
+    }
+
+    #[test]
+    fn bigbird_filter_rejects_a_band_around_large_steps() {
+        let (f, n) = bigbird_discontinuity(&step_edge_with_flyer(), 7, 0.1);
+        assert_eq!(*f.at(10, 10), 0.0);
+        assert_eq!(*f.at(7, 3), 0.0, "within 3 px of the step");
+        assert_eq!(*f.at(6, 3), 0.6, "4 px from the step");
+        // 6 columns along the step, plus the 7 pixels of column 13 that see the flyer (0.9 - 0.75 > 0.1).
+        assert_eq!(n, 20 * 6 + 7);
+        let (_, n) = bigbird_discontinuity(&step_edge_with_flyer(), 7, 0.5);
+        assert_eq!(n, 0);
+    }
+
+    #[test]
+    fn robust_gaussian_filter_rejects_the_flyer_and_keeps_both_surfaces() {
+        let cfg = GaussianFilterConfig::default();
+        let (f, n) = gaussian_window(&step_edge_with_flyer(), &cfg);
+        assert_eq!(*f.at(10, 10), 0.0);
+        assert_eq!(n, 1);
+        assert_eq!(*f.at(9, 10), 0.6);
+        assert_eq!(*f.at(11, 10), 0.9);
+        // The paper's mean/std fit keeps it: the window's sigma is inflated by the step.
+        let paper = GaussianFilterConfig { estimator: WindowEstimator::MeanStd, ..cfg };
+        let (f, _) = gaussian_window(&step_edge_with_flyer(), &paper);
+        assert_eq!(*f.at(10, 10), 0.75);
+    }
+
+    #[test]
+    fn isolated_pixels_lack_support() {
+        let mut d = DepthMap::filled(9, 9, 0.0);
+        *d.at_mut(4, 4) = 0.7;
+        let (f, n) = gaussian_window(&d, &GaussianFilterConfig::default());
+        assert_eq!((*f.at(4, 4), n), (0.0, 1));
+    }
+}

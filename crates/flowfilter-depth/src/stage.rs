@@ -1,0 +1,191 @@
+//! The whole depth stage: raw depth + colour + mask -> filtered depth on the colour grid and an
+//! organised object cloud.
+
+use crate::cloud::{knn_normals, organized_cloud, organized_normals};
+use crate::config::{DepthConfig, NormalMethod, RegistrationMethod};
+use crate::error::DepthError;
+use crate::filter::{bigbird_discontinuity, gaussian_window, metric_depth};
+use crate::interpolate::fill_holes;
+use crate::register::{mesh, project_depth_grid, splat};
+use flowfilter_camera::{CameraModel, RayTable, RgbdSensor};
+use flowfilter_geometry::{DepthMap, Mask, Point3, PointCloud, RawDepth};
+use image::RgbImage;
+use std::sync::{Arc, Mutex};
+
+/// Counts of what each step did, for diagnostics.
+#[derive(Debug, Clone, Default, PartialEq, Eq, serde::Serialize)]
+pub struct DepthStats {
+    /// Raw pixels with a reading.
+    pub raw_valid: usize,
+    /// Rejected by the BigBIRD discontinuity filter.
+    pub rejected_discontinuity: usize,
+    /// Rejected by the Gaussian window filter.
+    pub rejected_gaussian: usize,
+    /// Rejected by the step filter.
+    pub rejected_step: usize,
+    /// Mask pixels with registered depth before interpolation.
+    pub registered: usize,
+    /// Mask pixels filled by interpolation.
+    pub interpolated: usize,
+    /// Mask pixels.
+    pub mask_pixels: usize,
+}
+
+/// The output of the depth stage.
+#[derive(Debug, Clone)]
+pub struct ProcessedDepth {
+    /// Filtered depth on the depth camera's grid, metres (0 = none).
+    pub filtered_raw: DepthMap,
+    /// Dense depth on the colour grid, inside the mask, metres (0 = none).
+    pub depth: DepthMap,
+    /// Organised object cloud in the colour camera frame (pixels, colours, normals).
+    pub cloud: PointCloud,
+    /// Per colour pixel, the index of its point in `cloud` (`u32::MAX` for none).
+    pub point_index: Vec<u32>,
+    /// What each step did.
+    pub stats: DepthStats,
+}
+
+/// The depth stage with its configuration and a cache of per-camera ray tables.
+pub struct DepthStage {
+    config: DepthConfig,
+    rays: Mutex<Vec<Arc<RayTable>>>,
+}
+
+fn size_text(w: usize, h: usize) -> String {
+    format!("{w}x{h}")
+}
+
+fn check_sensor(s: &RgbdSensor) -> Result<(), DepthError> {
+    let t = s.color_from_depth.to_homogeneous();
+    let values = [
+        ("depth fx", s.depth.intrinsics.fx),
+        ("depth fy", s.depth.intrinsics.fy),
+        ("depth cx", s.depth.intrinsics.cx),
+        ("depth cy", s.depth.intrinsics.cy),
+        ("colour fx", s.color.intrinsics.fx),
+        ("colour fy", s.color.intrinsics.fy),
+        ("colour cx", s.color.intrinsics.cx),
+        ("colour cy", s.color.intrinsics.cy),
+        ("depth scale", s.metres_per_unit),
+    ];
+    for (name, value) in values.into_iter().chain(s.color.distortion.to_array().map(|v| ("colour distortion", v))) {
+        if !value.is_finite() {
+            return Err(DepthError::NonFiniteCalibration { name, value });
+        }
+    }
+    if let Some(value) = t.iter().copied().find(|v| !v.is_finite()) {
+        return Err(DepthError::NonFiniteCalibration { name: "colour-from-depth transform", value });
+    }
+    Ok(())
+}
+
+impl DepthStage {
+    /// A stage with a validated configuration.
+    pub fn new(config: DepthConfig) -> Result<Self, DepthError> {
+        config.validate()?;
+        Ok(Self { config, rays: Mutex::new(Vec::new()) })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &DepthConfig {
+        &self.config
+    }
+
+    /// The ray table of a camera (computed once per distinct camera model).
+    pub fn rays(&self, camera: &CameraModel) -> Arc<RayTable> {
+        let mut cache = self.rays.lock().expect("ray cache lock");
+        if let Some(t) = cache.iter().find(|t| t.camera() == camera) {
+            return t.clone();
+        }
+        let t = Arc::new(RayTable::new(camera));
+        if cache.len() >= 16 {
+            cache.remove(0);
+        }
+        cache.push(t.clone());
+        t
+    }
+
+    /// Run the stage on one frame.
+    pub fn process(
+        &self,
+        raw: &RawDepth,
+        color: &RgbImage,
+        mask: &Mask,
+        sensor: &RgbdSensor,
+    ) -> Result<ProcessedDepth, DepthError> {
+        check_sensor(sensor)?;
+        let (dw, dh) = (sensor.depth.size.width as usize, sensor.depth.size.height as usize);
+        let (cw, ch) = (sensor.color.size.width as usize, sensor.color.size.height as usize);
+        if raw.dims() != (dw, dh) {
+            return Err(DepthError::SizeMismatch {
+                what: "depth image",
+                expected: size_text(dw, dh),
+                found: size_text(raw.width(), raw.height()),
+            });
+        }
+        if (color.width() as usize, color.height() as usize) != (cw, ch) {
+            return Err(DepthError::SizeMismatch {
+                what: "colour image",
+                expected: size_text(cw, ch),
+                found: size_text(color.width() as usize, color.height() as usize),
+            });
+        }
+        if mask.dims() != (cw, ch) {
+            return Err(DepthError::SizeMismatch {
+                what: "mask",
+                expected: size_text(cw, ch),
+                found: size_text(mask.width(), mask.height()),
+            });
+        }
+        let mask_pixels = mask.count();
+        if mask_pixels == 0 {
+            return Err(DepthError::EmptyMask);
+        }
+        let raw_valid = raw.as_slice().iter().filter(|&&d| d > 0).count();
+        if raw_valid == 0 {
+            return Err(DepthError::NoDepth);
+        }
+        let cfg = &self.config;
+        let mut stats = DepthStats { raw_valid, mask_pixels, ..Default::default() };
+        let mut depth = metric_depth(raw, sensor.metres_per_unit);
+        if cfg.bigbird_filter.enabled {
+            let (d, n) = bigbird_discontinuity(&depth, cfg.bigbird_filter.window, cfg.bigbird_filter.threshold_m);
+            depth = d;
+            stats.rejected_discontinuity = n;
+        }
+        if cfg.gaussian_filter.enabled {
+            let (d, n) = gaussian_window(&depth, &cfg.gaussian_filter);
+            depth = d;
+            stats.rejected_gaussian = n;
+        }
+        if cfg.step_filter.enabled {
+            let (d, n) = bigbird_discontinuity(&depth, cfg.step_filter.window, cfg.step_filter.threshold_m);
+            depth = d;
+            stats.rejected_step = n;
+        }
+        let projected = project_depth_grid(&depth, sensor, &self.rays(&sensor.depth));
+        let restrict = cfg.registration.restrict_to_mask.then_some(mask);
+        let registered = match cfg.registration.method {
+            RegistrationMethod::Splat => splat(&projected, cw, ch, restrict),
+            RegistrationMethod::Mesh => mesh(&depth, &projected, cw, ch, cfg.registration.max_step_m, restrict),
+        };
+        stats.registered = registered.as_slice().iter().zip(mask.as_slice()).filter(|(z, m)| **z > 0.0 && **m).count();
+        let (dense, filled) = fill_holes(&registered, mask, &cfg.interpolation);
+        stats.interpolated = filled;
+        let color_rays = self.rays(&sensor.color);
+        let (mut cloud, point_index) = organized_cloud(&dense, &color_rays, Some(color), Some(mask));
+        cloud.normals = match cfg.cloud.normals {
+            NormalMethod::None => None,
+            NormalMethod::Organized => Some(organized_normals(
+                &cloud,
+                &point_index,
+                cw,
+                cfg.cloud.organized_step_px,
+                cfg.registration.max_step_m,
+            )),
+            NormalMethod::Knn => Some(knn_normals(&cloud.points, cfg.cloud.knn, &Point3::origin())),
+        };
+        Ok(ProcessedDepth { filtered_raw: depth, depth: dense, cloud, point_index, stats })
+    }
+}
