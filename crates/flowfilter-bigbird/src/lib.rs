@@ -27,7 +27,7 @@ pub use calibration::{Calibration, CanonCalibration, SensorCalibration};
 pub use error::BigBirdError;
 pub use inspect::{InspectReport, ObjectSummary, inspect};
 pub use layout::{FrameId, SensorId};
-pub use object::{BigBirdObject, Frame, TablePose, Turntable};
+pub use object::{BigBirdObject, Frame, TablePose, Turntable, read_depth};
 pub use writer::{H5Format, ObjectWriter};
 
 /// Result type of this crate.

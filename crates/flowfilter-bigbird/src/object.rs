@@ -251,8 +251,8 @@ pub(crate) fn read_color(path: &Path) -> Result<RgbImage> {
     Ok(img.to_rgb8())
 }
 
-/// Read a raw depth frame (`depth`, uint16, 2-D).
-pub(crate) fn read_depth(path: &Path) -> Result<RawDepth> {
+/// Read a depth file in the BigBIRD layout (dataset `depth`, uint16, 2-D).
+pub fn read_depth(path: &Path) -> Result<RawDepth> {
     let (rows, cols, data) = H5::open(path)?.image_u16("depth")?;
     Ok(RawDepth::from_vec(cols, rows, data).expect("reader returns rows*cols values"))
 }

@@ -55,10 +55,65 @@ pub fn splat(projected: &[Option<ScreenVertex>], width: usize, height: usize, ma
     DepthMap::from_vec(width, height, data).expect("sized")
 }
 
+/// The bounding box `(x0, y0, x1, y1)` (inclusive) of a mask's set pixels, `None` if empty.
+pub fn mask_bbox(mask: &Mask) -> Option<(usize, usize, usize, usize)> {
+    let w = mask.width();
+    let mut bb: Option<(usize, usize, usize, usize)> = None;
+    for (k, _) in mask.as_slice().iter().enumerate().filter(|(_, m)| **m) {
+        let (x, y) = (k % w, k / w);
+        bb = Some(match bb {
+            None => (x, y, x, y),
+            Some((a, b, c, d)) => (a.min(x), b.min(y), c.max(x), d.max(y)),
+        });
+    }
+    bb
+}
+
+/// The region of the depth grid that can land inside a colour-image box, for any depth
+/// between `z_near` and `z_far` (colour-camera z), grown by `margin` pixels:
+/// `(x0, y0, x1, y1)` inclusive, clamped to the depth image.
+pub fn depth_roi(
+    sensor: &RgbdSensor,
+    bbox: (usize, usize, usize, usize),
+    z_near: f64,
+    z_far: f64,
+    margin: usize,
+) -> (usize, usize, usize, usize) {
+    let (dw, dh) = (sensor.depth.size.width as f64, sensor.depth.size.height as f64);
+    let depth_from_color = sensor.color_from_depth.inverse();
+    let (mut lo, mut hi) = ((f64::INFINITY, f64::INFINITY), (f64::NEG_INFINITY, f64::NEG_INFINITY));
+    let (x0, y0, x1, y1) = (bbox.0 as f64, bbox.1 as f64, bbox.2 as f64, bbox.3 as f64);
+    for (u, v) in [
+        (x0, y0),
+        (x1, y0),
+        (x0, y1),
+        (x1, y1),
+        ((x0 + x1) / 2.0, y0),
+        ((x0 + x1) / 2.0, y1),
+        (x0, (y0 + y1) / 2.0),
+        (x1, (y0 + y1) / 2.0),
+    ] {
+        for i in 0..=8 {
+            let z = z_near * (z_far / z_near).powf(f64::from(i) / 8.0);
+            let Some(p) = sensor.color.backproject(&flowfilter_camera::Pixel::new(u, v), z) else { continue };
+            let Some(q) = sensor.depth.project(&(depth_from_color * p)) else { continue };
+            lo = (lo.0.min(q.x), lo.1.min(q.y));
+            hi = (hi.0.max(q.x), hi.1.max(q.y));
+        }
+    }
+    if !lo.0.is_finite() {
+        return (0, 0, dw as usize - 1, dh as usize - 1);
+    }
+    let m = margin as f64;
+    let clamp = |v: f64, n: f64| v.clamp(0.0, n - 1.0) as usize;
+    (clamp(lo.0.floor() - m, dw), clamp(lo.1.floor() - m, dh), clamp(hi.0.ceil() + m, dw), clamp(hi.1.ceil() + m, dh))
+}
+
 /// Triangulate the depth grid (two triangles per 2x2 block of valid depth pixels whose depths
 /// differ by at most `max_step_m`), rasterise it into the colour image with perspective-correct
 /// depth (nearest surface wins), then splat depth pixels that belong to no triangle into pixels
-/// still empty. Pixels outside `mask` (when given) are left empty.
+/// still empty. Pixels outside `mask` (when given) are left empty, and only the mask's bounding
+/// box is rasterised.
 pub fn mesh(
     depth: &DepthMap,
     projected: &[Option<ScreenVertex>],
@@ -67,6 +122,13 @@ pub fn mesh(
     max_step_m: f64,
     mask: Option<&Mask>,
 ) -> DepthMap {
+    let (x0, y0, x1, y1) = match mask {
+        Some(m) => match mask_bbox(m) {
+            Some(b) => b,
+            None => return DepthMap::filled(width, height, 0.0),
+        },
+        None => (0, 0, width - 1, height - 1),
+    };
     let (dw, dh) = depth.dims();
     let z = depth.as_slice();
     let step = max_step_m as f32;
@@ -93,19 +155,23 @@ pub fn mesh(
             out
         })
         .collect();
-    let g = rasterize(width, height, projected, &triangles);
-    let dots = splat(projected, width, height, None);
-    let data = (0..width * height)
-        .into_par_iter()
-        .map(|k| {
-            if mask.is_some_and(|m| !m.as_slice()[k]) {
-                0.0
-            } else if g.depth[k].is_finite() {
-                g.depth[k]
-            } else {
-                dots.as_slice()[k]
-            }
-        })
+    // Rasterise only the box: shift the vertices into its frame.
+    let (bw, bh) = (x1 - x0 + 1, y1 - y0 + 1);
+    let shifted: Vec<Option<ScreenVertex>> = projected
+        .par_iter()
+        .map(|v| v.map(|v| ScreenVertex { x: v.x - x0 as f32, y: v.y - y0 as f32, z: v.z }))
         .collect();
-    DepthMap::from_vec(width, height, data).expect("sized")
+    let g = rasterize(bw, bh, &shifted, &triangles);
+    let dots = splat(&shifted, bw, bh, None);
+    let mut out = DepthMap::filled(width, height, 0.0);
+    out.as_mut_slice()[y0 * width..(y1 + 1) * width].par_chunks_mut(width).enumerate().for_each(|(by, row)| {
+        for bx in 0..bw {
+            let (k, kb) = ((y0 + by) * width + x0 + bx, by * bw + bx);
+            if mask.is_some_and(|m| !m.as_slice()[k]) {
+                continue;
+            }
+            row[x0 + bx] = if g.depth[kb].is_finite() { g.depth[kb] } else { dots.as_slice()[kb] };
+        }
+    });
+    out
 }

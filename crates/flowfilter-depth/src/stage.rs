@@ -6,11 +6,16 @@ use crate::config::{DepthConfig, NormalMethod, RegistrationMethod};
 use crate::error::DepthError;
 use crate::filter::{bigbird_discontinuity, gaussian_window, metric_depth};
 use crate::interpolate::fill_holes;
-use crate::register::{mesh, project_depth_grid, splat};
+use crate::register::{depth_roi, mask_bbox, mesh, project_depth_grid, splat};
 use flowfilter_camera::{CameraModel, RayTable, RgbdSensor};
 use flowfilter_geometry::{DepthMap, Mask, Point3, PointCloud, RawDepth};
 use image::RgbImage;
 use std::sync::{Arc, Mutex};
+
+/// Nearest and farthest depth considered when bounding the depth pixels that can reach the
+/// mask (metres): the working range of Carmine-class sensors.
+const ROI_NEAR_M: f64 = 0.25;
+const ROI_FAR_M: f64 = 5.0;
 
 /// Counts of what each step did, for diagnostics.
 #[derive(Debug, Clone, Default, PartialEq, Eq, serde::Serialize)]
@@ -149,6 +154,19 @@ impl DepthStage {
         let cfg = &self.config;
         let mut stats = DepthStats { raw_valid, mask_pixels, ..Default::default() };
         let mut depth = metric_depth(raw, sensor.metres_per_unit);
+        if cfg.registration.restrict_to_mask {
+            // Only depth pixels that can land in the mask's box matter: clear the rest, so the
+            // filters and the projection skip them.
+            let bbox = mask_bbox(mask).ok_or(DepthError::EmptyMask)?;
+            let margin = cfg.gaussian_filter.window.max(cfg.bigbird_filter.window).max(cfg.step_filter.window) + 2;
+            let (x0, y0, x1, y1) = depth_roi(sensor, bbox, ROI_NEAR_M, ROI_FAR_M, margin);
+            for (k, z) in depth.as_mut_slice().iter_mut().enumerate() {
+                let (x, y) = (k % dw, k / dw);
+                if x < x0 || x > x1 || y < y0 || y > y1 {
+                    *z = 0.0;
+                }
+            }
+        }
         if cfg.bigbird_filter.enabled {
             let (d, n) = bigbird_discontinuity(&depth, cfg.bigbird_filter.window, cfg.bigbird_filter.threshold_m);
             depth = d;
