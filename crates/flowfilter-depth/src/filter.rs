@@ -80,7 +80,7 @@ pub fn gaussian_window(depth: &DepthMap, cfg: &GaussianFilterConfig) -> (DepthMa
     let mut out = vec![0.0f32; w * h];
     out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
         let mut vals: Vec<f32> = Vec::with_capacity(cfg.window * cfg.window);
-        let mut devs: Vec<f32> = Vec::with_capacity(cfg.window * cfg.window);
+        let mut bits: Vec<u32> = Vec::with_capacity(cfg.window * cfg.window);
         for x in 0..w {
             let z = src[y * w + x];
             if z <= 0.0 {
@@ -97,21 +97,24 @@ pub fn gaussian_window(depth: &DepthMap, cfg: &GaussianFilterConfig) -> (DepthMa
             if vals.len() < cfg.min_support {
                 continue;
             }
+            let n = vals.len() as f64;
+            let mean = vals.iter().map(|&v| f64::from(v)).sum::<f64>() / n;
+            let std = (vals.iter().map(|&v| (f64::from(v) - mean).powi(2)).sum::<f64>() / n).sqrt();
             let (mu, sigma) = match cfg.estimator {
-                WindowEstimator::MeanStd => {
-                    let n = vals.len() as f64;
-                    let mean = vals.iter().map(|&v| f64::from(v)).sum::<f64>() / n;
-                    let var = vals.iter().map(|&v| (f64::from(v) - mean).powi(2)).sum::<f64>() / n;
-                    (mean, var.sqrt())
-                }
-                WindowEstimator::Robust => {
-                    let mid = vals.len() / 2;
-                    let med = *vals.select_nth_unstable_by(mid, f32::total_cmp).1;
-                    devs.clear();
-                    devs.extend(vals.iter().map(|&v| (v - med).abs()));
-                    let mad = *devs.select_nth_unstable_by(mid, f32::total_cmp).1;
+                // A window whose spread is below the floor holds one smooth surface: there the
+                // median equals the mean to within the floor, so the cheap estimate decides.
+                WindowEstimator::Robust if std > cfg.sigma_floor_m => {
+                    // Positive f32 values order like their bit patterns: select on integers.
+                    bits.clear();
+                    bits.extend(vals.iter().map(|v| v.to_bits()));
+                    let mid = bits.len() / 2;
+                    let med = f32::from_bits(*bits.select_nth_unstable(mid).1);
+                    bits.clear();
+                    bits.extend(vals.iter().map(|&v| (v - med).abs().to_bits()));
+                    let mad = f32::from_bits(*bits.select_nth_unstable(mid).1);
                     (f64::from(med), 1.4826 * f64::from(mad))
                 }
+                _ => (mean, std),
             };
             if (f64::from(z) - mu).abs() <= cfg.k_sigma * sigma.max(cfg.sigma_floor_m) {
                 row[x] = z;

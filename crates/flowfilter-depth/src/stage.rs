@@ -18,7 +18,7 @@ const ROI_NEAR_M: f64 = 0.25;
 const ROI_FAR_M: f64 = 5.0;
 
 /// Counts of what each step did, for diagnostics.
-#[derive(Debug, Clone, Default, PartialEq, Eq, serde::Serialize)]
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
 pub struct DepthStats {
     /// Raw pixels with a reading.
     pub raw_valid: usize,
@@ -34,6 +34,8 @@ pub struct DepthStats {
     pub interpolated: usize,
     /// Mask pixels.
     pub mask_pixels: usize,
+    /// Wall time of each step, milliseconds, in order.
+    pub timings_ms: Vec<(&'static str, f64)>,
 }
 
 /// The output of the depth stage.
@@ -153,6 +155,11 @@ impl DepthStage {
         }
         let cfg = &self.config;
         let mut stats = DepthStats { raw_valid, mask_pixels, ..Default::default() };
+        let mut clock = std::time::Instant::now();
+        let mut lap = |stats: &mut DepthStats, name: &'static str| {
+            stats.timings_ms.push((name, clock.elapsed().as_secs_f64() * 1e3));
+            clock = std::time::Instant::now();
+        };
         let mut depth = metric_depth(raw, sensor.metres_per_unit);
         if cfg.registration.restrict_to_mask {
             // Only depth pixels that can land in the mask's box matter: clear the rest, so the
@@ -172,6 +179,7 @@ impl DepthStage {
             depth = d;
             stats.rejected_discontinuity = n;
         }
+        lap(&mut stats, "metric+roi");
         if cfg.gaussian_filter.enabled {
             let (d, n) = gaussian_window(&depth, &cfg.gaussian_filter);
             depth = d;
@@ -182,15 +190,18 @@ impl DepthStage {
             depth = d;
             stats.rejected_step = n;
         }
+        lap(&mut stats, "filters");
         let projected = project_depth_grid(&depth, sensor, &self.rays(&sensor.depth));
         let restrict = cfg.registration.restrict_to_mask.then_some(mask);
         let registered = match cfg.registration.method {
             RegistrationMethod::Splat => splat(&projected, cw, ch, restrict),
             RegistrationMethod::Mesh => mesh(&depth, &projected, cw, ch, cfg.registration.max_step_m, restrict),
         };
+        lap(&mut stats, "project+register");
         stats.registered = registered.as_slice().iter().zip(mask.as_slice()).filter(|(z, m)| **z > 0.0 && **m).count();
         let (dense, filled) = fill_holes(&registered, mask, &cfg.interpolation);
         stats.interpolated = filled;
+        lap(&mut stats, "interpolate");
         let color_rays = self.rays(&sensor.color);
         let (mut cloud, point_index) = organized_cloud(&dense, &color_rays, Some(color), Some(mask));
         cloud.normals = match cfg.cloud.normals {
@@ -204,6 +215,7 @@ impl DepthStage {
             )),
             NormalMethod::Knn => Some(knn_normals(&cloud.points, cfg.cloud.knn, &Point3::origin())),
         };
+        lap(&mut stats, "cloud+normals");
         Ok(ProcessedDepth { filtered_raw: depth, depth: dense, cloud, point_index, stats })
     }
 }
