@@ -44,6 +44,18 @@ impl KnnIndex {
         Some(Neighbour { index: r.item as usize, dist2: r.distance })
     }
 
+    /// All indexed points within `radius` (unordered).
+    pub fn within(&self, p: &Point3, radius: f64) -> Vec<Neighbour> {
+        let Some(tree) = self.tree.as_ref() else { return vec![] };
+        tree.query(&[p.x, p.y, p.z])
+            .within::<SquaredEuclidean<f64>>(radius * radius)
+            .unsorted()
+            .execute()
+            .into_iter()
+            .map(|r| Neighbour { index: r.item as usize, dist2: r.distance })
+            .collect()
+    }
+
     /// The `k` nearest indexed points, nearest first (fewer if the index is smaller).
     pub fn k_nearest(&self, p: &Point3, k: usize) -> Vec<Neighbour> {
         let (Some(tree), Some(k)) = (self.tree.as_ref(), NonZero::new(k.min(self.len))) else { return vec![] };
@@ -73,6 +85,11 @@ mod tests {
             assert_eq!(index.nearest(&q).unwrap().index, brute[0].1);
             let k: Vec<usize> = index.k_nearest(&q, 5).iter().map(|n| n.index).collect();
             assert_eq!(k, brute[..5].iter().map(|b| b.1).collect::<Vec<_>>());
+            let mut w: Vec<usize> = index.within(&q, 0.3).iter().map(|n| n.index).collect();
+            w.sort_unstable();
+            let mut expected: Vec<usize> = brute.iter().filter(|b| b.0 <= 0.09).map(|b| b.1).collect();
+            expected.sort_unstable();
+            assert_eq!(w, expected);
         }
         assert!(KnnIndex::new(&[]).nearest(&Point3::origin()).is_none());
         assert_eq!(KnnIndex::new(&pts[..3]).k_nearest(&Point3::origin(), 10).len(), 3);

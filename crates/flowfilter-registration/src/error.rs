@@ -1,0 +1,48 @@
+//! Errors of registration.
+
+/// Why a registration problem cannot be solved.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum RegistrationError {
+    /// A cloud has no points.
+    #[error("the {which} cloud is empty")]
+    EmptyCloud {
+        /// `source` or `target`.
+        which: &'static str,
+    },
+    /// A cloud has fewer than three points.
+    #[error("the {which} cloud has {found} point(s); at least 3 are needed")]
+    TooFewPoints {
+        /// `source` or `target`.
+        which: &'static str,
+        /// Points found.
+        found: usize,
+    },
+    /// All points of a cloud are collinear or coincident: the rotation is not determined.
+    #[error("the {which} cloud is degenerate: its points are collinear or coincident")]
+    Degenerate {
+        /// `source` or `target`.
+        which: &'static str,
+    },
+    /// A coordinate (or normal) is NaN or infinite.
+    #[error("the {which} cloud has a non-finite value at point {index}")]
+    NonFinite {
+        /// `source` or `target`.
+        which: &'static str,
+        /// First bad point.
+        index: usize,
+    },
+    /// A method needs normals the cloud does not have.
+    #[error("{method} needs normals on the {which} cloud, which has none")]
+    MissingNormals {
+        /// The method.
+        method: &'static str,
+        /// `source` or `target`.
+        which: &'static str,
+    },
+    /// The correspondences are malformed.
+    #[error("correspondences: {0}")]
+    BadCorrespondences(String),
+    /// A configuration value is out of range, or a method name is unknown.
+    #[error("registration config: {0}")]
+    Config(String),
+}

@@ -1,0 +1,376 @@
+//! FilterReg (Gao & Tedrake, "FilterReg: Robust and Efficient Probabilistic Point-Set
+//! Registration using Gaussian Filter and Twist Parameterization", CVPR 2019).
+//!
+//! The target is a Gaussian mixture with one isotropic component per point. For each moved
+//! source point `x_i` the E-step needs `M0_i = sum_k N(x_i; y_k)`, `M1_i = sum_k N(x_i; y_k) y_k`,
+//! `M2_i = sum_k N(x_i; y_k) |y_k|^2` and, for point-to-plane, `Mn_i = sum_k N(x_i; y_k) n_k`.
+//! They come from a permutohedral-lattice Gaussian filter (linear in the number of points) or,
+//! for checking, from exact sums over the k-d-tree neighbours within 4 sigma. The M-step
+//! minimises `sum_i M0_i / (M0_i + c) |T x_i - M1_i / M0_i|^2` (point-to-point, closed form)
+//! or its projection on the filtered normal (point-to-plane, Gauss-Newton on a twist); sigma^2
+//! follows the EM update or an annealing schedule. Optional weighted correspondences add
+//! `lambda * sum_j w_j |T a_j - b_j|^2` to the objective (used by Flow Filter).
+
+use crate::error::RegistrationError;
+use crate::evaluate::{evaluate, point_to_plane_step};
+use crate::gmm::{mean_pair_distance2, outlier_term};
+use crate::lattice::Lattice;
+use crate::problem::{
+    Correspondences, IterationRecord, Registrar, Registration, RegistrationProblem, validate_problem,
+};
+use flowfilter_geometry::{KnnIndex, Point3, Pose, Vector3, weighted_kabsch};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::sync::OnceLock;
+
+/// Point-to-point or point-to-plane objective.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FilterRegVariant {
+    /// `|T x_i - ybar_i|^2`.
+    PointToPoint,
+    /// `(nbar_i . (T x_i - ybar_i))^2`; needs target normals.
+    PointToPlane,
+}
+
+/// How sigma evolves.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum SigmaSchedule {
+    /// The EM update of sigma^2 after every M-step (floored at `min_sigma`).
+    Update {
+        /// Floor on sigma, metres.
+        min_sigma: f64,
+    },
+    /// Multiply sigma by `factor` after every iteration, down to `min_sigma`.
+    Anneal {
+        /// Factor in (0, 1).
+        factor: f64,
+        /// Floor on sigma, metres.
+        min_sigma: f64,
+    },
+}
+
+/// How the E-step sums are computed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FilterRegEStep {
+    /// Permutohedral lattice (linear time; the method's).
+    Lattice,
+    /// Exact sums over target points within 4 sigma (k-d tree).
+    Exact,
+}
+
+/// FilterReg parameters.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FilterRegConfig {
+    /// Objective.
+    pub variant: FilterRegVariant,
+    /// Weight of the uniform outlier component, in [0, 1).
+    pub w: f64,
+    /// Iteration limit.
+    pub max_iterations: usize,
+    /// Stop when the update's rotation (rad) and translation (m) are both below this.
+    pub tolerance: f64,
+    /// Sigma schedule.
+    pub sigma: SigmaSchedule,
+    /// Initial sigma^2 (m^2); `None`: the mean squared pair distance / 3 (computed in O(M+N)).
+    pub init_sigma2: Option<f64>,
+    /// E-step evaluation.
+    pub e_step: FilterRegEStep,
+    /// Gauss-Newton steps per M-step (point-to-plane).
+    pub gauss_newton_steps: usize,
+    /// Weight `lambda` of the correspondence term (when the problem has correspondences).
+    pub correspondence_weight: f64,
+    /// Inlier distance for the reported fitness / RMSE, metres.
+    pub evaluation_distance: f64,
+}
+
+impl Default for FilterRegConfig {
+    fn default() -> Self {
+        Self {
+            variant: FilterRegVariant::PointToPoint,
+            w: 0.1,
+            max_iterations: 60,
+            tolerance: 1e-6,
+            sigma: SigmaSchedule::Update { min_sigma: 1e-4 },
+            init_sigma2: None,
+            e_step: FilterRegEStep::Lattice,
+            gauss_newton_steps: 1,
+            correspondence_weight: 0.0,
+            evaluation_distance: 0.01,
+        }
+    }
+}
+
+/// Minimum agreement `|sum_k K_ik n_k| / sum_k K_ik` of the normals under the kernel for a
+/// point-to-plane residual; below it the point contributes its full point-to-point residual.
+const NORMAL_COHERENCE: f64 = 0.8;
+
+/// FilterReg as a [`Registrar`].
+#[derive(Debug, Clone)]
+pub struct FilterReg {
+    /// Parameters.
+    pub config: FilterRegConfig,
+}
+
+/// Per-source-point filtered sums.
+struct Sums {
+    m0: Vec<f64>,
+    m1: Vec<Vector3>,
+    m2: Vec<f64>,
+    mn: Vec<Vector3>,
+}
+
+fn lattice_scale() -> f64 {
+    static SCALE: OnceLock<f64> = OnceLock::new();
+    *SCALE.get_or_init(|| Lattice::kernel_scale(3))
+}
+
+/// Target values per point: `[1, y, |y|^2]` and, with normals, `n`.
+fn target_values(target: &[Point3], normals: Option<&[Vector3]>) -> (usize, Vec<f64>) {
+    let vd = if normals.is_some() { 8 } else { 5 };
+    let mut v = Vec::with_capacity(target.len() * vd);
+    for (i, y) in target.iter().enumerate() {
+        v.extend_from_slice(&[1.0, y.x, y.y, y.z, y.coords.norm_squared()]);
+        if let Some(n) = normals {
+            v.extend_from_slice(&[n[i].x, n[i].y, n[i].z]);
+        }
+    }
+    (vd, v)
+}
+
+fn unpack(out: &[f64], vd: usize) -> Sums {
+    let n = out.len() / vd;
+    let mut s = Sums {
+        m0: Vec::with_capacity(n),
+        m1: Vec::with_capacity(n),
+        m2: Vec::with_capacity(n),
+        mn: Vec::with_capacity(n),
+    };
+    for o in out.chunks_exact(vd) {
+        s.m0.push(o[0].max(0.0));
+        s.m1.push(Vector3::new(o[1], o[2], o[3]));
+        s.m2.push(o[4]);
+        s.mn.push(if vd == 8 { Vector3::new(o[5], o[6], o[7]) } else { Vector3::zeros() });
+    }
+    s
+}
+
+fn lattice_sums(target: &[Point3], values: &[f64], vd: usize, queries: &[Point3], sigma: f64) -> Sums {
+    let scaled =
+        |v: &[Point3]| -> Vec<f64> { v.iter().flat_map(|p| [p.x / sigma, p.y / sigma, p.z / sigma]).collect() };
+    let lattice = Lattice::new(3, &scaled(target), vd, values);
+    let q = scaled(queries);
+    let mut out = vec![0.0; queries.len() * vd];
+    out.par_chunks_mut(vd * 256).zip(q.par_chunks(3 * 256)).for_each(|(o, qq)| lattice.slice(qq, o));
+    let scale = lattice_scale();
+    out.iter_mut().for_each(|v| *v /= scale);
+    unpack(&out, vd)
+}
+
+fn exact_sums(index: &KnnIndex, values: &[f64], vd: usize, queries: &[Point3], sigma: f64) -> Sums {
+    let inv = -0.5 / (sigma * sigma);
+    let out: Vec<f64> = queries
+        .par_iter()
+        .flat_map_iter(|q| {
+            let mut acc = vec![0.0; vd];
+            for nb in index.within(q, 4.0 * sigma) {
+                let k = (nb.dist2 * inv).exp();
+                for c in 0..vd {
+                    acc[c] += k * values[nb.index * vd + c];
+                }
+            }
+            acc
+        })
+        .collect();
+    unpack(&out, vd)
+}
+
+impl FilterReg {
+    /// FilterReg with the given parameters.
+    pub fn new(config: FilterRegConfig) -> Result<Self, RegistrationError> {
+        let ok_sigma = match config.sigma {
+            SigmaSchedule::Update { min_sigma } => min_sigma > 0.0,
+            SigmaSchedule::Anneal { factor, min_sigma } => factor > 0.0 && factor < 1.0 && min_sigma > 0.0,
+        };
+        if !(0.0..1.0).contains(&config.w)
+            || config.max_iterations == 0
+            || !ok_sigma
+            || config.correspondence_weight < 0.0
+        {
+            return Err(RegistrationError::Config(
+                "filterreg needs 0 <= w < 1, max_iterations > 0, a valid sigma schedule and correspondence_weight >= 0"
+                    .into(),
+            ));
+        }
+        Ok(Self { config })
+    }
+}
+
+/// One M-step: the update `delta` (applied on the left) from the filtered targets, plus the
+/// correspondence term. Point-to-point is solved in closed form by a weighted Kabsch over the
+/// union of both point sets (the correspondence term has the same form).
+fn m_step(
+    cfg: &FilterRegConfig,
+    x: &[Point3],
+    sums: &Sums,
+    c: f64,
+    corr: Option<(&Correspondences, &Pose)>,
+) -> Option<Pose> {
+    let mut src = Vec::with_capacity(x.len());
+    let mut dst = Vec::with_capacity(x.len());
+    let mut w = Vec::with_capacity(x.len());
+    let mut nrm = Vec::with_capacity(x.len());
+    for i in 0..x.len() {
+        let m0 = sums.m0[i];
+        if m0 <= 1e-12 {
+            continue;
+        }
+        src.push(x[i]);
+        dst.push(Point3::from(sums.m1[i] / m0));
+        w.push(m0 / (m0 + c));
+        // The filtered normal is only meaningful where the normals under the kernel agree
+        // (|sum n| close to sum 1); elsewhere (large sigma, edges) use the full residual.
+        let coherence = sums.mn[i].norm() / m0;
+        nrm.push(if coherence >= NORMAL_COHERENCE { sums.mn[i].try_normalize(1e-12) } else { None });
+    }
+    let total_gmm: f64 = w.iter().sum();
+    if let Some((k, t)) = corr {
+        let wsum: f64 = k.weights.iter().sum();
+        if wsum > 0.0 && cfg.correspondence_weight > 0.0 {
+            // lambda scales the correspondence term relative to the (normalised) GMM term.
+            let scale = cfg.correspondence_weight * total_gmm.max(1.0) / wsum;
+            for j in 0..k.len() {
+                src.push(t * k.source[j]);
+                dst.push(k.target[j]);
+                w.push(scale * k.weights[j]);
+                nrm.push(None);
+            }
+        }
+    }
+    if src.len() < 3 {
+        return None;
+    }
+    match cfg.variant {
+        FilterRegVariant::PointToPoint => weighted_kabsch(&src, &dst, Some(&w)).ok(),
+        FilterRegVariant::PointToPlane => {
+            // Correspondence pairs have no normal: their point-to-point error is the sum of
+            // three point-to-plane errors along the axes.
+            let (mut ps, mut pd, mut pn, mut pw) = (vec![], vec![], vec![], vec![]);
+            for i in 0..src.len() {
+                match nrm[i] {
+                    Some(n) => {
+                        ps.push(src[i]);
+                        pd.push(dst[i]);
+                        pn.push(n);
+                        pw.push(w[i]);
+                    }
+                    None => {
+                        for axis in [Vector3::x(), Vector3::y(), Vector3::z()] {
+                            ps.push(src[i]);
+                            pd.push(dst[i]);
+                            pn.push(axis);
+                            pw.push(w[i]);
+                        }
+                    }
+                }
+            }
+            let mut delta = Pose::identity();
+            for _ in 0..cfg.gauss_newton_steps.max(1) {
+                let moved: Vec<Point3> = ps.iter().map(|p| delta * p).collect();
+                delta = point_to_plane_step(&moved, &pd, &pn, &pw)? * delta;
+            }
+            Some(delta)
+        }
+    }
+}
+
+impl Registrar for FilterReg {
+    fn name(&self) -> &str {
+        match self.config.variant {
+            FilterRegVariant::PointToPoint => "filterreg-pt2pt",
+            FilterRegVariant::PointToPlane => "filterreg-pt2pl",
+        }
+    }
+
+    fn register(&self, p: &RegistrationProblem) -> Result<Registration, RegistrationError> {
+        let cfg = &self.config;
+        let pt2pl = cfg.variant == FilterRegVariant::PointToPlane;
+        validate_problem(p, pt2pl.then_some("filterreg-pt2pl"))?;
+        let (source, target) = (&p.source.points, &p.target.points);
+        let normals = if pt2pl { p.target.normals.as_deref() } else { None };
+        let (vd, values) = target_values(target, normals);
+        let index = (cfg.e_step == FilterRegEStep::Exact).then(|| KnnIndex::new(target));
+        let mut t = p.init;
+        let mut x: Vec<Point3> = source.iter().map(|s| t * s).collect();
+        let mut sigma2 = cfg.init_sigma2.unwrap_or_else(|| mean_pair_distance2(&x, target) / 3.0);
+        let min_sigma = match cfg.sigma {
+            SigmaSchedule::Update { min_sigma } | SigmaSchedule::Anneal { min_sigma, .. } => min_sigma,
+        };
+        let (mut history, mut converged, mut iterations, mut warnings) = (vec![], false, 0, vec![]);
+        let corr = p.correspondences.as_ref().filter(|c| !c.is_empty());
+        for it in 0..cfg.max_iterations {
+            let sigma = sigma2.sqrt();
+            let sums = match &index {
+                Some(idx) => exact_sums(idx, &values, vd, &x, sigma),
+                None => lattice_sums(target, &values, vd, &x, sigma),
+            };
+            let c = outlier_term(sigma2, cfg.w, target.len(), source.len());
+            let Some(delta) = m_step(cfg, &x, &sums, c, corr.map(|k| (k, &t))) else {
+                warnings.push(format!("no source point is near the target at sigma = {sigma:.4} m: FilterReg stopped"));
+                break;
+            };
+            t = delta * t;
+            x = source.iter().map(|s| t * s).collect();
+            iterations = it + 1;
+            // sigma^2: the EM update with the new pose and this E-step's posteriors.
+            let (num, den) = (0..x.len())
+                .filter(|&i| sums.m0[i] > 1e-12)
+                .map(|i| {
+                    let m0 = sums.m0[i];
+                    let q = m0 * x[i].coords.norm_squared() - 2.0 * x[i].coords.dot(&sums.m1[i]) + sums.m2[i];
+                    (q / (m0 + c), m0 / (m0 + c))
+                })
+                .fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
+            let new_sigma2 = match cfg.sigma {
+                SigmaSchedule::Update { .. } => (num / (3.0 * den)).max(min_sigma * min_sigma),
+                SigmaSchedule::Anneal { factor, .. } => (sigma2 * factor * factor).max(min_sigma * min_sigma),
+            };
+            history.push(IterationRecord { iteration: it, transform: t, objective: new_sigma2 });
+            let small = delta.rotation.angle() < cfg.tolerance && delta.translation.vector.norm() < cfg.tolerance;
+            let sigma_settled = (new_sigma2 - sigma2).abs() <= 1e-3 * sigma2;
+            sigma2 = new_sigma2;
+            if small && sigma_settled {
+                converged = true;
+                break;
+            }
+        }
+        if !t.to_homogeneous().iter().all(|v| v.is_finite()) {
+            return Ok(Registration {
+                transform: p.init,
+                iterations,
+                converged: false,
+                fitness: 0.0,
+                inlier_rmse: 0.0,
+                sigma2: Some(sigma2),
+                scale: None,
+                history,
+                warnings: vec!["FilterReg diverged to a non-finite pose; returning the initial pose".into()],
+            });
+        }
+        let (fitness, inlier_rmse) = evaluate(source, &KnnIndex::new(target), &t, cfg.evaluation_distance);
+        Ok(Registration {
+            transform: t,
+            iterations,
+            converged,
+            fitness,
+            inlier_rmse,
+            sigma2: Some(sigma2),
+            scale: None,
+            history,
+            warnings,
+        })
+    }
+}

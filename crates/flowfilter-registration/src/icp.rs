@@ -1,0 +1,164 @@
+//! Iterative closest point: point-to-point (Besl & McKay 1992) and point-to-plane
+//! (Chen & Medioni 1992), with robust kernels and Open3D's convergence criteria.
+
+use crate::error::RegistrationError;
+use crate::evaluate::{RobustKernel, point_to_plane_step};
+use crate::problem::{IterationRecord, Registrar, Registration, RegistrationProblem, validate_problem};
+use flowfilter_geometry::{KnnIndex, Point3, weighted_kabsch};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// Which ICP error.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum IcpVariant {
+    /// Point-to-point (closed-form weighted Kabsch per iteration).
+    PointToPoint,
+    /// Point-to-plane (one Gauss-Newton step on a twist per iteration; needs target normals).
+    PointToPlane,
+}
+
+/// ICP parameters (defaults as Open3D's `ICPConvergenceCriteria`, distances for tabletop objects).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct IcpConfig {
+    /// Point-to-point or point-to-plane.
+    pub variant: IcpVariant,
+    /// Pairs farther apart than this are not correspondences, metres.
+    pub max_correspondence_distance: f64,
+    /// Iteration limit.
+    pub max_iterations: usize,
+    /// Stop when fitness changes by less than this.
+    pub relative_fitness: f64,
+    /// Stop when the inlier RMSE changes by less than this.
+    pub relative_rmse: f64,
+    /// IRLS kernel on residuals.
+    pub kernel: RobustKernel,
+}
+
+impl Default for IcpConfig {
+    fn default() -> Self {
+        Self {
+            variant: IcpVariant::PointToPoint,
+            max_correspondence_distance: 0.02,
+            max_iterations: 50,
+            relative_fitness: 1e-6,
+            relative_rmse: 1e-6,
+            kernel: RobustKernel::None,
+        }
+    }
+}
+
+/// ICP as a [`Registrar`].
+#[derive(Debug, Clone)]
+pub struct Icp {
+    /// Parameters.
+    pub config: IcpConfig,
+}
+
+impl Icp {
+    /// ICP with the given parameters.
+    pub fn new(config: IcpConfig) -> Result<Self, RegistrationError> {
+        if !(config.max_correspondence_distance > 0.0) || config.max_iterations == 0 {
+            return Err(RegistrationError::Config(
+                "icp needs max_correspondence_distance > 0 and max_iterations > 0".into(),
+            ));
+        }
+        Ok(Self { config })
+    }
+}
+
+impl Registrar for Icp {
+    fn name(&self) -> &str {
+        match self.config.variant {
+            IcpVariant::PointToPoint => "icp-pt2pt",
+            IcpVariant::PointToPlane => "icp-pt2pl",
+        }
+    }
+
+    fn register(&self, p: &RegistrationProblem) -> Result<Registration, RegistrationError> {
+        let cfg = &self.config;
+        let pt2pl = cfg.variant == IcpVariant::PointToPlane;
+        validate_problem(p, pt2pl.then_some("icp-pt2pl"))?;
+        let target = KnnIndex::new(&p.target.points);
+        let normals = p.target.normals.as_deref().unwrap_or(&[]);
+        let max_d2 = cfg.max_correspondence_distance.powi(2);
+        let mut t = p.init;
+        // Correspondences of the current estimate: (moved source, target index, distance).
+        let correspond = |t: &flowfilter_geometry::Pose| -> Vec<(Point3, usize, f64)> {
+            p.source
+                .points
+                .par_iter()
+                .filter_map(|s| {
+                    let x = t * s;
+                    target.nearest(&x).filter(|n| n.dist2 <= max_d2).map(|n| (x, n.index, n.dist2.sqrt()))
+                })
+                .collect()
+        };
+        let stats = |c: &[(Point3, usize, f64)]| {
+            if c.is_empty() {
+                (0.0, 0.0)
+            } else {
+                (
+                    c.len() as f64 / p.source.len() as f64,
+                    (c.iter().map(|x| x.2 * x.2).sum::<f64>() / c.len() as f64).sqrt(),
+                )
+            }
+        };
+        let mut corr = correspond(&t);
+        let (mut fitness, mut rmse) = stats(&corr);
+        let mut history = vec![];
+        let mut warnings = vec![];
+        let mut converged = false;
+        let mut iterations = 0;
+        for it in 0..cfg.max_iterations {
+            if corr.len() < 3 {
+                warnings.push(format!(
+                    "only {} correspondences within {} m: ICP cannot continue",
+                    corr.len(),
+                    cfg.max_correspondence_distance
+                ));
+                break;
+            }
+            let x: Vec<Point3> = corr.iter().map(|c| c.0).collect();
+            let y: Vec<Point3> = corr.iter().map(|c| p.target.points[c.1]).collect();
+            let w: Vec<f64> = corr.iter().map(|c| cfg.kernel.weight(c.2)).collect();
+            let delta = if pt2pl {
+                let n: Vec<_> = corr.iter().map(|c| normals[c.1]).collect();
+                point_to_plane_step(&x, &y, &n, &w)
+            } else {
+                weighted_kabsch(&x, &y, Some(&w)).ok()
+            };
+            let Some(delta) = delta else {
+                warnings.push("the update is not determined (degenerate correspondences)".into());
+                break;
+            };
+            t = delta * t;
+            iterations = it + 1;
+            corr = correspond(&t);
+            let (f, r) = stats(&corr);
+            history.push(IterationRecord { iteration: it, transform: t, objective: r });
+            let done = (f - fitness).abs() < cfg.relative_fitness && (r - rmse).abs() < cfg.relative_rmse;
+            fitness = f;
+            rmse = r;
+            if done {
+                converged = true;
+                break;
+            }
+        }
+        if fitness == 0.0 {
+            converged = false;
+        }
+        Ok(Registration {
+            transform: t,
+            iterations,
+            converged,
+            fitness,
+            inlier_rmse: rmse,
+            sigma2: None,
+            scale: None,
+            history,
+            warnings,
+        })
+    }
+}

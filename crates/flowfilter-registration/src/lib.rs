@@ -1,0 +1,24 @@
+//! Rigid registration backends behind one [`Registrar`] trait: ICP (point-to-point,
+//! point-to-plane), rigid CPD and FilterReg (permutohedral-lattice E-step), each configured by a
+//! serde struct and selectable by name with [`registrar_by_name`].
+
+mod cpd;
+mod error;
+mod evaluate;
+mod filterreg;
+mod gmm;
+mod icp;
+pub mod lattice;
+mod problem;
+mod registry;
+
+pub use cpd::{Cpd, CpdConfig, CpdEStep};
+pub use error::RegistrationError;
+pub use evaluate::{RobustKernel, evaluate};
+pub use filterreg::{FilterReg, FilterRegConfig, FilterRegEStep, FilterRegVariant, SigmaSchedule};
+pub use gmm::mean_pair_distance2;
+pub use icp::{Icp, IcpConfig, IcpVariant};
+pub use problem::{
+    Correspondences, IterationRecord, Registrar, Registration, RegistrationProblem, validate_cloud, validate_problem,
+};
+pub use registry::{METHOD_NAMES, RegistrationConfig, registrar_by_name};

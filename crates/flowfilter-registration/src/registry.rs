@@ -1,0 +1,48 @@
+//! Backends by name, configured from one serde struct (one table per backend in TOML).
+
+use crate::cpd::{Cpd, CpdConfig};
+use crate::error::RegistrationError;
+use crate::filterreg::{FilterReg, FilterRegConfig, FilterRegVariant};
+use crate::icp::{Icp, IcpConfig, IcpVariant};
+use crate::problem::Registrar;
+use serde::{Deserialize, Serialize};
+
+/// Names accepted by [`registrar_by_name`].
+pub const METHOD_NAMES: [&str; 5] = ["icp-pt2pt", "icp-pt2pl", "cpd", "filterreg-pt2pt", "filterreg-pt2pl"];
+
+/// Parameters of every backend (the variant fields are set from the method name).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RegistrationConfig {
+    /// ICP.
+    pub icp: IcpConfig,
+    /// CPD.
+    pub cpd: CpdConfig,
+    /// FilterReg.
+    pub filterreg: FilterRegConfig,
+}
+
+/// The backend called `name`, configured by `config`.
+pub fn registrar_by_name(name: &str, config: &RegistrationConfig) -> Result<Box<dyn Registrar>, RegistrationError> {
+    Ok(match name {
+        "icp-pt2pt" | "icp" => {
+            Box::new(Icp::new(IcpConfig { variant: IcpVariant::PointToPoint, ..config.icp.clone() })?)
+        }
+        "icp-pt2pl" => Box::new(Icp::new(IcpConfig { variant: IcpVariant::PointToPlane, ..config.icp.clone() })?),
+        "cpd" => Box::new(Cpd::new(config.cpd.clone())?),
+        "filterreg-pt2pt" | "filterreg" => Box::new(FilterReg::new(FilterRegConfig {
+            variant: FilterRegVariant::PointToPoint,
+            ..config.filterreg.clone()
+        })?),
+        "filterreg-pt2pl" => Box::new(FilterReg::new(FilterRegConfig {
+            variant: FilterRegVariant::PointToPlane,
+            ..config.filterreg.clone()
+        })?),
+        other => {
+            return Err(RegistrationError::Config(format!(
+                "unknown method '{other}' (available: {})",
+                METHOD_NAMES.join(", ")
+            )));
+        }
+    })
+}
