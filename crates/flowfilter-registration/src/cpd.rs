@@ -77,7 +77,11 @@ pub struct Cpd {
 impl Cpd {
     /// CPD with the given parameters.
     pub fn new(config: CpdConfig) -> Result<Self, RegistrationError> {
-        if !(0.0..1.0).contains(&config.w) || config.max_iterations == 0 || !(config.tolerance > 0.0) {
+        if !(0.0..1.0).contains(&config.w)
+            || config.max_iterations == 0
+            || config.tolerance.is_nan()
+            || config.tolerance <= 0.0
+        {
             return Err(RegistrationError::Config("cpd needs 0 <= w < 1, max_iterations > 0, tolerance > 0".into()));
         }
         Ok(Self { config })

@@ -223,12 +223,12 @@ fn m_step(
     let mut dst = Vec::with_capacity(x.len());
     let mut w = Vec::with_capacity(x.len());
     let mut nrm = Vec::with_capacity(x.len());
-    for i in 0..x.len() {
+    for (i, xi) in x.iter().enumerate() {
         let m0 = sums.m0[i];
         if m0 <= 1e-12 {
             continue;
         }
-        src.push(x[i]);
+        src.push(*xi);
         dst.push(Point3::from(sums.m1[i] / m0));
         w.push(m0 / (m0 + c));
         // The filtered normal is only meaningful where the normals under the kernel agree

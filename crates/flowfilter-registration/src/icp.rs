@@ -59,7 +59,10 @@ pub struct Icp {
 impl Icp {
     /// ICP with the given parameters.
     pub fn new(config: IcpConfig) -> Result<Self, RegistrationError> {
-        if !(config.max_correspondence_distance > 0.0) || config.max_iterations == 0 {
+        if config.max_correspondence_distance.is_nan()
+            || config.max_correspondence_distance <= 0.0
+            || config.max_iterations == 0
+        {
             return Err(RegistrationError::Config(
                 "icp needs max_correspondence_distance > 0 and max_iterations > 0".into(),
             ));

@@ -196,7 +196,7 @@ impl Lattice {
     /// Splat `values` (`vd` per point) at `positions` (`d` per point, already divided by the
     /// Gaussian's standard deviation) and blur. Panics if slice lengths disagree with `d`/`vd`.
     pub fn new(d: usize, positions: &[f64], vd: usize, values: &[f64]) -> Self {
-        assert!(d >= 1 && positions.len() % d == 0 && values.len() == positions.len() / d * vd);
+        assert!(d >= 1 && positions.len().is_multiple_of(d) && values.len() == positions.len() / d * vd);
         let n = positions.len() / d;
         let embedding = Embedding::new(d);
         let mut table = KeyTable::new(d, n * (d + 1) / 2 + 16);
@@ -260,14 +260,15 @@ impl Lattice {
     /// Interpolate the blurred values at `queries` (`d` per point) into `out` (`vd` per point).
     pub fn slice(&self, queries: &[f64], out: &mut [f64]) {
         let (d, vd) = (self.d, self.vd);
-        assert!(queries.len() % d == 0 && out.len() == queries.len() / d * vd);
+        assert!(queries.len().is_multiple_of(d) && out.len() == queries.len() / d * vd);
         for (q, o) in queries.chunks_exact(d).zip(out.chunks_exact_mut(vd)) {
             o.fill(0.0);
             let s = self.embedding.simplex(q);
             for r in 0..=d {
                 if let Some(id) = self.table.find(&s.keys[r * d..(r + 1) * d]) {
-                    for c in 0..vd {
-                        o[c] += s.weights[r] * self.values[id as usize * vd + c];
+                    let vals = &self.values[id as usize * vd..(id as usize + 1) * vd];
+                    for (oc, v) in o.iter_mut().zip(vals) {
+                        *oc += s.weights[r] * v;
                     }
                 }
             }
