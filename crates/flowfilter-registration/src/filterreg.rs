@@ -13,7 +13,7 @@
 
 use crate::error::RegistrationError;
 use crate::evaluate::{evaluate, point_to_plane_step};
-use crate::gmm::{mean_pair_distance2, outlier_term};
+use crate::gmm::mean_pair_distance2;
 use crate::lattice::Lattice;
 use crate::problem::{
     Correspondences, IterationRecord, Registrar, Registration, RegistrationProblem, validate_problem,
@@ -59,6 +59,10 @@ pub enum FilterRegEStep {
     Lattice,
     /// Exact sums over target points within 4 sigma (k-d tree).
     Exact,
+    /// The lattice while 4 sigma exceeds a tenth of the target's extent (many neighbours, where
+    /// the lattice's linear cost matters and its few-percent kernel error does not), exact sums
+    /// once sigma is small (few neighbours, where the final accuracy is decided).
+    Auto,
 }
 
 /// FilterReg parameters.
@@ -92,11 +96,11 @@ impl Default for FilterRegConfig {
         Self {
             variant: FilterRegVariant::PointToPoint,
             w: 0.1,
-            max_iterations: 60,
+            max_iterations: 300,
             tolerance: 1e-6,
             sigma: SigmaSchedule::Update { min_sigma: 1e-4 },
             init_sigma2: None,
-            e_step: FilterRegEStep::Lattice,
+            e_step: FilterRegEStep::Auto,
             gauss_newton_steps: 1,
             correspondence_weight: 0.0,
             evaluation_distance: 0.01,
@@ -302,7 +306,15 @@ impl Registrar for FilterReg {
         let (source, target) = (&p.source.points, &p.target.points);
         let normals = if pt2pl { p.target.normals.as_deref() } else { None };
         let (vd, values) = target_values(target, normals);
-        let index = (cfg.e_step == FilterRegEStep::Exact).then(|| KnnIndex::new(target));
+        let index = (cfg.e_step != FilterRegEStep::Lattice).then(|| KnnIndex::new(target));
+        let extent = {
+            let (lo, hi) = target
+                .iter()
+                .fold((Vector3::repeat(f64::INFINITY), Vector3::repeat(f64::NEG_INFINITY)), |(lo, hi), p| {
+                    (lo.inf(&p.coords), hi.sup(&p.coords))
+                });
+            (hi - lo).norm()
+        };
         let mut t = p.init;
         let mut x: Vec<Point3> = source.iter().map(|s| t * s).collect();
         let mut sigma2 = cfg.init_sigma2.unwrap_or_else(|| mean_pair_distance2(&x, target) / 3.0);
@@ -313,11 +325,18 @@ impl Registrar for FilterReg {
         let corr = p.correspondences.as_ref().filter(|c| !c.is_empty());
         for it in 0..cfg.max_iterations {
             let sigma = sigma2.sqrt();
-            let sums = match &index {
-                Some(idx) => exact_sums(idx, &values, vd, &x, sigma),
-                None => lattice_sums(target, &values, vd, &x, sigma),
+            let use_lattice = match cfg.e_step {
+                FilterRegEStep::Lattice => true,
+                FilterRegEStep::Exact => false,
+                FilterRegEStep::Auto => 4.0 * sigma > 0.1 * extent,
             };
-            let c = outlier_term(sigma2, cfg.w, target.len(), source.len());
+            let sums = match (&index, use_lattice) {
+                (Some(idx), false) => exact_sums(idx, &values, vd, &x, sigma),
+                _ => lattice_sums(target, &values, vd, &x, sigma),
+            };
+            // Outlier level relative to the unnormalised kernel sums (as FilterReg's reference
+            // implementation does): c = w / (1 - w) * N / M, independent of sigma.
+            let c = if cfg.w > 0.0 { cfg.w / (1.0 - cfg.w) * target.len() as f64 / source.len() as f64 } else { 0.0 };
             let Some(delta) = m_step(cfg, &x, &sums, c, corr.map(|k| (k, &t))) else {
                 warnings.push(format!("no source point is near the target at sigma = {sigma:.4} m: FilterReg stopped"));
                 break;
@@ -335,7 +354,9 @@ impl Registrar for FilterReg {
                 })
                 .fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
             let new_sigma2 = match cfg.sigma {
-                SigmaSchedule::Update { .. } => (num / (3.0 * den)).max(min_sigma * min_sigma),
+                // The EM estimate, shrinking by at most half per iteration: an EM step that
+                // collapses sigma freezes the posteriors before the pose has converged.
+                SigmaSchedule::Update { .. } => (num / (3.0 * den)).max(0.5 * sigma2).max(min_sigma * min_sigma),
                 SigmaSchedule::Anneal { factor, .. } => (sigma2 * factor * factor).max(min_sigma * min_sigma),
             };
             history.push(IterationRecord { iteration: it, transform: t, objective: new_sigma2 });

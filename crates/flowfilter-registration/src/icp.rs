@@ -141,7 +141,10 @@ impl Registrar for Icp {
             corr = correspond(&t);
             let (f, r) = stats(&corr);
             history.push(IterationRecord { iteration: it, transform: t, objective: r });
-            let done = (f - fitness).abs() < cfg.relative_fitness && (r - rmse).abs() < cfg.relative_rmse;
+            // Open3D's criteria, plus a vanishing update: on planar parts the pose can keep
+            // sliding while fitness and RMSE no longer change.
+            let still = delta.rotation.angle() < 1e-7 && delta.translation.vector.norm() < 1e-7;
+            let done = (f - fitness).abs() < cfg.relative_fitness && (r - rmse).abs() < cfg.relative_rmse && still;
             fitness = f;
             rmse = r;
             if done {
