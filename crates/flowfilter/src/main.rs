@@ -1,6 +1,7 @@
 //! `flowfilter`: the command-line front end of the Flow Filter workspace.
 
 mod inspect;
+mod register;
 mod synth;
 
 use clap::{Parser, Subcommand};
@@ -20,6 +21,8 @@ enum Command {
     Inspect(inspect::InspectArgs),
     /// Render a synthetic turntable capture of one object in the BigBIRD layout.
     Synth(synth::SynthArgs),
+    /// Align two PLY point clouds with ICP, CPD or FilterReg.
+    Register(register::RegisterArgs),
 }
 
 fn main() -> ExitCode {
@@ -31,6 +34,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Inspect(args) => inspect::run(&args),
         Command::Synth(args) => synth::run(&args),
+        Command::Register(args) => register::run(&args),
     };
     match result {
         Ok(code) => code,
