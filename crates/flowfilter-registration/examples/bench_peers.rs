@@ -1,0 +1,40 @@
+//! Times our backends on the clouds written by `tools/peers/registration_peers.py --bench DIR`
+//! and prints them beside the peers' times and errors recorded in `DIR/peers.json`.
+//! Run: `cargo run --release -p flowfilter-registration --example bench_peers -- DIR`
+//! (set `RAYON_NUM_THREADS=1` or `2` for the thread count).
+
+use flowfilter_depth::ply::read_ply;
+use flowfilter_registration::{RegistrationConfig, RegistrationProblem, registrar_by_name};
+use nalgebra::Matrix4;
+use std::path::PathBuf;
+
+fn main() {
+    let dir = PathBuf::from(std::env::args().nth(1).expect("usage: bench_peers DIR"));
+    let peers: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("peers.json")).unwrap()).unwrap();
+    let mut config = RegistrationConfig::default();
+    config.cpd.w = 0.2;
+    config.filterreg.w = 0.2;
+    config.icp.max_correspondence_distance = 0.25;
+    config.icp.max_iterations = 200;
+    println!("threads: {}", rayon::current_num_threads());
+    println!("| points | method | ours (s) | peer (s) | speed-up | ours (deg) | peer (deg) |");
+    println!("| --- | --- | --- | --- | --- | --- | --- |");
+    for row in peers.as_array().unwrap() {
+        let n = row["n"].as_u64().unwrap();
+        let source = read_ply(&dir.join(format!("n{n}_source.ply"))).unwrap();
+        let target = read_ply(&dir.join(format!("n{n}_target.ply"))).unwrap();
+        let t = &row["truth"];
+        let truth = flowfilter_geometry::rigid_from_matrix(&Matrix4::from_fn(|r, c| t[r][c].as_f64().unwrap())).unwrap();
+        for method in ["cpd", "filterreg-pt2pt", "filterreg-pt2pl", "icp-pt2pt", "icp-pt2pl"] {
+            let reg = registrar_by_name(method, &config).unwrap();
+            let problem = RegistrationProblem::new(source.clone(), target.clone());
+            let start = std::time::Instant::now();
+            let r = reg.register(&problem).unwrap();
+            let secs = start.elapsed().as_secs_f64();
+            let deg = (r.transform * truth.inverse()).rotation.angle().to_degrees();
+            let peer = &row["peers"][method];
+            let (ps, pd) = (peer["seconds"].as_f64().unwrap(), peer["rotation_error_deg"].as_f64().unwrap());
+            println!("| {n} | {method} | {secs:.3} | {ps:.3} | {:.1}x | {deg:.4} | {pd:.4} |", ps / secs);
+        }
+    }
+}
