@@ -10,7 +10,8 @@ use std::path::PathBuf;
 
 fn main() {
     let dir = PathBuf::from(std::env::args().nth(1).expect("usage: bench_peers DIR"));
-    let peers: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("peers.json")).unwrap()).unwrap();
+    let peers: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("peers.json")).unwrap()).unwrap();
     let mut config = RegistrationConfig::default();
     config.cpd.w = 0.2;
     config.filterreg.w = 0.2;
@@ -24,7 +25,8 @@ fn main() {
         let source = read_ply(&dir.join(format!("n{n}_source.ply"))).unwrap();
         let target = read_ply(&dir.join(format!("n{n}_target.ply"))).unwrap();
         let t = &row["truth"];
-        let truth = flowfilter_geometry::rigid_from_matrix(&Matrix4::from_fn(|r, c| t[r][c].as_f64().unwrap())).unwrap();
+        let truth =
+            flowfilter_geometry::rigid_from_matrix(&Matrix4::from_fn(|r, c| t[r][c].as_f64().unwrap())).unwrap();
         for method in ["cpd", "filterreg-pt2pt", "filterreg-pt2pl", "icp-pt2pt", "icp-pt2pl"] {
             let reg = registrar_by_name(method, &config).unwrap();
             let problem = RegistrationProblem::new(source.clone(), target.clone());
@@ -33,8 +35,12 @@ fn main() {
             let secs = start.elapsed().as_secs_f64();
             let deg = (r.transform * truth.inverse()).rotation.angle().to_degrees();
             let peer = &row["peers"][method];
-            let (ps, pd) = (peer["seconds"].as_f64().unwrap(), peer["rotation_error_deg"].as_f64().unwrap());
-            println!("| {n} | {method} | {secs:.3} | {ps:.3} | {:.1}x | {deg:.4} | {pd:.4} |", ps / secs);
+            match (peer["seconds"].as_f64(), peer["rotation_error_deg"].as_f64()) {
+                (Some(ps), Some(pd)) => {
+                    println!("| {n} | {method} | {secs:.3} | {ps:.3} | {:.1}x | {deg:.4} | {pd:.4} |", ps / secs)
+                }
+                _ => println!("| {n} | {method} | {secs:.3} | not run | - | {deg:.4} | - |"),
+            }
         }
     }
 }

@@ -109,8 +109,12 @@ fn e_step(ty: &[Point3], x: &[Point3], sigma2: f64, c: f64, radius: Option<f64>)
             |(mut p1, mut px, mut pt1), xn| {
                 // Log-domain posteriors: stable when sigma is far below the point spacing.
                 let terms: Vec<(usize, f64)> = match (&index, radius) {
+                    // Relative to the largest term: keep every component whose term is within
+                    // exp(-r^2 / 2 sigma^2) of it, so the posterior's normalisation is kept even
+                    // for observations far from every component.
                     (Some(idx), Some(r)) => {
-                        idx.within(xn, r).into_iter().map(|nb| (nb.index, nb.dist2 * inv)).collect()
+                        let near = idx.nearest(xn).map_or(0.0, |nb| nb.dist2);
+                        idx.within(xn, (near + r * r).sqrt()).into_iter().map(|nb| (nb.index, nb.dist2 * inv)).collect()
                     }
                     _ => ty.iter().enumerate().map(|(k, y)| (k, (xn - y).norm_squared() * inv)).collect(),
                 };
@@ -173,6 +177,8 @@ impl Registrar for Cpd {
         };
         let (mut history, mut converged, mut iterations, mut warnings) = (vec![], false, 0, vec![]);
         for it in 0..cfg.max_iterations {
+            // The paper's outlier term, in the data's own (metric) units, as the reference
+            // implementations evaluate it.
             let c = outlier_term(sigma2, cfg.w, m, n);
             let e = e_step(&ty, x, sigma2, c, radius_sigmas.map(|r| r * sigma2.sqrt()));
             let np: f64 = e.p1.iter().sum();
