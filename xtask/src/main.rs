@@ -1,0 +1,41 @@
+//! `cargo xtask <command>`: project automation.
+//!
+//! - `bench-bigbird`: the paper's BigBIRD experiment (relative rotation between turntable
+//!   angles seen by one camera) on the embedded synthetic dataset, generated once and cached
+//!   under `target/`, or on a real BigBIRD download (`--data DIR`).
+
+mod bench;
+mod dataset;
+
+use clap::{Parser, Subcommand};
+use std::process::ExitCode;
+
+#[derive(Parser)]
+#[command(name = "xtask")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run the BigBIRD benchmark and write results/<timestamp>/.
+    BenchBigbird(bench::BenchArgs),
+}
+
+fn main() -> ExitCode {
+    tracing_subscriber::fmt()
+        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
+        .with_writer(std::io::stderr)
+        .init();
+    let result = match Cli::parse().command {
+        Command::BenchBigbird(args) => bench::run(&args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
