@@ -19,11 +19,19 @@ pub fn organized_cloud(
     let w = depth.width();
     let (mut points, mut pixels, mut colors) = (Vec::new(), Vec::new(), Vec::new());
     let mut index = vec![u32::MAX; depth.as_slice().len()];
-    for (k, &z) in depth.as_slice().iter().enumerate() {
+    let (x0, y0, x1, y1) = match mask {
+        Some(m) => match crate::register::mask_bbox(m) {
+            Some(b) => b,
+            None => (1, 1, 0, 0),
+        },
+        None => (0, 0, w - 1, depth.height() - 1),
+    };
+    for (x, y) in (y0..=y1).flat_map(|y| (x0..=x1).map(move |x| (x, y))) {
+        let k = y * w + x;
+        let z = depth.as_slice()[k];
         if z <= 0.0 || mask.is_some_and(|m| !m.as_slice()[k]) {
             continue;
         }
-        let (x, y) = (k % w, k / w);
         let Some(p) = rays.backproject(x, y, f64::from(z)) else { continue };
         index[k] = points.len() as u32;
         points.push(p);

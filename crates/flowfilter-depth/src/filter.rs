@@ -77,33 +77,55 @@ pub fn gaussian_window(depth: &DepthMap, cfg: &GaussianFilterConfig) -> (DepthMa
     let (w, h) = depth.dims();
     let r = cfg.window / 2;
     let src = depth.as_slice();
+    // Integral images of count, sum and sum of squares of the valid depths: the window's mean
+    // and standard deviation in four lookups each.
+    let stride = w + 1;
+    let mut ic = vec![0.0f64; stride * (h + 1)];
+    let mut is = vec![0.0f64; stride * (h + 1)];
+    let mut iq = vec![0.0f64; stride * (h + 1)];
+    for y in 0..h {
+        let (mut c, mut s1, mut q) = (0.0, 0.0, 0.0);
+        for x in 0..w {
+            let z = f64::from(src[y * w + x]);
+            if z > 0.0 {
+                c += 1.0;
+                s1 += z;
+                q += z * z;
+            }
+            let k = (y + 1) * stride + x + 1;
+            ic[k] = ic[k - stride] + c;
+            is[k] = is[k - stride] + s1;
+            iq[k] = iq[k - stride] + q;
+        }
+    }
+    let boxed = |img: &[f64], x0: usize, y0: usize, x1: usize, y1: usize| {
+        img[(y1 + 1) * stride + x1 + 1] - img[y0 * stride + x1 + 1] - img[(y1 + 1) * stride + x0] + img[y0 * stride + x0]
+    };
     let mut out = vec![0.0f32; w * h];
     out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
         let mut vals: Vec<f32> = Vec::with_capacity(cfg.window * cfg.window);
         let mut bits: Vec<u32> = Vec::with_capacity(cfg.window * cfg.window);
+        let (y0, y1) = (y.saturating_sub(r), (y + r).min(h - 1));
         for x in 0..w {
             let z = src[y * w + x];
             if z <= 0.0 {
                 continue;
             }
-            vals.clear();
-            for yy in y.saturating_sub(r)..=(y + r).min(h - 1) {
-                for &v in &src[yy * w + x.saturating_sub(r)..=yy * w + (x + r).min(w - 1)] {
-                    if v > 0.0 {
-                        vals.push(v);
-                    }
-                }
-            }
-            if vals.len() < cfg.min_support {
+            let (x0, x1) = (x.saturating_sub(r), (x + r).min(w - 1));
+            let n = boxed(&ic, x0, y0, x1, y1);
+            if (n as usize) < cfg.min_support {
                 continue;
             }
-            let n = vals.len() as f64;
-            let mean = vals.iter().map(|&v| f64::from(v)).sum::<f64>() / n;
-            let std = (vals.iter().map(|&v| (f64::from(v) - mean).powi(2)).sum::<f64>() / n).sqrt();
+            let mean = boxed(&is, x0, y0, x1, y1) / n;
+            let std = (boxed(&iq, x0, y0, x1, y1) / n - mean * mean).max(0.0).sqrt();
             let (mu, sigma) = match cfg.estimator {
                 // A window whose spread is below the floor holds one smooth surface: there the
                 // median equals the mean to within the floor, so the cheap estimate decides.
                 WindowEstimator::Robust if std > cfg.sigma_floor_m => {
+                    vals.clear();
+                    for yy in y0..=y1 {
+                        vals.extend(src[yy * w + x0..=yy * w + x1].iter().filter(|&&v| v > 0.0));
+                    }
                     // Positive f32 values order like their bit patterns: select on integers.
                     bits.clear();
                     bits.extend(vals.iter().map(|v| v.to_bits()));

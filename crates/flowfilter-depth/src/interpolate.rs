@@ -40,8 +40,10 @@ pub fn fill_holes(depth: &DepthMap, mask: &Mask, cfg: &InterpolationConfig) -> (
     let r = cfg.max_radius_px;
     let step = cfg.max_step_m as f32;
     let mut out = src.to_vec();
-    out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        for x in 0..w {
+    let Some((x0, y0, x1, y1)) = crate::register::mask_bbox(mask) else { return (depth.clone(), 0) };
+    out[y0 * w..(y1 + 1) * w].par_chunks_mut(w).enumerate().for_each(|(by, row)| {
+        let y = y0 + by;
+        for x in x0..=x1 {
             if row[x] > 0.0 || !m[y * w + x] {
                 continue;
             }
@@ -65,7 +67,7 @@ pub fn fill_holes(depth: &DepthMap, mask: &Mask, cfg: &InterpolationConfig) -> (
             };
         }
     });
-    let filled = out.iter().zip(src).filter(|(a, b)| **a > 0.0 && **b <= 0.0).count();
+    let filled = (y0..=y1).map(|y| (x0..=x1).filter(|&x| out[y * w + x] > 0.0 && src[y * w + x] <= 0.0).count()).sum();
     (DepthMap::from_vec(w, h, out).expect("sized"), filled)
 }
 

@@ -9,8 +9,14 @@ use std::sync::atomic::{AtomicU32, Ordering};
 
 /// Every depth pixel with depth, moved into the colour camera and projected (distortion
 /// included): its colour-image position and colour-camera z. `None` where there is no depth or
-/// the point is behind the colour camera.
-pub fn project_depth_grid(depth: &DepthMap, sensor: &RgbdSensor, depth_rays: &RayTable) -> Vec<Option<ScreenVertex>> {
+/// the point is behind the colour camera. `depth` may be a crop of the depth image whose top-left
+/// pixel is `origin`.
+pub fn project_depth_grid(
+    depth: &DepthMap,
+    origin: (usize, usize),
+    sensor: &RgbdSensor,
+    depth_rays: &RayTable,
+) -> Vec<Option<ScreenVertex>> {
     let w = depth.width();
     depth
         .as_slice()
@@ -20,7 +26,7 @@ pub fn project_depth_grid(depth: &DepthMap, sensor: &RgbdSensor, depth_rays: &Ra
             if z <= 0.0 {
                 return None;
             }
-            let p = sensor.color_from_depth * depth_rays.backproject(k % w, k / w, f64::from(z))?;
+            let p = sensor.color_from_depth * depth_rays.backproject(origin.0 + k % w, origin.1 + k / w, f64::from(z))?;
             let q = sensor.color.project(&p)?;
             Some(ScreenVertex { x: q.x as f32, y: q.y as f32, z: p.z as f32 })
         })
@@ -57,14 +63,15 @@ pub fn splat(projected: &[Option<ScreenVertex>], width: usize, height: usize, ma
 
 /// The bounding box `(x0, y0, x1, y1)` (inclusive) of a mask's set pixels, `None` if empty.
 pub fn mask_bbox(mask: &Mask) -> Option<(usize, usize, usize, usize)> {
-    let w = mask.width();
     let mut bb: Option<(usize, usize, usize, usize)> = None;
-    for (k, _) in mask.as_slice().iter().enumerate().filter(|(_, m)| **m) {
-        let (x, y) = (k % w, k / w);
-        bb = Some(match bb {
-            None => (x, y, x, y),
-            Some((a, b, c, d)) => (a.min(x), b.min(y), c.max(x), d.max(y)),
-        });
+    for y in 0..mask.height() {
+        let row = mask.row(y);
+        if let (Some(first), Some(last)) = (row.iter().position(|&b| b), row.iter().rposition(|&b| b)) {
+            bb = Some(match bb {
+                None => (first, y, last, y),
+                Some((a, b, c, _)) => (a.min(first), b, c.max(last), y),
+            });
+        }
     }
     bb
 }

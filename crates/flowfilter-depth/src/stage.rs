@@ -4,7 +4,7 @@
 use crate::cloud::{knn_normals, organized_cloud, organized_normals};
 use crate::config::{DepthConfig, NormalMethod, RegistrationMethod};
 use crate::error::DepthError;
-use crate::filter::{bigbird_discontinuity, gaussian_window, metric_depth};
+use crate::filter::{bigbird_discontinuity, gaussian_window};
 use crate::interpolate::fill_holes;
 use crate::register::{depth_roi, mask_bbox, mesh, project_depth_grid, splat};
 use flowfilter_camera::{CameraModel, RayTable, RgbdSensor};
@@ -160,25 +160,21 @@ impl DepthStage {
             stats.timings_ms.push((name, clock.elapsed().as_secs_f64() * 1e3));
             clock = std::time::Instant::now();
         };
-        let mut depth = metric_depth(raw, sensor.metres_per_unit);
-        if cfg.registration.restrict_to_mask {
-            // Only depth pixels that can land in the mask's box matter: clear the rest, so the
-            // filters and the projection skip them.
+        // Only depth pixels that can land in the mask's box matter: crop the depth image to them
+        // (filters and projection then touch a fraction of the frame).
+        let (rx0, ry0, rx1, ry1) = if cfg.registration.restrict_to_mask {
             let bbox = mask_bbox(mask).ok_or(DepthError::EmptyMask)?;
             let margin = cfg.gaussian_filter.window.max(cfg.bigbird_filter.window).max(cfg.step_filter.window) + 2;
-            let (x0, y0, x1, y1) = depth_roi(sensor, bbox, ROI_NEAR_M, ROI_FAR_M, margin);
-            for (k, z) in depth.as_mut_slice().iter_mut().enumerate() {
-                let (x, y) = (k % dw, k / dw);
-                if x < x0 || x > x1 || y < y0 || y > y1 {
-                    *z = 0.0;
-                }
-            }
-        }
-        if cfg.bigbird_filter.enabled {
-            let (d, n) = bigbird_discontinuity(&depth, cfg.bigbird_filter.window, cfg.bigbird_filter.threshold_m);
-            depth = d;
-            stats.rejected_discontinuity = n;
-        }
+            depth_roi(sensor, bbox, ROI_NEAR_M, ROI_FAR_M, margin)
+        } else {
+            (0, 0, dw - 1, dh - 1)
+        };
+        let (rw, rh) = (rx1 - rx0 + 1, ry1 - ry0 + 1);
+        let unit = sensor.metres_per_unit;
+        let mut depth = DepthMap::from_fn(rw, rh, |x, y| {
+            let d = *raw.at(rx0 + x, ry0 + y);
+            if d == 0 { 0.0 } else { (f64::from(d) * unit) as f32 }
+        });
         lap(&mut stats, "metric+roi");
         if cfg.gaussian_filter.enabled {
             let (d, n) = gaussian_window(&depth, &cfg.gaussian_filter);
@@ -191,13 +187,14 @@ impl DepthStage {
             stats.rejected_step = n;
         }
         lap(&mut stats, "filters");
-        let projected = project_depth_grid(&depth, sensor, &self.rays(&sensor.depth));
+        let projected = project_depth_grid(&depth, (rx0, ry0), sensor, &self.rays(&sensor.depth));
         let restrict = cfg.registration.restrict_to_mask.then_some(mask);
         let registered = match cfg.registration.method {
             RegistrationMethod::Splat => splat(&projected, cw, ch, restrict),
             RegistrationMethod::Mesh => mesh(&depth, &projected, cw, ch, cfg.registration.max_step_m, restrict),
         };
         lap(&mut stats, "project+register");
+        // Registration only writes inside the mask (or anywhere when unrestricted).
         stats.registered = registered.as_slice().iter().zip(mask.as_slice()).filter(|(z, m)| **z > 0.0 && **m).count();
         let (dense, filled) = fill_holes(&registered, mask, &cfg.interpolation);
         stats.interpolated = filled;
@@ -216,6 +213,11 @@ impl DepthStage {
             NormalMethod::Knn => Some(knn_normals(&cloud.points, cfg.cloud.knn, &Point3::origin())),
         };
         lap(&mut stats, "cloud+normals");
-        Ok(ProcessedDepth { filtered_raw: depth, depth: dense, cloud, point_index, stats })
+        // Paste the filtered crop back into a full-size depth-grid map.
+        let mut filtered_raw = DepthMap::filled(dw, dh, 0.0);
+        for y in 0..rh {
+            filtered_raw.as_mut_slice()[(ry0 + y) * dw + rx0..(ry0 + y) * dw + rx0 + rw].copy_from_slice(depth.row(y));
+        }
+        Ok(ProcessedDepth { filtered_raw, depth: dense, cloud, point_index, stats })
     }
 }

@@ -19,7 +19,7 @@ fn splat_registration_matches_the_bigbird_tools() {
         // BigBIRD's threshold is 1000 raw units.
         let d = metric_depth(&f.depth, sensor.metres_per_unit);
         let (d, _) = bigbird_discontinuity(&d, 7, 1000.0 * sensor.metres_per_unit);
-        let projected = project_depth_grid(&d, &sensor, &RayTable::new(&sensor.depth));
+        let projected = project_depth_grid(&d, (0, 0), &sensor, &RayTable::new(&sensor.depth));
         let (w, h) = (f.color.width() as usize, f.color.height() as usize);
         let ours = splat(&projected, w, h, None);
         let (mut both, mut only_ours, mut only_ref, mut max_err) = (0usize, 0usize, 0usize, 0.0f64);
