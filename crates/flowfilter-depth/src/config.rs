@@ -57,6 +57,9 @@ pub struct GaussianFilterConfig {
     pub sigma_floor_m: f64,
     /// Reject pixels with fewer valid neighbours (centre included) than this in the window.
     pub min_support: usize,
+    /// Robust estimator only: windows whose depth range (max - min) is at most this hold one
+    /// surface and are judged by their mean and standard deviation (same decision, much cheaper).
+    pub single_surface_range_m: f64,
 }
 
 impl Default for GaussianFilterConfig {
@@ -68,6 +71,7 @@ impl Default for GaussianFilterConfig {
             k_sigma: 3.0,
             sigma_floor_m: 0.002,
             min_support: 6,
+            single_surface_range_m: 0.015,
         }
     }
 }

@@ -99,8 +99,12 @@ pub fn gaussian_window(depth: &DepthMap, cfg: &GaussianFilterConfig) -> (DepthMa
         }
     }
     let boxed = |img: &[f64], x0: usize, y0: usize, x1: usize, y1: usize| {
-        img[(y1 + 1) * stride + x1 + 1] - img[y0 * stride + x1 + 1] - img[(y1 + 1) * stride + x0] + img[y0 * stride + x0]
+        img[(y1 + 1) * stride + x1 + 1] - img[y0 * stride + x1 + 1] - img[(y1 + 1) * stride + x0]
+            + img[y0 * stride + x0]
     };
+    // Windows whose depth range is small hold one smooth surface; only the others (straddling a
+    // discontinuity) need the robust fit.
+    let (wmin, wmax) = window_min_max(depth, cfg.window);
     let mut out = vec![0.0f32; w * h];
     out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
         let mut vals: Vec<f32> = Vec::with_capacity(cfg.window * cfg.window);
@@ -119,9 +123,12 @@ pub fn gaussian_window(depth: &DepthMap, cfg: &GaussianFilterConfig) -> (DepthMa
             let mean = boxed(&is, x0, y0, x1, y1) / n;
             let std = (boxed(&iq, x0, y0, x1, y1) / n - mean * mean).max(0.0).sqrt();
             let (mu, sigma) = match cfg.estimator {
-                // A window whose spread is below the floor holds one smooth surface: there the
-                // median equals the mean to within the floor, so the cheap estimate decides.
-                WindowEstimator::Robust if std > cfg.sigma_floor_m => {
+                // One smooth surface (small range or spread): the median equals the mean to within
+                // the noise, so the cheap estimate decides.
+                WindowEstimator::Robust
+                    if std > cfg.sigma_floor_m
+                        && f64::from(wmax[y * w + x] - wmin[y * w + x]) > cfg.single_surface_range_m =>
+                {
                     vals.clear();
                     for yy in y0..=y1 {
                         vals.extend(src[yy * w + x0..=yy * w + x1].iter().filter(|&&v| v > 0.0));

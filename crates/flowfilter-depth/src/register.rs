@@ -26,7 +26,8 @@ pub fn project_depth_grid(
             if z <= 0.0 {
                 return None;
             }
-            let p = sensor.color_from_depth * depth_rays.backproject(origin.0 + k % w, origin.1 + k / w, f64::from(z))?;
+            let p =
+                sensor.color_from_depth * depth_rays.backproject(origin.0 + k % w, origin.1 + k / w, f64::from(z))?;
             let q = sensor.color.project(&p)?;
             Some(ScreenVertex { x: q.x as f32, y: q.y as f32, z: p.z as f32 })
         })

@@ -175,18 +175,19 @@ impl DepthStage {
             let d = *raw.at(rx0 + x, ry0 + y);
             if d == 0 { 0.0 } else { (f64::from(d) * unit) as f32 }
         });
-        lap(&mut stats, "metric+roi");
+        lap(&mut stats, "crop");
         if cfg.gaussian_filter.enabled {
             let (d, n) = gaussian_window(&depth, &cfg.gaussian_filter);
             depth = d;
             stats.rejected_gaussian = n;
         }
+        lap(&mut stats, "gaussian");
         if cfg.step_filter.enabled {
             let (d, n) = bigbird_discontinuity(&depth, cfg.step_filter.window, cfg.step_filter.threshold_m);
             depth = d;
             stats.rejected_step = n;
         }
-        lap(&mut stats, "filters");
+        lap(&mut stats, "step");
         let projected = project_depth_grid(&depth, (rx0, ry0), sensor, &self.rays(&sensor.depth));
         let restrict = cfg.registration.restrict_to_mask.then_some(mask);
         let registered = match cfg.registration.method {
