@@ -17,28 +17,44 @@ pub fn organized_cloud(
     mask: Option<&Mask>,
 ) -> (PointCloud, Vec<u32>) {
     let w = depth.width();
-    let (mut points, mut pixels, mut colors) = (Vec::new(), Vec::new(), Vec::new());
-    let mut index = vec![u32::MAX; depth.as_slice().len()];
     let (x0, y0, x1, y1) = match mask {
         Some(m) => match crate::register::mask_bbox(m) {
             Some(b) => b,
-            None => (1, 1, 0, 0),
+            None => {
+                return (
+                    PointCloud { colors: color.map(|_| vec![]), pixels: Some(vec![]), ..Default::default() },
+                    vec![u32::MAX; depth.as_slice().len()],
+                );
+            }
         },
         None => (0, 0, w - 1, depth.height() - 1),
     };
-    for (x, y) in (y0..=y1).flat_map(|y| (x0..=x1).map(move |x| (x, y))) {
-        let k = y * w + x;
-        let z = depth.as_slice()[k];
-        if z <= 0.0 || mask.is_some_and(|m| !m.as_slice()[k]) {
-            continue;
-        }
-        let Some(p) = rays.backproject(x, y, f64::from(z)) else { continue };
+    // Rows in parallel, concatenated in row order: the same cloud as a sequential scan.
+    let rows: Vec<Vec<(usize, Point3, [u8; 3])>> = (y0..=y1)
+        .into_par_iter()
+        .map(|y| {
+            let mut row = Vec::new();
+            for x in x0..=x1 {
+                let k = y * w + x;
+                let z = depth.as_slice()[k];
+                if z <= 0.0 || mask.is_some_and(|m| !m.as_slice()[k]) {
+                    continue;
+                }
+                if let Some(p) = rays.backproject(x, y, f64::from(z)) {
+                    row.push((k, p, color.map_or([0; 3], |c| c.get_pixel(x as u32, y as u32).0)));
+                }
+            }
+            row
+        })
+        .collect();
+    let n: usize = rows.iter().map(Vec::len).sum();
+    let (mut points, mut pixels, mut colors) = (Vec::with_capacity(n), Vec::with_capacity(n), Vec::with_capacity(n));
+    let mut index = vec![u32::MAX; depth.as_slice().len()];
+    for (k, p, c) in rows.into_iter().flatten() {
         index[k] = points.len() as u32;
         points.push(p);
-        pixels.push([x as f32, y as f32]);
-        if let Some(c) = color {
-            colors.push(c.get_pixel(x as u32, y as u32).0);
-        }
+        pixels.push([(k % w) as f32, (k / w) as f32]);
+        colors.push(c);
     }
     let cloud = PointCloud { points, normals: None, colors: color.map(|_| colors), pixels: Some(pixels) };
     (cloud, index)

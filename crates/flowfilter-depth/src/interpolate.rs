@@ -31,44 +31,62 @@ fn walk(
 /// most `max_step_m`) and averages the row and column estimates; `Nearest` copies the nearest
 /// sample. Only original samples are used. Returns the filled map and the number of pixels filled.
 pub fn fill_holes(depth: &DepthMap, mask: &Mask, cfg: &InterpolationConfig) -> (DepthMap, usize) {
+    let mut out = depth.clone();
+    let filled = fill_holes_in_place(&mut out, mask, cfg);
+    (out, filled)
+}
+
+/// [`fill_holes`] without copying the map: the fills are computed from the original samples
+/// (rayon over the mask's rows), then written. Returns the number of pixels filled.
+pub fn fill_holes_in_place(depth: &mut DepthMap, mask: &Mask, cfg: &InterpolationConfig) -> usize {
     if cfg.method == InterpolationMethod::None {
-        return (depth.clone(), 0);
+        return 0;
     }
+    let Some((x0, y0, x1, y1)) = crate::register::mask_bbox(mask) else { return 0 };
     let (w, h) = depth.dims();
     let src = depth.as_slice();
     let m = mask.as_slice();
     let r = cfg.max_radius_px;
     let step = cfg.max_step_m as f32;
-    let mut out = src.to_vec();
-    let Some((x0, y0, x1, y1)) = crate::register::mask_bbox(mask) else { return (depth.clone(), 0) };
-    out[y0 * w..(y1 + 1) * w].par_chunks_mut(w).enumerate().for_each(|(by, row)| {
-        let y = y0 + by;
-        for x in x0..=x1 {
-            if row[x] > 0.0 || !m[y * w + x] {
-                continue;
-            }
-            let dirs = [(-1, 0), (1, 0), (0, -1), (0, 1)].map(|d| walk(src, (w, h), (x, y), d, r));
-            row[x] = match cfg.method {
-                InterpolationMethod::Nearest => {
-                    dirs.iter().flatten().min_by(|a, b| a.0.total_cmp(&b.0)).map_or(0.0, |&(_, z)| z)
+    let fills: Vec<(usize, f32)> = (y0..=y1)
+        .into_par_iter()
+        .flat_map_iter(|y| {
+            let mut row = Vec::new();
+            for x in x0..=x1 {
+                let k = y * w + x;
+                if src[k] > 0.0 || !m[k] {
+                    continue;
                 }
-                _ => {
-                    let mut acc = (0.0f32, 0u32);
-                    for (a, b) in [(dirs[0], dirs[1]), (dirs[2], dirs[3])] {
-                        if let (Some((da, za)), Some((db, zb))) = (a, b)
-                            && (za - zb).abs() <= step
-                        {
-                            acc.0 += za + (zb - za) * da / (da + db);
-                            acc.1 += 1;
-                        }
+                let dirs = [(-1, 0), (1, 0), (0, -1), (0, 1)].map(|d| walk(src, (w, h), (x, y), d, r));
+                let z = match cfg.method {
+                    InterpolationMethod::Nearest => {
+                        dirs.iter().flatten().min_by(|a, b| a.0.total_cmp(&b.0)).map_or(0.0, |&(_, z)| z)
                     }
-                    if acc.1 > 0 { acc.0 / acc.1 as f32 } else { 0.0 }
+                    _ => {
+                        let mut acc = (0.0f32, 0u32);
+                        for (a, b) in [(dirs[0], dirs[1]), (dirs[2], dirs[3])] {
+                            if let (Some((da, za)), Some((db, zb))) = (a, b)
+                                && (za - zb).abs() <= step
+                            {
+                                acc.0 += za + (zb - za) * da / (da + db);
+                                acc.1 += 1;
+                            }
+                        }
+                        if acc.1 > 0 { acc.0 / acc.1 as f32 } else { 0.0 }
+                    }
+                };
+                if z > 0.0 {
+                    row.push((k, z));
                 }
-            };
-        }
-    });
-    let filled = (y0..=y1).map(|y| (x0..=x1).filter(|&x| out[y * w + x] > 0.0 && src[y * w + x] <= 0.0).count()).sum();
-    (DepthMap::from_vec(w, h, out).expect("sized"), filled)
+            }
+            row
+        })
+        .collect();
+    let out = depth.as_mut_slice();
+    for &(k, z) in &fills {
+        out[k] = z;
+    }
+    fills.len()
 }
 
 #[cfg(test)]

@@ -5,7 +5,7 @@ use crate::cloud::{knn_normals, organized_cloud, organized_normals};
 use crate::config::{DepthConfig, NormalMethod, RegistrationMethod};
 use crate::error::DepthError;
 use crate::filter::{bigbird_discontinuity, gaussian_window};
-use crate::interpolate::fill_holes;
+use crate::interpolate::fill_holes_in_place;
 use crate::register::{depth_roi, mask_bbox, mesh, project_depth_grid, splat};
 use flowfilter_camera::{CameraModel, RayTable, RgbdSensor};
 use flowfilter_geometry::{DepthMap, Mask, Point3, PointCloud, RawDepth};
@@ -197,8 +197,8 @@ impl DepthStage {
         lap(&mut stats, "project+register");
         // Registration only writes inside the mask (or anywhere when unrestricted).
         stats.registered = registered.as_slice().iter().zip(mask.as_slice()).filter(|(z, m)| **z > 0.0 && **m).count();
-        let (dense, filled) = fill_holes(&registered, mask, &cfg.interpolation);
-        stats.interpolated = filled;
+        let mut dense = registered;
+        stats.interpolated = fill_holes_in_place(&mut dense, mask, &cfg.interpolation);
         lap(&mut stats, "interpolate");
         let color_rays = self.rays(&sensor.color);
         let (mut cloud, point_index) = organized_cloud(&dense, &color_rays, Some(color), Some(mask));
