@@ -1,0 +1,16 @@
+//! The optical-flow stage (stage 3 of the method).
+//!
+//! - [`FlowField`]: dense flow `(u, v)` per pixel with a validity mask; convention
+//!   `I_to(x + f(x)) = I_from(x)`.
+//! - [`flo`]: Middlebury `.flo` read/write with typed errors.
+//! - [`metrics`]: end-point error (all valid pixels, under a mask, at query points).
+//! - [`viz`]: the Middlebury colour-wheel visualisation.
+
+mod field;
+pub mod flo;
+pub mod metrics;
+pub mod sintel;
+pub mod viz;
+
+pub use field::FlowField;
+pub use flo::FloError;
