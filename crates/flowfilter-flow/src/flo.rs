@@ -83,7 +83,10 @@ pub fn decode(bytes: &[u8], path: &Path) -> Result<FlowField, FloError> {
         flow.push(if ok { [u, v] } else { [0.0, 0.0] });
         valid.push(ok);
     }
-    Ok(FlowField { flow: Grid::from_vec(w, h, flow).expect("sized"), valid: Mask::from_vec(w, h, valid).expect("sized") })
+    Ok(FlowField {
+        flow: Grid::from_vec(w, h, flow).expect("sized"),
+        valid: Mask::from_vec(w, h, valid).expect("sized"),
+    })
 }
 
 /// Read a `.flo` file.

@@ -8,6 +8,7 @@
 
 mod field;
 pub mod flo;
+pub mod lk;
 pub mod metrics;
 pub mod sintel;
 pub mod viz;

@@ -1,0 +1,175 @@
+//! Sparse pyramidal Lucas-Kanade (Bouguet, "Pyramidal implementation of the Lucas Kanade
+//! feature tracker", 2000): per point, coarse to fine, iterative Newton steps on the window's
+//! brightness constancy with bilinear sampling; points whose spatial gradient matrix is
+//! ill-conditioned (small minimum eigenvalue) are rejected.
+
+use flowfilter_geometry::Grid;
+use image::RgbImage;
+use rayon::prelude::*;
+
+/// A grey image with values in [0, 1].
+pub type Gray = Grid<f32>;
+
+/// Luma of an RGB image (Rec. 601 weights), in [0, 1].
+pub fn to_gray(img: &RgbImage) -> Gray {
+    Gray::from_fn(img.width() as usize, img.height() as usize, |x, y| {
+        let p = img.get_pixel(x as u32, y as u32).0;
+        (0.299 * f32::from(p[0]) + 0.587 * f32::from(p[1]) + 0.114 * f32::from(p[2])) / 255.0
+    })
+}
+
+/// Half-resolution image: separable `[1 4 6 4 1] / 16` blur, then every other pixel.
+pub fn downsample(img: &Gray) -> Gray {
+    let (w, h) = img.dims();
+    let k = [1.0f32, 4.0, 6.0, 4.0, 1.0];
+    let at = |x: isize, y: isize| *img.at(x.clamp(0, w as isize - 1) as usize, y.clamp(0, h as isize - 1) as usize);
+    let (nw, nh) = (w.div_ceil(2), h.div_ceil(2));
+    Gray::from_fn(nw, nh, |x, y| {
+        let (cx, cy) = (2 * x as isize, 2 * y as isize);
+        let mut acc = 0.0;
+        for (j, kj) in k.iter().enumerate() {
+            for (i, ki) in k.iter().enumerate() {
+                acc += kj * ki * at(cx + i as isize - 2, cy + j as isize - 2);
+            }
+        }
+        acc / 256.0
+    })
+}
+
+/// Bilinear sample with clamped borders.
+fn sample(img: &Gray, x: f32, y: f32) -> f32 {
+    let (w, h) = (img.width() as f32, img.height() as f32);
+    let x = x.clamp(0.0, w - 1.0);
+    let y = y.clamp(0.0, h - 1.0);
+    let (x0, y0) = (x.floor(), y.floor());
+    let (fx, fy) = (x - x0, y - y0);
+    let (ix, iy) = (x0 as usize, y0 as usize);
+    let (ix1, iy1) = ((ix + 1).min(img.width() - 1), (iy + 1).min(img.height() - 1));
+    let (a, b, c, d) = (*img.at(ix, iy), *img.at(ix1, iy), *img.at(ix, iy1), *img.at(ix1, iy1));
+    (a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + d * fx) * fy
+}
+
+/// Parameters (defaults as OpenCV's `calcOpticalFlowPyrLK` with a 21x21 window and 3 levels).
+#[derive(Debug, Clone, PartialEq)]
+pub struct LkParams {
+    /// Odd window size.
+    pub window: usize,
+    /// Pyramid levels above the full resolution.
+    pub levels: usize,
+    /// Newton iterations per level.
+    pub max_iterations: usize,
+    /// Stop when the update is below this (pixels).
+    pub epsilon: f32,
+    /// Reject when the gradient matrix's minimum eigenvalue / window area is below this.
+    pub min_eigen: f32,
+}
+
+impl Default for LkParams {
+    fn default() -> Self {
+        Self { window: 21, levels: 3, max_iterations: 30, epsilon: 0.01, min_eigen: 1e-4 }
+    }
+}
+
+/// Track `points` (pixel coordinates in `from`) into `to`: the flow vector of each point, or
+/// `None` when it is lost (ill-conditioned window or outside the image).
+pub fn track(from: &Gray, to: &Gray, points: &[[f32; 2]], p: &LkParams) -> Vec<Option<[f32; 2]>> {
+    let mut pa = vec![from.clone()];
+    let mut pb = vec![to.clone()];
+    for _ in 0..p.levels {
+        pa.push(downsample(pa.last().expect("non-empty")));
+        pb.push(downsample(pb.last().expect("non-empty")));
+    }
+    let r = (p.window / 2) as isize;
+    let area = (p.window * p.window) as f32;
+    points
+        .par_iter()
+        .map(|pt| {
+            let mut g = [0.0f32; 2];
+            for level in (0..=p.levels).rev() {
+                let s = (1u32 << level) as f32;
+                let (a, b) = (&pa[level], &pb[level]);
+                let (px, py) = (pt[0] / s, pt[1] / s);
+                // Template, gradients and the spatial gradient matrix at this level.
+                let mut tmpl = Vec::with_capacity(p.window * p.window);
+                let (mut gxx, mut gxy, mut gyy) = (0.0f32, 0.0f32, 0.0f32);
+                for dy in -r..=r {
+                    for dx in -r..=r {
+                        let (x, y) = (px + dx as f32, py + dy as f32);
+                        let ix = 0.5 * (sample(a, x + 1.0, y) - sample(a, x - 1.0, y));
+                        let iy = 0.5 * (sample(a, x, y + 1.0) - sample(a, x, y - 1.0));
+                        tmpl.push((sample(a, x, y), ix, iy));
+                        gxx += ix * ix;
+                        gxy += ix * iy;
+                        gyy += iy * iy;
+                    }
+                }
+                let tr = gxx + gyy;
+                let min_eig = 0.5 * (tr - ((gxx - gyy).powi(2) + 4.0 * gxy * gxy).sqrt());
+                if min_eig / area < p.min_eigen {
+                    return None;
+                }
+                let det = gxx * gyy - gxy * gxy;
+                let mut d = [0.0f32; 2];
+                for _ in 0..p.max_iterations {
+                    let (mut bx, mut by) = (0.0f32, 0.0f32);
+                    let mut k = 0;
+                    for dy in -r..=r {
+                        for dx in -r..=r {
+                            let (t, ix, iy) = tmpl[k];
+                            k += 1;
+                            let diff = t - sample(b, px + g[0] + d[0] + dx as f32, py + g[1] + d[1] + dy as f32);
+                            bx += diff * ix;
+                            by += diff * iy;
+                        }
+                    }
+                    let step = [(gyy * bx - gxy * by) / det, (gxx * by - gxy * bx) / det];
+                    d[0] += step[0];
+                    d[1] += step[1];
+                    if step[0].abs() < p.epsilon && step[1].abs() < p.epsilon {
+                        break;
+                    }
+                }
+                g = if level > 0 { [2.0 * (g[0] + d[0]), 2.0 * (g[1] + d[1])] } else { [g[0] + d[0], g[1] + d[1]] };
+            }
+            let (qx, qy) = (pt[0] + g[0], pt[1] + g[1]);
+            let inside = qx >= 0.0 && qy >= 0.0 && qx <= (to.width() - 1) as f32 && qy <= (to.height() - 1) as f32;
+            (inside && g.iter().all(|v| v.is_finite())).then_some(g)
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn texture(w: usize, h: usize, shift: (f32, f32)) -> Gray {
+        // A smooth random-looking pattern evaluated at (x - shift): moving content by +shift.
+        Gray::from_fn(w, h, |x, y| {
+            let (u, v) = (x as f32 - shift.0, y as f32 - shift.1);
+            0.5 + 0.2 * (u * 0.21).sin() * (v * 0.17).cos()
+                + 0.15 * ((u + 2.0 * v) * 0.093).sin()
+                + 0.1 * ((3.0 * u - v) * 0.051).cos()
+        })
+    }
+
+    #[test]
+    fn recovers_subpixel_translations() {
+        for shift in [(0.3f32, -0.7f32), (4.6, 2.2), (-11.3, 7.9)] {
+            let (a, b) = (texture(160, 120, (0.0, 0.0)), texture(160, 120, shift));
+            let pts: Vec<[f32; 2]> =
+                (0..5).flat_map(|i| (0..4).map(move |j| [40.0 + 20.0 * i as f32, 30.0 + 20.0 * j as f32])).collect();
+            let flow = track(&a, &b, &pts, &LkParams::default());
+            for f in flow {
+                let f = f.expect("tracked");
+                let e = ((f[0] - shift.0).powi(2) + (f[1] - shift.1).powi(2)).sqrt();
+                assert!(e < 0.1, "shift {shift:?}: estimate {f:?}, error {e}");
+            }
+        }
+    }
+
+    #[test]
+    fn flat_windows_are_rejected() {
+        let flat = Gray::filled(64, 64, 0.5);
+        assert_eq!(track(&flat, &flat, &[[32.0, 32.0]], &LkParams::default()), vec![None]);
+    }
+}
