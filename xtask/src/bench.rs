@@ -9,8 +9,12 @@ use flowfilter_bigbird::{BigBirdObject, FrameId, SensorId};
 use flowfilter_depth::cloud::voxel_downsample;
 use flowfilter_depth::{DepthConfig, DepthStage};
 use flowfilter_eval::{PoseErrors, mean_median};
-use flowfilter_geometry::PointCloud;
-use flowfilter_registration::{RegistrationConfig, RegistrationProblem, registrar_by_name};
+use flowfilter_flow::correspondences::{CorrespondenceParams, flow_correspondences};
+use flowfilter_flow::lk::{Gray, to_gray};
+use flowfilter_geometry::{DepthMap, Mask, PointCloud};
+use flowfilter_registration::{
+    Correspondences, FLOW_METHOD_NAMES, RegistrationConfig, RegistrationProblem, registrar_by_name,
+};
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -33,7 +37,7 @@ pub struct BenchArgs {
     #[arg(long)]
     pub meshes: Option<PathBuf>,
     /// Methods, comma separated.
-    #[arg(long, value_delimiter = ',', default_value = "icp-pt2pl,cpd,filterreg-pt2pt")]
+    #[arg(long, value_delimiter = ',', default_value = "icp-pt2pl,cpd,filterreg-pt2pt,flowfilter")]
     pub methods: Vec<String>,
     /// Output root (a timestamped directory is created inside).
     #[arg(long, default_value = "results")]
@@ -215,23 +219,21 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
             .filter(|id| obj.has_frame(*id))
             .collect();
         let bar = progress(frames.len() as u64, &format!("{name}: depth stage"));
-        let clouds: BTreeMap<FrameId, Result<PointCloud, String>> = frames
+        let wants_flow = protocol.methods.iter().any(|m| FLOW_METHOD_NAMES.contains(&m.as_str()));
+        let clouds: BTreeMap<FrameId, Result<FrameData, String>> = frames
             .par_iter()
             .map(|&id| {
-                let cloud = obj
-                    .load_frame(id)
-                    .map_err(|e| format!("loading: {e}"))
-                    .and_then(|f| {
-                        let sensor = obj.rgbd_sensor(&f).map_err(|e| format!("calibration: {e}"))?;
-                        depth.process(&f.depth, &f.color, &f.mask, &sensor).map_err(|e| format!("depth stage: {e}"))
-                    })
-                    .map(|p| {
-                        let mut c = voxel_downsample(&p.cloud, protocol.voxel_m);
-                        c.colors = None;
-                        c
-                    });
+                let data = obj.load_frame(id).map_err(|e| format!("loading: {e}")).and_then(|f| {
+                    let sensor = obj.rgbd_sensor(&f).map_err(|e| format!("calibration: {e}"))?;
+                    let p =
+                        depth.process(&f.depth, &f.color, &f.mask, &sensor).map_err(|e| format!("depth stage: {e}"))?;
+                    let mut cloud = voxel_downsample(&p.cloud, protocol.voxel_m);
+                    cloud.colors = None;
+                    let flow_inputs = wants_flow.then(|| (to_gray(&f.color), p.depth, f.mask, sensor));
+                    Ok(FrameData { cloud, flow_inputs })
+                });
                 bar.inc(1);
-                (id, cloud)
+                (id, data)
             })
             .collect();
         bar.finish();
@@ -262,18 +264,29 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
                     failure: None,
                 };
                 let get = |angle: u32| match clouds.get(&FrameId { sensor: *sensor, angle }) {
-                    Some(Ok(c)) => Ok(c.clone()),
+                    Some(Ok(c)) => Ok(c),
                     Some(Err(e)) => Err(format!("frame {sensor}_{angle}: {e}")),
                     None => Err(format!("frame {sensor}_{angle}: not in the dataset")),
                 };
                 let outcome = (|| -> Result<(), String> {
-                    let (source, target) = (get(*from)?, get(*to)?);
+                    let (model, target) = (get(*from)?, get(*to)?);
                     let truth = obj.relative_motion(*sensor, *from, *to).map_err(|e| format!("ground truth: {e}"))?;
                     let reg = registrar_by_name(method, &reg_config).map_err(|e| e.to_string())?;
                     let t0 = Instant::now();
-                    let r = reg
-                        .register(&RegistrationProblem::new(source.clone(), target))
-                        .map_err(|e| format!("registration: {e}"))?;
+                    let mut problem = RegistrationProblem::new(model.cloud.clone(), target.cloud.clone());
+                    if FLOW_METHOD_NAMES.contains(&method.as_str()) {
+                        let (Some((ga, da, ma, sa)), Some((gb, db, mb, _))) = (&model.flow_inputs, &target.flow_inputs)
+                        else {
+                            return Err("flow: frame data missing".into());
+                        };
+                        let rays = depth.rays(&sa.color);
+                        let pairs =
+                            flow_correspondences(ga, gb, da, db, ma, mb, &rays, &CorrespondenceParams::default());
+                        let c = Correspondences { source: pairs.model, target: pairs.target, weights: pairs.weights };
+                        problem.correspondences = Some(c);
+                    }
+                    let source = &model.cloud;
+                    let r = reg.register(&problem).map_err(|e| format!("registration: {e}"))?;
                     row.seconds = Some(t0.elapsed().as_secs_f64());
                     row.converged = Some(r.converged);
                     row.errors = Some(PoseErrors::new(&r.transform, &truth, Some(&source.points)));
@@ -288,6 +301,13 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         results.append(&mut rows);
     }
     write_outputs(args, &protocol, &results, &skipped, started.elapsed().as_secs_f64())
+}
+
+/// What a frame contributes: its downsampled object cloud and, for flow methods, the grey
+/// image, colour-grid depth, mask and sensor.
+struct FrameData {
+    cloud: PointCloud,
+    flow_inputs: Option<(Gray, DepthMap, Mask, flowfilter_camera::RgbdSensor)>,
 }
 
 fn progress(len: u64, msg: &str) -> ProgressBar {

@@ -6,7 +6,7 @@ use flowfilter_synth::{CaptureOptions, NoiseProfile, Rig, Scene, TexturedMesh, p
 use std::path::{Path, PathBuf};
 
 /// Bumped whenever the synthesiser's output changes, to invalidate caches.
-const DATASET_VERSION: &str = "flowfilter-default-dataset v1";
+const DATASET_VERSION: &str = "flowfilter-default-dataset v2 (mip-mapped textures)";
 
 /// Where an object comes from.
 pub enum ObjectSource {

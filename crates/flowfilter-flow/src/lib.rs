@@ -6,6 +6,7 @@
 //! - [`metrics`]: end-point error (all valid pixels, under a mask, at query points).
 //! - [`viz`]: the Middlebury colour-wheel visualisation.
 
+pub mod correspondences;
 mod field;
 pub mod flo;
 pub mod lk;

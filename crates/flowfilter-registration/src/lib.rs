@@ -6,6 +6,7 @@ mod cpd;
 mod error;
 mod evaluate;
 mod filterreg;
+mod flowfilter;
 mod gmm;
 mod icp;
 pub mod lattice;
@@ -16,9 +17,10 @@ pub use cpd::{Cpd, CpdConfig, CpdEStep};
 pub use error::RegistrationError;
 pub use evaluate::{RobustKernel, evaluate};
 pub use filterreg::{FilterReg, FilterRegConfig, FilterRegEStep, FilterRegVariant, SigmaSchedule};
+pub use flowfilter::{FlowFilter, FlowFilterConfig, FlowFilterMode, ransac_kabsch};
 pub use gmm::mean_pair_distance2;
 pub use icp::{Icp, IcpConfig, IcpVariant};
 pub use problem::{
     Correspondences, IterationRecord, Registrar, Registration, RegistrationProblem, validate_cloud, validate_problem,
 };
-pub use registry::{METHOD_NAMES, RegistrationConfig, registrar_by_name};
+pub use registry::{FLOW_METHOD_NAMES, METHOD_NAMES, RegistrationConfig, registrar_by_name};

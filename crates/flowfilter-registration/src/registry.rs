@@ -3,12 +3,16 @@
 use crate::cpd::{Cpd, CpdConfig};
 use crate::error::RegistrationError;
 use crate::filterreg::{FilterReg, FilterRegConfig, FilterRegVariant};
+use crate::flowfilter::{FlowFilter, FlowFilterConfig, FlowFilterMode};
 use crate::icp::{Icp, IcpConfig, IcpVariant};
 use crate::problem::Registrar;
 use serde::{Deserialize, Serialize};
 
 /// Names accepted by [`registrar_by_name`].
 pub const METHOD_NAMES: [&str; 5] = ["icp-pt2pt", "icp-pt2pl", "cpd", "filterreg-pt2pt", "filterreg-pt2pl"];
+
+/// Flow Filter names (they need flow correspondences in the problem).
+pub const FLOW_METHOD_NAMES: [&str; 3] = ["flowfilter", "flowfilter-init-only", "flowfilter-flow-only"];
 
 /// Parameters of every backend (the variant fields are set from the method name).
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
@@ -20,6 +24,8 @@ pub struct RegistrationConfig {
     pub cpd: CpdConfig,
     /// FilterReg.
     pub filterreg: FilterRegConfig,
+    /// Flow Filter.
+    pub flowfilter: FlowFilterConfig,
 }
 
 /// The backend called `name`, configured by `config`.
@@ -38,10 +44,19 @@ pub fn registrar_by_name(name: &str, config: &RegistrationConfig) -> Result<Box<
             variant: FilterRegVariant::PointToPlane,
             ..config.filterreg.clone()
         })?),
+        "flowfilter" | "flowfilter-init-only" | "flowfilter-flow-only" => {
+            let mode = match name {
+                "flowfilter" => FlowFilterMode::Joint,
+                "flowfilter-init-only" => FlowFilterMode::InitOnly,
+                _ => FlowFilterMode::FlowOnly,
+            };
+            Box::new(FlowFilter::new(FlowFilterConfig { mode, ..config.flowfilter.clone() })?)
+        }
         other => {
             return Err(RegistrationError::Config(format!(
-                "unknown method '{other}' (available: {})",
-                METHOD_NAMES.join(", ")
+                "unknown method '{other}' (available: {}, {})",
+                METHOD_NAMES.join(", "),
+                FLOW_METHOD_NAMES.join(", ")
             )));
         }
     })

@@ -65,24 +65,46 @@ fn normal_at(scene: &Scene, g: &GBuffer, k: usize) -> Vector3<f32> {
     n.try_normalize(1e-12).unwrap_or_else(Vector3::z)
 }
 
+fn uv_at(scene: &Scene, g: &GBuffer, k: usize) -> Option<(u32, [f32; 2])> {
+    if g.triangle[k] == NO_TRIANGLE {
+        return None;
+    }
+    let (mesh, t) = scene.locate(g.triangle[k]);
+    let [i0, i1, i2] = mesh.triangles[t].map(|i| i as usize);
+    let [b1, b2] = g.bary[k];
+    let b0 = 1.0 - b1 - b2;
+    let mesh_id = u32::from(g.triangle[k] >= scene.object_triangles() as u32);
+    Some((mesh_id, [0, 1].map(|c| mesh.uvs[i0][c] * b0 + mesh.uvs[i1][c] * b1 + mesh.uvs[i2][c] * b2)))
+}
+
 fn shade(scene: &Scene, g: &GBuffer, angle_deg: f64) -> RgbImage {
     let rot = world_from_table(angle_deg).rotation.cast::<f32>();
-    let mut out = vec![scene.background; g.width * g.height];
+    let (w, h) = (g.width, g.height);
+    let uvs: Vec<Option<(u32, [f32; 2])>> = (0..w * h).into_par_iter().map(|k| uv_at(scene, g, k)).collect();
+    let mut out = vec![scene.background; w * h];
     out.par_iter_mut().enumerate().for_each(|(k, px)| {
-        if g.triangle[k] == NO_TRIANGLE {
-            return;
-        }
-        let (mesh, t) = scene.locate(g.triangle[k]);
-        let [i0, i1, i2] = mesh.triangles[t].map(|i| i as usize);
-        let [b1, b2] = g.bary[k];
-        let b0 = 1.0 - b1 - b2;
-        let uv = [0, 1].map(|c| mesh.uvs[i0][c] * b0 + mesh.uvs[i1][c] * b1 + mesh.uvs[i2][c] * b2);
-        let albedo = mesh.sample_texture(uv);
+        let Some((mesh_id, uv)) = uvs[k] else { return };
+        let (mesh, _) = scene.locate(g.triangle[k]);
+        // The pixel's footprint in texels, from the UV differences to its neighbours on the
+        // same mesh (the larger of the horizontal and vertical ones).
+        let (tw, th) = (mesh.texture.width() as f32, mesh.texture.height() as f32);
+        let (x, y) = (k % w, k / w);
+        let span = |other: Option<usize>| -> Option<f32> {
+            let (m, o) = uvs[other?]?;
+            // Texture seams wrap: take the shorter way around.
+            let du = (o[0] - uv[0]).abs();
+            let dv = (o[1] - uv[1]).abs();
+            (m == mesh_id).then(|| ((du.min(1.0 - du) * tw).powi(2) + (dv.min(1.0 - dv) * th).powi(2)).sqrt())
+        };
+        let dx = span((x + 1 < w).then_some(k + 1)).or_else(|| span((x > 0).then(|| k - 1)));
+        let dy = span((y + 1 < h).then_some(k + w)).or_else(|| span((y > 0).then(|| k - w)));
+        let texels = dx.unwrap_or(1.0).max(dy.unwrap_or(1.0));
+        let albedo = mesh.sample_texture_footprint(uv, texels);
         let n_world = rot * normal_at(scene, g, k);
         let light = scene.ambient + scene.diffuse * n_world.dot(&scene.light_world).max(0.0);
         *px = albedo.map(|a| (a * light * 255.0).round().clamp(0.0, 255.0) as u8);
     });
-    RgbImage::from_fn(g.width as u32, g.height as u32, |x, y| Rgb(out[y as usize * g.width + x as usize]))
+    RgbImage::from_fn(w as u32, h as u32, |x, y| Rgb(out[y as usize * w + x as usize]))
 }
 
 fn depth_map(g: &GBuffer) -> DepthMap {

@@ -22,6 +22,32 @@ pub struct TexturedMesh {
     pub triangles: Vec<[u32; 3]>,
     /// The diffuse texture.
     pub texture: Arc<RgbImage>,
+    /// Mip levels of the texture (level 0 = the texture; each next level halves both sides by
+    /// 2x2 box filtering), for sampling minified textures without aliasing.
+    pub mips: Arc<Vec<RgbImage>>,
+}
+
+/// Box-filtered mip chain of an image, down to 1x1.
+fn mip_chain(img: &RgbImage) -> Vec<RgbImage> {
+    let mut levels = vec![img.clone()];
+    while let Some(last) = levels.last() {
+        if last.width() <= 1 && last.height() <= 1 {
+            break;
+        }
+        let (w, h) = ((last.width() / 2).max(1), (last.height() / 2).max(1));
+        let next = RgbImage::from_fn(w, h, |x, y| {
+            let mut acc = [0u32; 3];
+            for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                let p = last.get_pixel((2 * x + dx).min(last.width() - 1), (2 * y + dy).min(last.height() - 1)).0;
+                for c in 0..3 {
+                    acc[c] += u32::from(p[c]);
+                }
+            }
+            image::Rgb(acc.map(|v| ((v + 2) / 4) as u8))
+        });
+        levels.push(next);
+    }
+    levels
 }
 
 impl TexturedMesh {
@@ -63,7 +89,8 @@ impl TexturedMesh {
         for n in &mut normals {
             *n = n.try_normalize(1e-20).unwrap_or_else(Vector3::z);
         }
-        Ok(Self { source, positions, uvs, normals, triangles, texture })
+        let mips = Arc::new(mip_chain(&texture));
+        Ok(Self { source, positions, uvs, normals, triangles, texture, mips })
     }
 
     /// Load an OBJ with its MTL's diffuse texture (`map_Kd`). All meshes in the file are merged;
@@ -144,7 +171,23 @@ impl TexturedMesh {
 
     /// Bilinear texture lookup at OBJ texture coordinates (wrapping), as linear RGB in [0, 1].
     pub fn sample_texture(&self, uv: [f32; 2]) -> [f32; 3] {
-        let t = &*self.texture;
+        Self::bilinear(&self.texture, uv)
+    }
+
+    /// Trilinear (mip-mapped) lookup for a pixel whose footprint spans `texels` texels of the
+    /// full-resolution texture: what a camera pixel integrating over its area sees.
+    pub fn sample_texture_footprint(&self, uv: [f32; 2], texels: f32) -> [f32; 3] {
+        let lod = texels.max(1.0).log2().min((self.mips.len() - 1) as f32);
+        let (l0, f) = (lod.floor() as usize, lod - lod.floor());
+        let a = Self::bilinear(&self.mips[l0], uv);
+        if f <= 0.0 || l0 + 1 >= self.mips.len() {
+            return a;
+        }
+        let b = Self::bilinear(&self.mips[l0 + 1], uv);
+        std::array::from_fn(|k| a[k] * (1.0 - f) + b[k] * f)
+    }
+
+    fn bilinear(t: &RgbImage, uv: [f32; 2]) -> [f32; 3] {
         let (w, h) = (t.width() as f32, t.height() as f32);
         let x = uv[0].rem_euclid(1.0) * w - 0.5;
         let y = (1.0 - uv[1].rem_euclid(1.0)) * h - 0.5;
@@ -160,5 +203,32 @@ impl TexturedMesh {
             let bottom = f32::from(c[k]) * (1.0 - fx) + f32::from(d[k]) * fx;
             (top * (1.0 - fy) + bottom * fy) / 255.0
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn large_footprints_average_the_texture() {
+        // A one-texel checkerboard: sampled with a 16-texel footprint it is its mean, grey.
+        let tex = RgbImage::from_fn(64, 64, |x, y| {
+            if (x + y) % 2 == 0 { image::Rgb([255, 255, 255]) } else { image::Rgb([0, 0, 0]) }
+        });
+        let mesh = TexturedMesh::new(
+            PathBuf::from("test"),
+            vec![Point3::origin(), Point3::new(1.0, 0.0, 0.0), Point3::new(0.0, 1.0, 0.0)],
+            vec![[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]],
+            vec![[0, 1, 2]],
+            Arc::new(tex),
+        )
+        .unwrap();
+        assert_eq!(mesh.mips.len(), 7);
+        let c = mesh.sample_texture_footprint([0.3, 0.6], 16.0);
+        assert!(c.iter().all(|v| (v - 0.5).abs() < 0.01), "{c:?}");
+        // A one-texel footprint keeps the full-resolution texture.
+        let sharp = mesh.sample_texture_footprint([0.5 / 64.0, 1.0 - 0.5 / 64.0], 1.0);
+        assert!(sharp.iter().all(|v| *v > 0.99 || *v < 0.01), "{sharp:?}");
     }
 }

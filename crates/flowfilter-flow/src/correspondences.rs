@@ -1,0 +1,125 @@
+//! Flow correspondences (stage 4 of the method): model pixels with depth, moved by the flow,
+//! target depth interpolated at the flowed position, both back-projected: 3-D/3-D pairs.
+
+use crate::lk::{Gray, LkParams, track};
+use flowfilter_camera::RayTable;
+use flowfilter_geometry::{DepthMap, Mask, Point3};
+
+/// Weighted 3-D pairs `model[i] <-> target[i]` (colour camera frames of the two views).
+#[derive(Debug, Clone, Default)]
+pub struct FlowPairs {
+    /// Points in the model frame.
+    pub model: Vec<Point3>,
+    /// Corresponding points in the target frame.
+    pub target: Vec<Point3>,
+    /// Weights in [0, 1].
+    pub weights: Vec<f64>,
+    /// Pixels tracked, before any rejection.
+    pub tracked: usize,
+}
+
+/// Parameters of the correspondence search.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CorrespondenceParams {
+    /// Grid step of the model pixels tracked (pixels).
+    pub grid_step: usize,
+    /// Forward-backward consistency threshold (pixels).
+    pub fb_threshold: f32,
+    /// Reject pairs whose depth change is more than this many standard deviations from the
+    /// mean depth change (the paper's Gaussian fit applied to the flowed depths).
+    pub depth_k_sigma: f64,
+    /// Lucas-Kanade parameters.
+    pub lk: LkParams,
+}
+
+impl Default for CorrespondenceParams {
+    fn default() -> Self {
+        Self { grid_step: 6, fb_threshold: 1.0, depth_k_sigma: 2.5, lk: LkParams::default() }
+    }
+}
+
+/// Depth at a sub-pixel position by bilinear interpolation of four valid neighbours that agree
+/// within 1 cm (never across a discontinuity).
+fn depth_at(d: &DepthMap, x: f32, y: f32) -> Option<f64> {
+    let (x0, y0) = (x.floor(), y.floor());
+    if x0 < 0.0 || y0 < 0.0 {
+        return None;
+    }
+    let (ix, iy) = (x0 as usize, y0 as usize);
+    let z = [d.get(ix, iy)?, d.get(ix + 1, iy)?, d.get(ix, iy + 1)?, d.get(ix + 1, iy + 1)?].map(|v| *v);
+    if z.iter().any(|&v| v <= 0.0)
+        || z.iter().fold(f32::MIN, |a, &b| a.max(b)) - z.iter().fold(f32::MAX, |a, &b| a.min(b)) > 0.01
+    {
+        return None;
+    }
+    let (fx, fy) = (x - x0, y - y0);
+    Some(f64::from((z[0] * (1.0 - fx) + z[1] * fx) * (1.0 - fy) + (z[2] * (1.0 - fx) + z[3] * fx) * fy))
+}
+
+/// Build flow correspondences between a model view and a target view of the same colour camera:
+/// track a grid of model-mask pixels with depth into the target image (pyramidal LK), check
+/// forward-backward consistency, require the flowed pixel inside the target mask with valid
+/// interpolated depth, back-project both, and reject depth-change outliers.
+#[allow(clippy::too_many_arguments)]
+pub fn flow_correspondences(
+    model_gray: &Gray,
+    target_gray: &Gray,
+    model_depth: &DepthMap,
+    target_depth: &DepthMap,
+    model_mask: &Mask,
+    target_mask: &Mask,
+    rays: &RayTable,
+    p: &CorrespondenceParams,
+) -> FlowPairs {
+    let (w, h) = model_depth.dims();
+    let mut pixels = vec![];
+    for y in (0..h).step_by(p.grid_step) {
+        for x in (0..w).step_by(p.grid_step) {
+            if *model_mask.at(x, y) && *model_depth.at(x, y) > 0.0 {
+                pixels.push([x as f32, y as f32]);
+            }
+        }
+    }
+    let forward = track(model_gray, target_gray, &pixels, &p.lk);
+    let moved: Vec<[f32; 2]> =
+        pixels.iter().zip(&forward).map(|(q, f)| f.map_or(*q, |f| [q[0] + f[0], q[1] + f[1]])).collect();
+    let backward = track(target_gray, model_gray, &moved, &p.lk);
+    let mut pairs = FlowPairs { tracked: pixels.len(), ..Default::default() };
+    let mut dz = vec![];
+    for i in 0..pixels.len() {
+        let (Some(f), Some(b)) = (forward[i], backward[i]) else { continue };
+        let q = moved[i];
+        if ((f[0] + b[0]).powi(2) + (f[1] + b[1]).powi(2)).sqrt() > p.fb_threshold {
+            continue;
+        }
+        let (qx, qy) = (q[0].round(), q[1].round());
+        if qx < 0.0 || qy < 0.0 || !target_mask.get(qx as usize, qy as usize).copied().unwrap_or(false) {
+            continue;
+        }
+        let Some(zt) = depth_at(target_depth, q[0], q[1]) else { continue };
+        let (x, y) = (pixels[i][0] as usize, pixels[i][1] as usize);
+        let Some(a) = rays.backproject(x, y, f64::from(*model_depth.at(x, y))) else { continue };
+        // Target ray at the sub-pixel position: interpolate the rays of the neighbours.
+        let (ix, iy) = (q[0].floor() as usize, q[1].floor() as usize);
+        let (Some(r0), Some(r1), Some(r2)) = (rays.ray(ix, iy), rays.ray(ix + 1, iy), rays.ray(ix, iy + 1)) else {
+            continue;
+        };
+        let (fx, fy) = (q[0] - ix as f32, q[1] - iy as f32);
+        let rx = r0[0] + (r1[0] - r0[0]) * fx;
+        let ry = r0[1] + (r2[1] - r0[1]) * fy;
+        let t = Point3::new(f64::from(rx) * zt, f64::from(ry) * zt, zt);
+        dz.push(t.z - a.z);
+        pairs.model.push(a);
+        pairs.target.push(t);
+    }
+    // Depth-change outliers under a Gaussian fit of the flowed depth changes (eqs. 9-11 on Z_f).
+    if dz.len() >= 3 {
+        let n = dz.len() as f64;
+        let mean = dz.iter().sum::<f64>() / n;
+        let sd = (dz.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / n).sqrt().max(1e-4);
+        pairs.weights = dz.iter().map(|d| if (d - mean).abs() <= p.depth_k_sigma * sd { 1.0 } else { 0.0 }).collect();
+    } else {
+        pairs.weights = vec![1.0; dz.len()];
+    }
+    pairs
+}
