@@ -1,7 +1,7 @@
 //! Flow correspondences (stage 4 of the method): model pixels with depth, moved by the flow,
 //! target depth interpolated at the flowed position, both back-projected: 3-D/3-D pairs.
 
-use crate::lk::{Gray, LkParams, track};
+use crate::lk::{Gray, LkParams, track_masked};
 use flowfilter_camera::RayTable;
 use flowfilter_geometry::{DepthMap, Mask, Point3};
 
@@ -80,10 +80,10 @@ pub fn flow_correspondences(
             }
         }
     }
-    let forward = track(model_gray, target_gray, &pixels, &p.lk);
+    let forward = track_masked(model_gray, target_gray, &pixels, &p.lk, Some(model_mask));
     let moved: Vec<[f32; 2]> =
         pixels.iter().zip(&forward).map(|(q, f)| f.map_or(*q, |f| [q[0] + f[0], q[1] + f[1]])).collect();
-    let backward = track(target_gray, model_gray, &moved, &p.lk);
+    let backward = track_masked(target_gray, model_gray, &moved, &p.lk, Some(target_mask));
     let mut pairs = FlowPairs { tracked: pixels.len(), ..Default::default() };
     let mut dz = vec![];
     for i in 0..pixels.len() {

@@ -3,7 +3,7 @@
 //! brightness constancy with bilinear sampling; points whose spatial gradient matrix is
 //! ill-conditioned (small minimum eigenvalue) are rejected.
 
-use flowfilter_geometry::Grid;
+use flowfilter_geometry::{Grid, Mask};
 use image::RgbImage;
 use rayon::prelude::*;
 
@@ -73,11 +73,38 @@ impl Default for LkParams {
 /// Track `points` (pixel coordinates in `from`) into `to`: the flow vector of each point, or
 /// `None` when it is lost (ill-conditioned window or outside the image).
 pub fn track(from: &Gray, to: &Gray, points: &[[f32; 2]], p: &LkParams) -> Vec<Option<[f32; 2]>> {
+    track_masked(from, to, points, p, None)
+}
+
+/// Half-resolution mask: a pixel is set when all four of its children are.
+fn downsample_mask(m: &Mask) -> Mask {
+    let (w, h) = m.dims();
+    let get = |x: usize, y: usize| *m.at(x.min(w - 1), y.min(h - 1));
+    Mask::from_fn(w.div_ceil(2), h.div_ceil(2), |x, y| {
+        get(2 * x, 2 * y) && get(2 * x + 1, 2 * y) && get(2 * x, 2 * y + 1) && get(2 * x + 1, 2 * y + 1)
+    })
+}
+
+/// [`track`] with the window restricted to `mask` of the `from` image (at every pyramid level):
+/// background and static silhouettes then do not pull the estimate, which matters for objects
+/// whose outline does not move when they turn (cans, bottles).
+pub fn track_masked(
+    from: &Gray,
+    to: &Gray,
+    points: &[[f32; 2]],
+    p: &LkParams,
+    mask: Option<&Mask>,
+) -> Vec<Option<[f32; 2]>> {
     let mut pa = vec![from.clone()];
     let mut pb = vec![to.clone()];
+    let mut pm: Vec<Mask> = mask.map(|m| vec![m.clone()]).unwrap_or_default();
     for _ in 0..p.levels {
         pa.push(downsample(pa.last().expect("non-empty")));
         pb.push(downsample(pb.last().expect("non-empty")));
+        if let Some(last) = pm.last() {
+            let next = downsample_mask(last);
+            pm.push(next);
+        }
     }
     let r = (p.window / 2) as isize;
     let area = (p.window * p.window) as f32;
@@ -92,9 +119,20 @@ pub fn track(from: &Gray, to: &Gray, points: &[[f32; 2]], p: &LkParams) -> Vec<O
                 // Template, gradients and the spatial gradient matrix at this level.
                 let mut tmpl = Vec::with_capacity(p.window * p.window);
                 let (mut gxx, mut gxy, mut gyy) = (0.0f32, 0.0f32, 0.0f32);
+                let inside = |x: f32, y: f32| {
+                    pm.get(level).is_none_or(|m| {
+                        let (ix, iy) = (x.round(), y.round());
+                        ix >= 0.0 && iy >= 0.0 && m.get(ix as usize, iy as usize).copied().unwrap_or(false)
+                    })
+                };
                 for dy in -r..=r {
                     for dx in -r..=r {
                         let (x, y) = (px + dx as f32, py + dy as f32);
+                        if !inside(x, y) {
+                            // Outside the mask: no gradient, no residual.
+                            tmpl.push((0.0, 0.0, 0.0));
+                            continue;
+                        }
                         let ix = 0.5 * (sample(a, x + 1.0, y) - sample(a, x - 1.0, y));
                         let iy = 0.5 * (sample(a, x, y + 1.0) - sample(a, x, y - 1.0));
                         tmpl.push((sample(a, x, y), ix, iy));
@@ -117,6 +155,9 @@ pub fn track(from: &Gray, to: &Gray, points: &[[f32; 2]], p: &LkParams) -> Vec<O
                         for dx in -r..=r {
                             let (t, ix, iy) = tmpl[k];
                             k += 1;
+                            if ix == 0.0 && iy == 0.0 {
+                                continue;
+                            }
                             let diff = t - sample(b, px + g[0] + d[0] + dx as f32, py + g[1] + d[1] + dy as f32);
                             bx += diff * ix;
                             by += diff * iy;
@@ -171,5 +212,33 @@ mod tests {
     fn flat_windows_are_rejected() {
         let flat = Gray::filled(64, 64, 0.5);
         assert_eq!(track(&flat, &flat, &[[32.0, 32.0]], &LkParams::default()), vec![None]);
+    }
+}
+
+#[cfg(test)]
+mod mask_tests {
+    use super::*;
+
+    #[test]
+    fn masked_tracking_ignores_a_static_background() {
+        // A textured square moves by (3, 1) over a textured background that stays still: the
+        // unmasked window is pulled towards zero, the masked one follows the square.
+        let pattern = |x: f32, y: f32| 0.5 + 0.25 * (x * 0.31).sin() * (y * 0.27).cos() + 0.1 * ((x + y) * 0.13).sin();
+        let inside = |x: usize, y: usize| (40..80).contains(&x) && (40..80).contains(&y);
+        let a = Gray::from_fn(120, 120, |x, y| {
+            if inside(x, y) { pattern(x as f32, y as f32) } else { pattern(y as f32 * 1.3, x as f32 * 0.7) }
+        });
+        let b = Gray::from_fn(120, 120, |x, y| {
+            let (sx, sy) = (x as f32 - 3.0, y as f32 - 1.0);
+            if (43..83).contains(&x) && (41..81).contains(&y) {
+                pattern(sx, sy)
+            } else {
+                pattern(y as f32 * 1.3, x as f32 * 0.7)
+            }
+        });
+        let mask = Mask::from_fn(120, 120, inside);
+        let p = LkParams { levels: 1, ..LkParams::default() };
+        let masked = track_masked(&a, &b, &[[45.0, 60.0]], &p, Some(&mask))[0].unwrap();
+        assert!((masked[0] - 3.0).abs() < 0.2 && (masked[1] - 1.0).abs() < 0.2, "{masked:?}");
     }
 }

@@ -163,9 +163,11 @@ fn revolved(name: &str, profile: &[(f32, f32)], seed: u64) -> TexturedMesh {
             b.triangles.push(if top { [centre, ring[s], ring[s + 1]] } else { [centre, ring[s + 1], ring[s]] });
         }
     }
-    let mut tex = texture::label(2048, 1024, seed ^ name.len() as u64 ^ 0xCA7);
-    let lid = texture::plain(2048, 205, [0.72, 0.72, 0.74], 0.06, seed ^ 0x11D);
-    image::imageops::replace(&mut tex, &lid, 0, 1024 - 205);
+    // About 0.3 mm per texel around a 21-25 cm circumference: label print (glyphs of a few
+    // millimetres) stays resolvable by a camera seeing 0.6 mm per pixel.
+    let mut tex = texture::label(768, 384, seed ^ name.len() as u64 ^ 0xCA7);
+    let lid = texture::plain(768, 77, [0.72, 0.72, 0.74], 0.06, seed ^ 0x11D);
+    image::imageops::replace(&mut tex, &lid, 0, 384 - 77);
     b.finish(name, tex)
 }
 
