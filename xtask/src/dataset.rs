@@ -6,7 +6,7 @@ use flowfilter_synth::{CaptureOptions, NoiseProfile, Rig, Scene, TexturedMesh, p
 use std::path::{Path, PathBuf};
 
 /// Bumped whenever the synthesiser's output changes, to invalidate caches.
-const DATASET_VERSION: &str = "flowfilter-default-dataset v3 (mip-mapped textures, coarser can and bottle labels)";
+const DATASET_VERSION: &str = "flowfilter-default-dataset v4 (mip-mapped textures, label print at millimetre scale)";
 
 /// Where an object comes from.
 pub enum ObjectSource {

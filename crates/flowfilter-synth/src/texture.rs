@@ -42,9 +42,9 @@ pub fn label(width: u32, height: u32, seed: u64) -> RgbImage {
         }
     };
     // Colour bands.
-    for _ in 0..rng.random_range(3..7) {
+    for _ in 0..rng.random_range(1..4) {
         let y0 = rng.random_range(0..height) as i64;
-        let h = rng.random_range(height / 40..height / 8).max(1) as i64;
+        let h = rng.random_range(height / 60..height / 16).max(1) as i64;
         let c = random_colour(&mut rng);
         for y in y0..y0 + h {
             for x in 0..width as i64 {
@@ -53,7 +53,7 @@ pub fn label(width: u32, height: u32, seed: u64) -> RgbImage {
         }
     }
     // Large blocks (logos, panels).
-    for _ in 0..rng.random_range(2..6) {
+    for _ in 0..rng.random_range(5..12) {
         let (bw, bh) =
             (rng.random_range(width / 10..width / 3) as i64, rng.random_range(height / 10..height / 4) as i64);
         let (x0, y0) = (rng.random_range(0..width) as i64, rng.random_range(0..height) as i64);
@@ -71,7 +71,9 @@ pub fn label(width: u32, height: u32, seed: u64) -> RgbImage {
     // Rows of glyphs ("text").
     let rows = rng.random_range(8..16);
     for _ in 0..rows {
-        let scale = rng.random_range(2..(height / 90).max(3)) as i64;
+        // Print of a few millimetres to a few centimetres: glyph cells of 1/64 to 1/24 of the
+        // label height, with horizontal as well as vertical strokes for optical flow.
+        let scale = rng.random_range((height / 64).max(2)..(height / 24).max(3)) as i64;
         let y0 = rng.random_range(0..height) as i64;
         let mut x = rng.random_range(0..width / 4) as i64;
         let end = x + rng.random_range(width / 4..width) as i64;
