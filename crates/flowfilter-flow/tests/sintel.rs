@@ -15,13 +15,20 @@ fn bilinear(img: &image::RgbImage, x: f64, y: f64) -> Option<[f64; 3]> {
     Some(std::array::from_fn(|k| (a[k] * (1.0 - fx) + b[k] * fx) * (1.0 - fy) + (c[k] * (1.0 - fx) + d[k] * fx) * fy))
 }
 
+/// `../shared/data/sintel`, or `None` (with a message) when the shared data is absent.
+fn sintel_root() -> Option<std::path::PathBuf> {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/sintel");
+    if root.is_dir() {
+        Some(root)
+    } else {
+        eprintln!("skipping: ../shared/data/sintel is absent (the shared data is not checked out beside the repo)");
+        None
+    }
+}
+
 #[test]
 fn ground_truth_flow_warps_frame_3_onto_frame_2() {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/sintel");
-    if !root.is_dir() {
-        eprintln!("skipping: ../shared/data/sintel is absent (the shared data is not checked out beside the repo)");
-        return;
-    }
+    let Some(root) = sintel_root() else { return };
     for pass in ["clean", "final"] {
         for scene in ["easy", "medium"] {
             let pair = load(&root.join(pass).join(scene)).unwrap();
@@ -57,11 +64,7 @@ fn ground_truth_flow_warps_frame_3_onto_frame_2() {
 fn pyramidal_lk_tracks_sintel_grid_points() {
     use flowfilter_flow::lk::{LkParams, to_gray, track};
     use flowfilter_flow::metrics::epe_at_points;
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/sintel");
-    if !root.is_dir() {
-        eprintln!("skipping: ../shared/data/sintel is absent (the shared data is not checked out beside the repo)");
-        return;
-    }
+    let Some(root) = sintel_root() else { return };
     for pass in ["clean", "final"] {
         for scene in ["easy", "medium"] {
             let pair = load(&root.join(pass).join(scene)).unwrap();
