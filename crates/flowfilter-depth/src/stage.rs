@@ -145,10 +145,10 @@ impl DepthStage {
                 found: size_text(mask.width(), mask.height()),
             });
         }
-        let mask_pixels = mask.count();
-        if mask_pixels == 0 {
-            return Err(DepthError::EmptyMask);
-        }
+        // One scan of the mask: its box (None when empty); the pixel count only inside the box.
+        let mask_box = mask_bbox(mask).ok_or(DepthError::EmptyMask)?;
+        let (bx0, by0, bx1, by1) = mask_box;
+        let mask_pixels = (by0..=by1).map(|y| mask.row(y)[bx0..=bx1].iter().filter(|&&m| m).count()).sum();
         let raw_valid = raw.as_slice().iter().filter(|&&d| d > 0).count();
         if raw_valid == 0 {
             return Err(DepthError::NoDepth);
@@ -163,7 +163,7 @@ impl DepthStage {
         // Only depth pixels that can land in the mask's box matter: crop the depth image to them
         // (filters and projection then touch a fraction of the frame).
         let (rx0, ry0, rx1, ry1) = if cfg.registration.restrict_to_mask {
-            let bbox = mask_bbox(mask).ok_or(DepthError::EmptyMask)?;
+            let bbox = mask_box;
             let margin = cfg.gaussian_filter.window.max(cfg.bigbird_filter.window).max(cfg.step_filter.window) + 2;
             depth_roi(sensor, bbox, ROI_NEAR_M, ROI_FAR_M, margin)
         } else {
@@ -196,7 +196,10 @@ impl DepthStage {
         };
         lap(&mut stats, "project+register");
         // Registration only writes inside the mask (or anywhere when unrestricted).
-        stats.registered = registered.as_slice().iter().zip(mask.as_slice()).filter(|(z, m)| **z > 0.0 && **m).count();
+        stats.registered = (by0..=by1)
+            .flat_map(|y| (bx0..=bx1).map(move |x| y * cw + x))
+            .filter(|&k| registered.as_slice()[k] > 0.0 && mask.as_slice()[k])
+            .count();
         let mut dense = registered;
         stats.interpolated = fill_holes_in_place(&mut dense, mask, &cfg.interpolation);
         lap(&mut stats, "interpolate");
