@@ -1,9 +1,24 @@
 //! Flow correspondences (stage 4 of the method): model pixels with depth, moved by the flow,
 //! target depth interpolated at the flowed position, both back-projected: 3-D/3-D pairs.
 
-use crate::lk::{Gray, LkParams, track_masked};
+use crate::estimator::{FlowError, FlowEstimator, forward_backward_sparse};
+use crate::lk::Gray;
 use flowfilter_camera::RayTable;
 use flowfilter_geometry::{DepthMap, Mask, Point3};
+use serde::{Deserialize, Serialize};
+use std::time::Instant;
+
+/// One view as the correspondence search sees it: grey image, depth and object mask, all on
+/// the colour camera's grid.
+#[derive(Debug, Clone, Copy)]
+pub struct FlowView<'a> {
+    /// Grey image in [0, 1].
+    pub gray: &'a Gray,
+    /// Depth on the colour grid (metres, 0 = none).
+    pub depth: &'a DepthMap,
+    /// Object mask.
+    pub mask: &'a Mask,
+}
 
 /// Weighted 3-D pairs `model[i] <-> target[i]` (colour camera frames of the two views).
 #[derive(Debug, Clone, Default)]
@@ -16,10 +31,13 @@ pub struct FlowPairs {
     pub weights: Vec<f64>,
     /// Pixels tracked, before any rejection.
     pub tracked: usize,
+    /// Seconds spent estimating flow (forward and backward), the rest being geometry.
+    pub flow_seconds: f64,
 }
 
 /// Parameters of the correspondence search.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
 pub struct CorrespondenceParams {
     /// Grid step of the model pixels tracked (pixels).
     pub grid_step: usize,
@@ -28,13 +46,11 @@ pub struct CorrespondenceParams {
     /// Reject pairs whose depth change is more than this many standard deviations from the
     /// mean depth change (the paper's Gaussian fit applied to the flowed depths).
     pub depth_k_sigma: f64,
-    /// Lucas-Kanade parameters.
-    pub lk: LkParams,
 }
 
 impl Default for CorrespondenceParams {
     fn default() -> Self {
-        Self { grid_step: 6, fb_threshold: 1.0, depth_k_sigma: 2.5, lk: LkParams::default() }
+        Self { grid_step: 6, fb_threshold: 1.0, depth_k_sigma: 2.5 }
     }
 }
 
@@ -57,20 +73,34 @@ fn depth_at(d: &DepthMap, x: f32, y: f32) -> Option<f64> {
 }
 
 /// Build flow correspondences between a model view and a target view of the same colour camera:
-/// track a grid of model-mask pixels with depth into the target image (pyramidal LK), check
+/// track a grid of model-mask pixels with depth into the target image with `estimator`, check
 /// forward-backward consistency, require the flowed pixel inside the target mask with valid
 /// interpolated depth, back-project both, and reject depth-change outliers.
-#[allow(clippy::too_many_arguments)]
 pub fn flow_correspondences(
-    model_gray: &Gray,
-    target_gray: &Gray,
-    model_depth: &DepthMap,
-    target_depth: &DepthMap,
-    model_mask: &Mask,
-    target_mask: &Mask,
+    estimator: &dyn FlowEstimator,
+    model: &FlowView<'_>,
+    target: &FlowView<'_>,
     rays: &RayTable,
     p: &CorrespondenceParams,
-) -> FlowPairs {
+) -> Result<FlowPairs, FlowError> {
+    if p.grid_step == 0 || p.fb_threshold <= 0.0 || p.depth_k_sigma <= 0.0 {
+        return Err(FlowError::Config(format!(
+            "correspondences: grid_step >= 1, fb_threshold > 0 and depth_k_sigma > 0 required, found {}, {}, {}",
+            p.grid_step, p.fb_threshold, p.depth_k_sigma
+        )));
+    }
+    for (which, v) in [("model", model), ("target", target)] {
+        if v.depth.dims() != v.gray.dims() || v.mask.dims() != v.gray.dims() {
+            return Err(FlowError::Config(format!(
+                "{which} view: depth {:?} and mask {:?} must have the image's size {:?}",
+                v.depth.dims(),
+                v.mask.dims(),
+                v.gray.dims()
+            )));
+        }
+    }
+    let (model_gray, target_gray, model_depth, target_depth, model_mask, target_mask) =
+        (model.gray, target.gray, model.depth, target.depth, model.mask, target.mask);
     let (w, h) = model_depth.dims();
     let mut pixels = vec![];
     for y in (0..h).step_by(p.grid_step) {
@@ -80,18 +110,20 @@ pub fn flow_correspondences(
             }
         }
     }
-    let forward = track_masked(model_gray, target_gray, &pixels, &p.lk, Some(model_mask));
+    let t0 = Instant::now();
+    let forward = estimator.sparse(model_gray, target_gray, &pixels, Some(model_mask))?;
     let moved: Vec<[f32; 2]> =
         pixels.iter().zip(&forward).map(|(q, f)| f.map_or(*q, |f| [q[0] + f[0], q[1] + f[1]])).collect();
-    let backward = track_masked(target_gray, model_gray, &moved, &p.lk, Some(target_mask));
-    let mut pairs = FlowPairs { tracked: pixels.len(), ..Default::default() };
+    let backward = estimator.sparse(target_gray, model_gray, &moved, Some(target_mask))?;
+    let flow_seconds = t0.elapsed().as_secs_f64();
+    let consistent = forward_backward_sparse(&forward, &backward, p.fb_threshold);
+    let mut pairs = FlowPairs { tracked: pixels.len(), flow_seconds, ..Default::default() };
     let mut dz = vec![];
     for i in 0..pixels.len() {
-        let (Some(f), Some(b)) = (forward[i], backward[i]) else { continue };
-        let q = moved[i];
-        if ((f[0] + b[0]).powi(2) + (f[1] + b[1]).powi(2)).sqrt() > p.fb_threshold {
+        if !consistent[i] {
             continue;
         }
+        let q = moved[i];
         let (qx, qy) = (q[0].round(), q[1].round());
         if qx < 0.0 || qy < 0.0 || !target_mask.get(qx as usize, qy as usize).copied().unwrap_or(false) {
             continue;
@@ -121,5 +153,5 @@ pub fn flow_correspondences(
     } else {
         pairs.weights = vec![1.0; dz.len()];
     }
-    pairs
+    Ok(pairs)
 }

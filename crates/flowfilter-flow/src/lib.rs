@@ -5,8 +5,11 @@
 //! - [`flo`]: Middlebury `.flo` read/write with typed errors.
 //! - [`metrics`]: end-point error (all valid pixels, under a mask, at query points).
 //! - [`viz`]: the Middlebury colour-wheel visualisation.
+//! - [`FlowEstimator`]: the estimator seam ([`LucasKanade`], [`dis::Dis`]), with typed [`FlowError`]s.
 
 pub mod correspondences;
+pub mod dis;
+pub mod estimator;
 mod field;
 pub mod flo;
 pub mod lk;
@@ -15,4 +18,5 @@ pub mod sintel;
 pub mod viz;
 
 pub use field::FlowField;
+pub use estimator::{FlowError, FlowEstimator, LucasKanade};
 pub use flo::FloError;

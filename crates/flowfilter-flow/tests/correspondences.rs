@@ -3,7 +3,8 @@
 
 use flowfilter_bigbird::SensorId;
 use flowfilter_depth::{DepthConfig, DepthStage};
-use flowfilter_flow::correspondences::{CorrespondenceParams, flow_correspondences};
+use flowfilter_flow::LucasKanade;
+use flowfilter_flow::correspondences::{CorrespondenceParams, FlowView, flow_correspondences};
 use flowfilter_flow::lk::to_gray;
 use flowfilter_synth::{NoiseProfile, Rig, Scene, procedural, render_frame, world_from_table};
 
@@ -20,16 +21,15 @@ fn box_correspondences_follow_the_true_motion() {
     let fb = render_frame(&scene, &rig, sensor, b, Some(&noise), 1);
     let da = stage.process(&fa.raw_depth, &fa.color, &fa.mask, &s.rgbd).unwrap();
     let db = stage.process(&fb.raw_depth, &fb.color, &fb.mask, &s.rgbd).unwrap();
+    let (ga, gb) = (to_gray(&fa.color), to_gray(&fb.color));
     let pairs = flow_correspondences(
-        &to_gray(&fa.color),
-        &to_gray(&fb.color),
-        &da.depth,
-        &db.depth,
-        &fa.mask,
-        &fb.mask,
+        &LucasKanade::default(),
+        &FlowView { gray: &ga, depth: &da.depth, mask: &fa.mask },
+        &FlowView { gray: &gb, depth: &db.depth, mask: &fb.mask },
         &stage.rays(&s.rgbd.color),
         &CorrespondenceParams::default(),
-    );
+    )
+    .unwrap();
     let h = |angle: u32| s.h_color_from_world * world_from_table(f64::from(angle));
     let truth = h(b) * h(a).inverse();
     let errors: Vec<f64> = pairs

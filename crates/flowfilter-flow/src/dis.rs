@@ -1,0 +1,657 @@
+//! Dense Inverse Search (Kroeger, Timofte, Dai and Van Gool, ECCV 2016): coarse-to-fine dense
+//! flow from a grid of overlapping patches.
+//!
+//! Per pyramid scale, from the coarsest to `finest_scale`:
+//! 1. each patch of a regular grid starts from the flow of the coarser scale at its centre and,
+//!    with spatial propagation, from its already-searched neighbours when they fit better;
+//! 2. **inverse search**: inverse-compositional Gauss-Newton on the patch's translation, whose
+//!    Hessian comes from the template alone (computed once per patch), with optional patch-mean
+//!    normalisation (robust to brightness changes);
+//! 3. **densification**: every pixel takes the average of the flows of the patches covering it,
+//!    each weighted by `1 / max(1, |photometric error|)` at that pixel;
+//! 4. optional **variational refinement** (Brox-style energy with brightness and gradient
+//!    constancy under a robust penalty and a robust smoothness term, linearised at the current
+//!    flow and solved by red-black successive over-relaxation).
+//!
+//! Intensities are handled on the 0-255 scale so that the energy weights (`alpha`, `delta`,
+//! `gamma`) mean what they mean in OpenCV's implementation; the default parameters are its
+//! "medium" preset. Rows of patches and of pixels run in parallel with rayon.
+
+use crate::FlowField;
+use crate::estimator::{FlowError, FlowEstimator, check_pair};
+use crate::lk::Gray;
+use flowfilter_geometry::{Grid, Mask};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// Parameters of [`Dis`]; the defaults are OpenCV's `DISOpticalFlow` "medium" preset.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DisParams {
+    /// Finest scale searched (0 = full resolution); the result is upsampled from it.
+    pub finest_scale: usize,
+    /// Coarsest scale; `None` chooses it from the image size and patch size.
+    pub coarsest_scale: Option<usize>,
+    /// Patch side, pixels.
+    pub patch_size: usize,
+    /// Distance between neighbouring patches, pixels.
+    pub patch_stride: usize,
+    /// Gauss-Newton iterations per patch (split between the two propagation passes).
+    pub iterations: usize,
+    /// Subtract the patch means (robust to brightness changes).
+    pub mean_normalization: bool,
+    /// Try the neighbours' flow before searching (two raster passes).
+    pub spatial_propagation: bool,
+    /// Fixed-point iterations of the variational refinement (0 switches it off).
+    pub refinement_iterations: usize,
+    /// SOR sweeps per fixed-point iteration.
+    pub sor_iterations: usize,
+    /// Smoothness weight.
+    pub alpha: f32,
+    /// Brightness-constancy weight.
+    pub delta: f32,
+    /// Gradient-constancy weight.
+    pub gamma: f32,
+    /// SOR relaxation factor, in (0, 2).
+    pub omega: f32,
+}
+
+impl Default for DisParams {
+    fn default() -> Self {
+        Self {
+            finest_scale: 1,
+            coarsest_scale: None,
+            patch_size: 8,
+            patch_stride: 3,
+            iterations: 25,
+            mean_normalization: true,
+            spatial_propagation: true,
+            refinement_iterations: 5,
+            sor_iterations: 5,
+            alpha: 20.0,
+            delta: 5.0,
+            gamma: 10.0,
+            omega: 1.6,
+        }
+    }
+}
+
+impl DisParams {
+    /// OpenCV's "ultrafast" preset.
+    pub fn ultrafast() -> Self {
+        Self { finest_scale: 2, patch_stride: 4, iterations: 12, refinement_iterations: 0, ..Self::default() }
+    }
+
+    /// OpenCV's "fast" preset.
+    pub fn fast() -> Self {
+        Self { finest_scale: 2, patch_stride: 4, iterations: 16, ..Self::default() }
+    }
+
+    /// OpenCV's "medium" preset (the default).
+    pub fn medium() -> Self {
+        Self::default()
+    }
+
+    /// Check ranges.
+    pub fn validate(&self) -> Result<(), FlowError> {
+        let fail = |m: String| Err(FlowError::Config(format!("dis: {m}")));
+        if self.patch_size < 3 {
+            return fail(format!("patch_size must be >= 3, found {}", self.patch_size));
+        }
+        if self.patch_stride == 0 || self.patch_stride > self.patch_size {
+            return fail(format!("patch_stride must be in 1..=patch_size, found {}", self.patch_stride));
+        }
+        if self.iterations == 0 {
+            return fail("iterations must be >= 1".into());
+        }
+        if !(self.omega > 0.0 && self.omega < 2.0) {
+            return fail(format!("omega must be in (0, 2), found {}", self.omega));
+        }
+        if [self.alpha, self.delta, self.gamma].iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
+            return fail("alpha, delta and gamma must be finite and >= 0".into());
+        }
+        if let Some(c) = self.coarsest_scale
+            && c < self.finest_scale
+        {
+            return fail(format!("coarsest_scale {c} is finer than finest_scale {}", self.finest_scale));
+        }
+        Ok(())
+    }
+}
+
+/// Dense Inverse Search as a [`FlowEstimator`].
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Dis {
+    /// Parameters.
+    pub params: DisParams,
+}
+
+impl Dis {
+    /// An estimator with these parameters.
+    pub fn new(params: DisParams) -> Result<Self, FlowError> {
+        params.validate()?;
+        Ok(Self { params })
+    }
+}
+
+type Img = Grid<f32>;
+
+/// Bilinear sample with clamped coordinates.
+#[inline]
+fn bilinear(img: &Img, x: f32, y: f32) -> f32 {
+    let (w, h) = img.dims();
+    let x = x.clamp(0.0, (w - 1) as f32);
+    let y = y.clamp(0.0, (h - 1) as f32);
+    let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+    let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+    let (fx, fy) = (x - x0 as f32, y - y0 as f32);
+    let d = img.as_slice();
+    let (a, b, c, e) = (d[y0 * w + x0], d[y0 * w + x1], d[y1 * w + x0], d[y1 * w + x1]);
+    (a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + e * fx) * fy
+}
+
+/// Half resolution by 2x2 box averaging (OpenCV's area interpolation for exact halves).
+fn halve(img: &Img) -> Img {
+    let (w, h) = img.dims();
+    let (nw, nh) = ((w / 2).max(1), (h / 2).max(1));
+    let d = img.as_slice();
+    let at = |x: usize, y: usize| d[y.min(h - 1) * w + x.min(w - 1)];
+    Img::from_fn(nw, nh, |x, y| 0.25 * (at(2 * x, 2 * y) + at(2 * x + 1, 2 * y) + at(2 * x, 2 * y + 1) + at(2 * x + 1, 2 * y + 1)))
+}
+
+/// Central-difference gradients (one-sided at the border).
+fn gradients(img: &Img) -> (Img, Img) {
+    let (w, h) = img.dims();
+    let d = img.as_slice();
+    let gx = Img::from_fn(w, h, |x, y| {
+        let (l, r) = (x.saturating_sub(1), (x + 1).min(w - 1));
+        (d[y * w + r] - d[y * w + l]) / (r - l).max(1) as f32
+    });
+    let gy = Img::from_fn(w, h, |x, y| {
+        let (u, b) = (y.saturating_sub(1), (y + 1).min(h - 1));
+        (d[b * w + x] - d[u * w + x]) / (b - u).max(1) as f32
+    });
+    (gx, gy)
+}
+
+/// Double-resolution flow of size `(w, h)` from a coarser one (values scaled by 2).
+fn upsample(u: &Img, w: usize, h: usize) -> Img {
+    let (cw, ch) = u.dims();
+    let (sx, sy) = (cw as f32 / w as f32, ch as f32 / h as f32);
+    Img::from_fn(w, h, |x, y| 2.0 * bilinear(u, (x as f32 + 0.5) * sx - 0.5, (y as f32 + 0.5) * sy - 0.5))
+}
+
+/// Patch origins along one axis: a regular stride, the last patch flush with the border.
+fn patch_origins(len: usize, ps: usize, stride: usize) -> Vec<usize> {
+    if len <= ps {
+        return vec![0];
+    }
+    let mut o: Vec<usize> = (0..=(len - ps) / stride).map(|i| i * stride).collect();
+    if *o.last().expect("non-empty") != len - ps {
+        o.push(len - ps);
+    }
+    o
+}
+
+/// A patch's template (from the first image), its gradients and its inverse Hessian.
+struct Template {
+    values: Vec<f32>,
+    gx: Vec<f32>,
+    gy: Vec<f32>,
+    mean: f32,
+    /// Inverse of the 2x2 Hessian `[[a, b], [b, c]]`, or `None` when singular (flat patch).
+    inv_h: Option<[f32; 3]>,
+}
+
+/// Patch search context at one scale.
+struct Scale<'a> {
+    i0: &'a Img,
+    i1: &'a Img,
+    i0x: &'a Img,
+    i0y: &'a Img,
+    ps: usize,
+    mean_norm: bool,
+}
+
+impl Scale<'_> {
+    fn template(&self, ox: usize, oy: usize) -> Template {
+        let (ps, w) = (self.ps, self.i0.width());
+        let n = ps * ps;
+        let (mut values, mut gx, mut gy) = (Vec::with_capacity(n), Vec::with_capacity(n), Vec::with_capacity(n));
+        for y in oy..oy + ps {
+            let r = y * w + ox;
+            values.extend_from_slice(&self.i0.as_slice()[r..r + ps]);
+            gx.extend_from_slice(&self.i0x.as_slice()[r..r + ps]);
+            gy.extend_from_slice(&self.i0y.as_slice()[r..r + ps]);
+        }
+        let nf = n as f32;
+        let mean = values.iter().sum::<f32>() / nf;
+        let (mut a, mut b, mut c) = (0.0f32, 0.0f32, 0.0f32);
+        for k in 0..n {
+            a += gx[k] * gx[k];
+            b += gx[k] * gy[k];
+            c += gy[k] * gy[k];
+        }
+        if self.mean_norm {
+            let (mx, my) = (gx.iter().sum::<f32>() / nf, gy.iter().sum::<f32>() / nf);
+            a -= nf * mx * mx;
+            b -= nf * mx * my;
+            c -= nf * my * my;
+        }
+        let det = a * c - b * b;
+        let inv_h = (det > 1e-6 * (a + c).powi(2).max(1e-12)).then(|| [c / det, -b / det, a / det]);
+        Template { values, gx, gy, mean, inv_h }
+    }
+
+    /// Warp the second image's patch at `(ox + u, oy + v)` into `out`; the warp is a pure
+    /// translation, so all pixels share one set of bilinear weights.
+    fn warp(&self, ox: usize, oy: usize, u: f32, v: f32, out: &mut [f32]) {
+        let (w, h) = self.i1.dims();
+        let ps = self.ps;
+        let (x, y) = (ox as f32 + u, oy as f32 + v);
+        let (x0, y0) = (x.floor(), y.floor());
+        let inside = x0 >= 0.0 && y0 >= 0.0 && (x0 as usize + ps) < w && (y0 as usize + ps) < h;
+        if !inside {
+            for j in 0..ps {
+                for i in 0..ps {
+                    out[j * ps + i] = bilinear(self.i1, x + i as f32, y + j as f32);
+                }
+            }
+            return;
+        }
+        let (fx, fy) = (x - x0, y - y0);
+        let (w00, w10, w01, w11) = ((1.0 - fx) * (1.0 - fy), fx * (1.0 - fy), (1.0 - fx) * fy, fx * fy);
+        let d = self.i1.as_slice();
+        let (bx, by) = (x0 as usize, y0 as usize);
+        for j in 0..ps {
+            let r0 = &d[(by + j) * w + bx..(by + j) * w + bx + ps + 1];
+            let r1 = &d[(by + j + 1) * w + bx..(by + j + 1) * w + bx + ps + 1];
+            let o = &mut out[j * ps..(j + 1) * ps];
+            for i in 0..ps {
+                o[i] = w00 * r0[i] + w10 * r0[i + 1] + w01 * r1[i] + w11 * r1[i + 1];
+            }
+        }
+    }
+
+    /// Sum of squared (mean-normalised) differences between the template and the warped patch.
+    fn ssd(&self, t: &Template, ox: usize, oy: usize, f: [f32; 2], buf: &mut [f32]) -> f32 {
+        self.warp(ox, oy, f[0], f[1], buf);
+        let n = buf.len() as f32;
+        let shift = if self.mean_norm { buf.iter().sum::<f32>() / n - t.mean } else { 0.0 };
+        buf.iter().zip(&t.values).map(|(a, b)| (a - b - shift).powi(2)).sum()
+    }
+
+    /// Inverse-compositional Gauss-Newton from `f`; returns the flow with the lowest SSD seen.
+    fn search(&self, t: &Template, ox: usize, oy: usize, f: [f32; 2], iterations: usize, buf: &mut [f32]) -> ([f32; 2], f32) {
+        let Some(ih) = t.inv_h else {
+            let s = self.ssd(t, ox, oy, f, buf);
+            return (f, s);
+        };
+        let mut cur = f;
+        let mut best = (f, f32::INFINITY);
+        let n = buf.len() as f32;
+        for _ in 0..iterations {
+            self.warp(ox, oy, cur[0], cur[1], buf);
+            let shift = if self.mean_norm { buf.iter().sum::<f32>() / n - t.mean } else { 0.0 };
+            let (mut bx, mut by, mut ssd) = (0.0f32, 0.0f32, 0.0f32);
+            for k in 0..buf.len() {
+                let r = buf[k] - t.values[k] - shift;
+                ssd += r * r;
+                bx += t.gx[k] * r;
+                by += t.gy[k] * r;
+            }
+            if ssd < best.1 {
+                best = (cur, ssd);
+            } else {
+                break;
+            }
+            let du = [ih[0] * bx + ih[1] * by, ih[1] * bx + ih[2] * by];
+            cur = [cur[0] - du[0], cur[1] - du[1]];
+            if du[0] * du[0] + du[1] * du[1] < 1e-4 {
+                let s = self.ssd(t, ox, oy, cur, buf);
+                if s < best.1 {
+                    best = (cur, s);
+                }
+                break;
+            }
+        }
+        best
+    }
+}
+
+/// Rows of patches searched together (each band runs its propagation sequentially; bands run
+/// in parallel).
+const BAND_ROWS: usize = 4;
+
+/// Patch search over the grid: the per-patch flows, their mean differences (for densification).
+fn patch_flows(sc: &Scale<'_>, init: &(Img, Img), p: &DisParams) -> (Vec<usize>, Vec<usize>, Vec<[f32; 2]>, Vec<f32>) {
+    let (w, h) = sc.i0.dims();
+    let ps = sc.ps;
+    let xs = patch_origins(w, ps, p.patch_stride);
+    let ys = patch_origins(h, ps, p.patch_stride);
+    let (nx, ny) = (xs.len(), ys.len());
+    let half = ps as f32 / 2.0;
+    let passes = if p.spatial_propagation { 2 } else { 1 };
+    let iters = (p.iterations / passes).max(1);
+    let bands: Vec<(Vec<[f32; 2]>, Vec<f32>)> = (0..ny.div_ceil(BAND_ROWS))
+        .into_par_iter()
+        .map(|band| {
+            let rows = band * BAND_ROWS..((band + 1) * BAND_ROWS).min(ny);
+            let nr = rows.len();
+            let mut buf = vec![0.0f32; ps * ps];
+            let (xs, ys) = (&xs, &ys);
+            let templates: Vec<Template> =
+                rows.clone().flat_map(|j| xs.iter().map(move |&x| (x, ys[j]))).map(|(x, y)| sc.template(x, y)).collect();
+            let mut flows: Vec<[f32; 2]> = rows
+                .clone()
+                .flat_map(|j| xs.iter().map(move |&x| (x, ys[j])))
+                .map(|(x, y)| {
+                    [bilinear(&init.0, x as f32 + half, y as f32 + half), bilinear(&init.1, x as f32 + half, y as f32 + half)]
+                })
+                .collect();
+            let initial = flows.clone();
+            let mut ssd = vec![f32::INFINITY; flows.len()];
+            for pass in 0..passes {
+                let order: Vec<usize> = if pass == 0 { (0..nr * nx).collect() } else { (0..nr * nx).rev().collect() };
+                for k in order {
+                    let (lj, i) = (k / nx, k % nx);
+                    let (ox, oy) = (xs[i], ys[rows.start + lj]);
+                    let t = &templates[k];
+                    let mut start = flows[k];
+                    let mut start_ssd = sc.ssd(t, ox, oy, start, &mut buf);
+                    if p.spatial_propagation {
+                        let neighbours: [Option<usize>; 2] = if pass == 0 {
+                            [(i > 0).then(|| k - 1), (lj > 0).then(|| k - nx)]
+                        } else {
+                            [(i + 1 < nx).then(|| k + 1), (lj + 1 < nr).then(|| k + nx)]
+                        };
+                        for q in neighbours.into_iter().flatten() {
+                            let s = sc.ssd(t, ox, oy, flows[q], &mut buf);
+                            if s < start_ssd {
+                                start = flows[q];
+                                start_ssd = s;
+                            }
+                        }
+                    }
+                    let (f, s) = sc.search(t, ox, oy, start, iters, &mut buf);
+                    (flows[k], ssd[k]) = if s <= start_ssd { (f, s) } else { (start, start_ssd) };
+                }
+            }
+            // A patch that wandered further than its own size from where it started is not
+            // trusted: back to the initial flow.
+            let mut shifts = Vec::with_capacity(flows.len());
+            for k in 0..flows.len() {
+                let d = ((flows[k][0] - initial[k][0]).powi(2) + (flows[k][1] - initial[k][1]).powi(2)).sqrt();
+                if d > ps as f32 {
+                    flows[k] = initial[k];
+                }
+                let (i, lj) = (k % nx, k / nx);
+                let (ox, oy) = (xs[i], ys[rows.start + lj]);
+                sc.warp(ox, oy, flows[k][0], flows[k][1], &mut buf);
+                let shift = if sc.mean_norm { buf.iter().sum::<f32>() / buf.len() as f32 - templates[k].mean } else { 0.0 };
+                shifts.push(shift);
+            }
+            (flows, shifts)
+        })
+        .collect();
+    let (mut flows, mut shifts) = (Vec::with_capacity(nx * ny), Vec::with_capacity(nx * ny));
+    for (f, s) in bands {
+        flows.extend(f);
+        shifts.extend(s);
+    }
+    (xs, ys, flows, shifts)
+}
+
+/// Patches covering coordinate `c` along an axis with origins `o` (sorted) and side `ps`.
+fn covering(o: &[usize], ps: usize, c: usize) -> std::ops::Range<usize> {
+    let lo = o.partition_point(|&s| s + ps <= c);
+    let hi = o.partition_point(|&s| s <= c);
+    lo..hi
+}
+
+/// Densification: per pixel, the photometric-error-weighted average of the covering patches.
+fn densify(sc: &Scale<'_>, xs: &[usize], ys: &[usize], flows: &[[f32; 2]], shifts: &[f32]) -> (Img, Img) {
+    let (w, h) = sc.i0.dims();
+    let nx = xs.len();
+    let ps = sc.ps;
+    let col_ranges: Vec<std::ops::Range<usize>> = (0..w).map(|x| covering(xs, ps, x)).collect();
+    let mut u = vec![0.0f32; w * h];
+    let mut v = vec![0.0f32; w * h];
+    u.par_chunks_mut(w).zip(v.par_chunks_mut(w)).enumerate().for_each(|(y, (ur, vr))| {
+        let rows = covering(ys, ps, y);
+        let i0 = sc.i0.row(y);
+        for x in 0..w {
+            let (mut su, mut sv, mut sw) = (0.0f32, 0.0f32, 0.0f32);
+            for j in rows.clone() {
+                for i in col_ranges[x].clone() {
+                    let k = j * nx + i;
+                    let f = flows[k];
+                    let diff = bilinear(sc.i1, x as f32 + f[0], y as f32 + f[1]) - i0[x] - shifts[k];
+                    let wt = 1.0 / diff.abs().max(1.0);
+                    su += wt * f[0];
+                    sv += wt * f[1];
+                    sw += wt;
+                }
+            }
+            if sw > 0.0 {
+                ur[x] = su / sw;
+                vr[x] = sv / sw;
+            }
+        }
+    });
+    (Img::from_vec(w, h, u).expect("sizes"), Img::from_vec(w, h, v).expect("sizes"))
+}
+
+/// Robust penalty derivative `Psi'(s2) = 1 / (2 sqrt(s2 + eps^2))`.
+#[inline]
+fn psi_prime(s2: f32) -> f32 {
+    0.5 / (s2 + 1e-6).sqrt()
+}
+
+/// Variational refinement of `(u, v)` in place (see the module documentation).
+fn refine(i0: &Img, i1: &Img, u: &mut Img, v: &mut Img, p: &DisParams) {
+    if p.refinement_iterations == 0 {
+        return;
+    }
+    let (w, h) = i0.dims();
+    let n = w * h;
+    let (i0x, i0y) = gradients(i0);
+    let (i1x, i1y) = gradients(i1);
+    let (i0xx, i0xy) = gradients(&i0x);
+    let (_, i0yy) = gradients(&i0y);
+    let (i1xx, i1xy) = gradients(&i1x);
+    let (_, i1yy) = gradients(&i1y);
+    // Linearisation at the current flow: warped second image and the data terms.
+    struct Px {
+        ix: f32,
+        iy: f32,
+        iz: f32,
+        ixx: f32,
+        ixy: f32,
+        iyy: f32,
+        ixz: f32,
+        iyz: f32,
+        valid: bool,
+    }
+    let (us, vs) = (u.as_slice(), v.as_slice());
+    let data: Vec<Px> = (0..n)
+        .into_par_iter()
+        .map(|k| {
+            let (x, y) = ((k % w) as f32 + us[k], (k / w) as f32 + vs[k]);
+            let valid = x >= 0.0 && y >= 0.0 && x <= (w - 1) as f32 && y <= (h - 1) as f32;
+            let s = |img: &Img| bilinear(img, x, y);
+            let (wx, wy) = (s(&i1x), s(&i1y));
+            Px {
+                ix: 0.5 * (wx + i0x.as_slice()[k]),
+                iy: 0.5 * (wy + i0y.as_slice()[k]),
+                iz: s(i1) - i0.as_slice()[k],
+                ixx: 0.5 * (s(&i1xx) + i0xx.as_slice()[k]),
+                ixy: 0.5 * (s(&i1xy) + i0xy.as_slice()[k]),
+                iyy: 0.5 * (s(&i1yy) + i0yy.as_slice()[k]),
+                ixz: wx - i0x.as_slice()[k],
+                iyz: wy - i0y.as_slice()[k],
+                valid,
+            }
+        })
+        .collect();
+    let zeta2 = 0.01f32;
+    let mut du = vec![0.0f32; n];
+    let mut dv = vec![0.0f32; n];
+    for _ in 0..p.refinement_iterations {
+        // Data-term coefficients `[a11, a12, a22, b1, b2]` under the current increments.
+        let coeffs: Vec<[f32; 5]> = (0..n)
+            .into_par_iter()
+            .map(|k| {
+                let d = &data[k];
+                if !d.valid {
+                    return [0.0; 5];
+                }
+                let (a, b) = (du[k], dv[k]);
+                let r1 = p.delta * psi_prime((d.iz + d.ix * a + d.iy * b).powi(2)) / (d.ix * d.ix + d.iy * d.iy + zeta2);
+                let r2 = p.gamma * psi_prime((d.ixz + d.ixx * a + d.ixy * b).powi(2))
+                    / (d.ixx * d.ixx + d.ixy * d.ixy + zeta2);
+                let r3 = p.gamma * psi_prime((d.iyz + d.ixy * a + d.iyy * b).powi(2))
+                    / (d.ixy * d.ixy + d.iyy * d.iyy + zeta2);
+                [
+                    r1 * d.ix * d.ix + r2 * d.ixx * d.ixx + r3 * d.ixy * d.ixy,
+                    r1 * d.ix * d.iy + r2 * d.ixx * d.ixy + r3 * d.ixy * d.iyy,
+                    r1 * d.iy * d.iy + r2 * d.ixy * d.ixy + r3 * d.iyy * d.iyy,
+                    r1 * d.ix * d.iz + r2 * d.ixx * d.ixz + r3 * d.ixy * d.iyz,
+                    r1 * d.iy * d.iz + r2 * d.ixy * d.ixz + r3 * d.iyy * d.iyz,
+                ]
+            })
+            .collect();
+        // Smoothness weights: alpha * Psi'(|grad (u + du)|^2 + |grad (v + dv)|^2) per pixel,
+        // averaged over each pair of neighbours.
+        let (us, vs) = (u.as_slice(), v.as_slice());
+        let smooth: Vec<f32> = (0..n)
+            .into_par_iter()
+            .map(|k| {
+                let (x, y) = (k % w, k / w);
+                let fu = |q: usize| us[q] + du[q];
+                let fv = |q: usize| vs[q] + dv[q];
+                let (r, b) = (if x + 1 < w { k + 1 } else { k }, if y + 1 < h { k + w } else { k });
+                let g = (fu(r) - fu(k)).powi(2) + (fu(b) - fu(k)).powi(2) + (fv(r) - fv(k)).powi(2) + (fv(b) - fv(k)).powi(2);
+                p.alpha * psi_prime(g)
+            })
+            .collect();
+        for _ in 0..p.sor_iterations {
+            for colour in 0..2 {
+                let (old_u, old_v) = (du.clone(), dv.clone());
+                du.par_chunks_mut(w).zip(dv.par_chunks_mut(w)).enumerate().for_each(|(y, (dur, dvr))| {
+                    let start = (y + colour) % 2;
+                    for x in (start..w).step_by(2) {
+                        let k = y * w + x;
+                        let [a11, a12, a22, b1, b2] = coeffs[k];
+                        let (mut sw, mut su, mut sv) = (0.0f32, 0.0f32, 0.0f32);
+                        let mut add = |q: usize| {
+                            let wt = 0.5 * (smooth[k] + smooth[q]);
+                            sw += wt;
+                            su += wt * (us[q] + old_u[q] - us[k]);
+                            sv += wt * (vs[q] + old_v[q] - vs[k]);
+                        };
+                        if x > 0 {
+                            add(k - 1);
+                        }
+                        if x + 1 < w {
+                            add(k + 1);
+                        }
+                        if y > 0 {
+                            add(k - w);
+                        }
+                        if y + 1 < h {
+                            add(k + w);
+                        }
+                        let nu = (su - b1 - a12 * dvr[x]) / (a11 + sw).max(1e-9);
+                        dur[x] = (1.0 - p.omega) * dur[x] + p.omega * nu;
+                        let nv = (sv - b2 - a12 * dur[x]) / (a22 + sw).max(1e-9);
+                        dvr[x] = (1.0 - p.omega) * dvr[x] + p.omega * nv;
+                    }
+                });
+            }
+        }
+    }
+    u.as_mut_slice().iter_mut().zip(&du).for_each(|(a, d)| *a += d);
+    v.as_mut_slice().iter_mut().zip(&dv).for_each(|(a, d)| *a += d);
+}
+
+impl Dis {
+    /// The coarsest scale for an image of this size.
+    fn coarsest(&self, w: usize, h: usize) -> usize {
+        let p = &self.params;
+        let auto = {
+            let by_size = ((w.max(h) as f32 / (4.0 * p.patch_size as f32)).log2() + 0.5).floor().max(0.0) as usize;
+            let by_min = (h.min(w) as f32 / p.patch_size as f32).log2().floor().max(0.0) as usize;
+            by_size.min(by_min)
+        };
+        p.coarsest_scale.unwrap_or(auto).max(p.finest_scale)
+    }
+
+    /// Dense flow on the 0-255 scale images (no mask).
+    fn compute(&self, from: &Gray, to: &Gray) -> (Img, Img) {
+        let p = &self.params;
+        let (w, h) = from.dims();
+        let coarsest = self.coarsest(w, h);
+        let mut p0 = vec![from.map(|v| v * 255.0)];
+        let mut p1 = vec![to.map(|v| v * 255.0)];
+        for s in 1..=coarsest {
+            let (a, b) = (halve(&p0[s - 1]), halve(&p1[s - 1]));
+            p0.push(a);
+            p1.push(b);
+        }
+        // Scales too small for one patch are skipped.
+        let coarsest = (p.finest_scale..=coarsest)
+            .rev()
+            .find(|&s| p0[s].width() >= p.patch_size && p0[s].height() >= p.patch_size)
+            .unwrap_or(p.finest_scale);
+        let (cw, ch) = p0[coarsest].dims();
+        let mut flow = (Img::filled(cw, ch, 0.0), Img::filled(cw, ch, 0.0));
+        for s in (p.finest_scale..=coarsest).rev() {
+            let (i0, i1) = (&p0[s], &p1[s]);
+            let (sw, sh) = i0.dims();
+            if flow.0.dims() != (sw, sh) {
+                flow = (upsample(&flow.0, sw, sh), upsample(&flow.1, sw, sh));
+            }
+            if sw < p.patch_size || sh < p.patch_size {
+                continue;
+            }
+            let (i0x, i0y) = gradients(i0);
+            let sc = Scale { i0, i1, i0x: &i0x, i0y: &i0y, ps: p.patch_size, mean_norm: p.mean_normalization };
+            let (xs, ys, flows, shifts) = patch_flows(&sc, &flow, p);
+            flow = densify(&sc, &xs, &ys, &flows, &shifts);
+            refine(i0, i1, &mut flow.0, &mut flow.1, p);
+        }
+        // Up to full resolution.
+        while flow.0.dims() != (w, h) {
+            let (fw, fh) = flow.0.dims();
+            let (nw, nh) = if fw * 2 > w || fh * 2 > h { (w, h) } else { (fw * 2, fh * 2) };
+            let sx = nw as f32 / fw as f32;
+            let sy = nh as f32 / fh as f32;
+            let up = |f: &Img, s: f32| {
+                Img::from_fn(nw, nh, |x, y| s * bilinear(f, (x as f32 + 0.5) / sx - 0.5, (y as f32 + 0.5) / sy - 0.5))
+            };
+            flow = (up(&flow.0, sx), up(&flow.1, sy));
+        }
+        flow
+    }
+}
+
+impl FlowEstimator for Dis {
+    fn name(&self) -> &str {
+        "dis"
+    }
+
+    fn dense(&self, from: &Gray, to: &Gray, mask: Option<&Mask>) -> Result<FlowField, FlowError> {
+        self.params.validate()?;
+        check_pair(from, to, mask)?;
+        let (u, v) = self.compute(from, to);
+        let (w, h) = from.dims();
+        let flow = Grid::from_vec(w, h, u.as_slice().iter().zip(v.as_slice()).map(|(a, b)| [*a, *b]).collect())
+            .expect("sizes");
+        let valid = match mask {
+            Some(m) => m.clone(),
+            None => Mask::filled(w, h, true),
+        };
+        Ok(FlowField { flow, valid })
+    }
+}

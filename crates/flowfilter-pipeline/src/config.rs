@@ -1,0 +1,132 @@
+//! The pipeline's configuration: one TOML file with a table per stage. Unknown keys are errors
+//! naming the key and the file.
+
+use crate::error::PipelineError;
+use flowfilter_depth::DepthConfig;
+use flowfilter_flow::LucasKanade;
+use flowfilter_flow::correspondences::CorrespondenceParams;
+use flowfilter_flow::dis::DisParams;
+use flowfilter_registration::{FLOW_METHOD_NAMES, RegistrationConfig, registrar_by_name};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// How the object cloud handed to registration is thinned.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CloudPrepConfig {
+    /// Voxel size (metres) of the registration clouds; 0 keeps every point.
+    pub voxel_m: f64,
+}
+
+impl Default for CloudPrepConfig {
+    fn default() -> Self {
+        Self { voxel_m: 0.004 }
+    }
+}
+
+/// The flow and correspondence stages.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FlowStageConfig {
+    /// Estimator name: `lk` (sparse pyramidal Lucas-Kanade) or `dis` (dense inverse search).
+    pub estimator: String,
+    /// Lucas-Kanade parameters.
+    pub lk: LucasKanade,
+    /// Dense inverse search parameters.
+    pub dis: DisParams,
+    /// Correspondence search and rejection.
+    pub correspondences: CorrespondenceParams,
+}
+
+impl Default for FlowStageConfig {
+    fn default() -> Self {
+        Self {
+            estimator: "lk".into(),
+            lk: LucasKanade::default(),
+            dis: DisParams::default(),
+            correspondences: CorrespondenceParams::default(),
+        }
+    }
+}
+
+/// The whole pipeline.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PipelineConfig {
+    /// Registration backend, by name (see `flowfilter_registration::registrar_by_name`).
+    pub method: String,
+    /// Depth stage.
+    pub depth: DepthConfig,
+    /// Registration clouds.
+    pub cloud: CloudPrepConfig,
+    /// Flow and correspondences (used by the Flow Filter methods only).
+    pub flow: FlowStageConfig,
+    /// Backend parameters.
+    pub registration: RegistrationConfig,
+}
+
+impl Default for PipelineConfig {
+    fn default() -> Self {
+        Self {
+            method: "flowfilter".into(),
+            depth: DepthConfig::default(),
+            cloud: CloudPrepConfig::default(),
+            flow: FlowStageConfig::default(),
+            registration: RegistrationConfig::default(),
+        }
+    }
+}
+
+impl PipelineConfig {
+    /// Parse TOML text; `origin` names the source in errors.
+    pub fn from_toml_str(text: &str, origin: &Path) -> Result<Self, PipelineError> {
+        let config: Self = toml::from_str(text).map_err(|e| PipelineError::Config {
+            path: origin.to_path_buf(),
+            message: describe_toml_error(&e, text),
+        })?;
+        config.validate().map_err(|message| PipelineError::Config { path: origin.to_path_buf(), message })?;
+        Ok(config)
+    }
+
+    /// Read and parse a TOML file.
+    pub fn from_file(path: &Path) -> Result<Self, PipelineError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| PipelineError::Config { path: path.to_path_buf(), message: format!("cannot read: {e}") })?;
+        Self::from_toml_str(&text, path)
+    }
+
+    /// The configuration as TOML.
+    pub fn to_toml(&self) -> String {
+        toml::to_string(self).expect("the configuration serialises")
+    }
+
+    /// Whether the chosen method consumes flow correspondences.
+    pub fn uses_flow(&self) -> bool {
+        FLOW_METHOD_NAMES.contains(&self.method.as_str())
+    }
+
+    /// Check values that serde cannot: names and ranges of every stage.
+    pub fn validate(&self) -> Result<(), String> {
+        registrar_by_name(&self.method, &self.registration).map_err(|e| format!("key 'method': {e}"))?;
+        self.depth.validate().map_err(|e| format!("table [depth]: {e}"))?;
+        if !(self.cloud.voxel_m >= 0.0 && self.cloud.voxel_m.is_finite()) {
+            return Err(format!("key 'cloud.voxel_m' must be >= 0, found {}", self.cloud.voxel_m));
+        }
+        crate::stages::flow_estimator_by_name(&self.flow).map_err(|e| format!("table [flow]: {e}"))?;
+        Ok(())
+    }
+}
+
+/// toml's message with the line number, as one line a user can act on.
+fn describe_toml_error(e: &toml::de::Error, text: &str) -> String {
+    let msg = e.message().trim().to_string();
+    match e.span() {
+        Some(span) => {
+            let line = text[..span.start.min(text.len())].matches('\n').count() + 1;
+            let key = text[span.clone()].trim();
+            format!("line {line}: {msg} (at '{key}')")
+        }
+        None => msg,
+    }
+}
+
