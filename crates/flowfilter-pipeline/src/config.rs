@@ -8,7 +8,7 @@ use flowfilter_flow::correspondences::CorrespondenceParams;
 use flowfilter_flow::dis::DisParams;
 use flowfilter_registration::{FLOW_METHOD_NAMES, RegistrationConfig, registrar_by_name};
 use serde::{Deserialize, Serialize};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// How the object cloud handed to registration is thinned.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -112,6 +112,12 @@ impl PipelineConfig {
         if !(self.cloud.voxel_m >= 0.0 && self.cloud.voxel_m.is_finite()) {
             return Err(format!("key 'cloud.voxel_m' must be >= 0, found {}", self.cloud.voxel_m));
         }
+        self.flow.lk.validate().map_err(|e| format!("table [flow.lk]: {e}"))?;
+        self.flow.dis.validate().map_err(|e| format!("table [flow.dis]: {e}"))?;
+        let c = &self.flow.correspondences;
+        if c.grid_step == 0 || !(c.fb_threshold > 0.0) || !(c.depth_k_sigma > 0.0) {
+            return Err("table [flow.correspondences]: grid_step >= 1, fb_threshold > 0 and depth_k_sigma > 0 required".into());
+        }
         crate::stages::flow_estimator_by_name(&self.flow).map_err(|e| format!("table [flow]: {e}"))?;
         Ok(())
     }
@@ -122,9 +128,10 @@ fn describe_toml_error(e: &toml::de::Error, text: &str) -> String {
     let msg = e.message().trim().to_string();
     match e.span() {
         Some(span) => {
-            let line = text[..span.start.min(text.len())].matches('\n').count() + 1;
-            let key = text[span.clone()].trim();
-            format!("line {line}: {msg} (at '{key}')")
+            let start = span.start.min(text.len());
+            let line = text[..start].matches('\n').count() + 1;
+            let source_line = text.lines().nth(line - 1).unwrap_or("").trim();
+            format!("line {line} (`{source_line}`): {msg}")
         }
         None => msg,
     }

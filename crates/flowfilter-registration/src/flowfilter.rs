@@ -38,6 +38,9 @@ pub struct FlowFilterConfig {
     pub inlier_threshold_m: f64,
     /// Minimum inlier pairs for the flow pose to be trusted.
     pub min_inliers: usize,
+    /// Minimum fraction of the usable pairs that must agree with the flow pose for it to be
+    /// trusted (views without a common surface give a few pairs that agree by chance).
+    pub min_inlier_fraction: f64,
     /// Weight `lambda` of the correspondence term relative to the FilterReg term.
     pub correspondence_weight: f64,
     /// Seed of the RANSAC sampling.
@@ -53,6 +56,7 @@ impl Default for FlowFilterConfig {
             ransac_iterations: 300,
             inlier_threshold_m: 0.005,
             min_inliers: 12,
+            min_inlier_fraction: 0.3,
             correspondence_weight: 1.0,
             seed: 0,
             filterreg: FilterRegConfig::default(),
@@ -113,9 +117,15 @@ impl FlowFilter {
     /// Flow Filter with the given parameters.
     pub fn new(config: FlowFilterConfig) -> Result<Self, RegistrationError> {
         FilterReg::new(config.filterreg.clone())?;
-        if config.ransac_iterations == 0 || config.inlier_threshold_m <= 0.0 || config.correspondence_weight < 0.0 {
+        if config.ransac_iterations == 0
+            || config.inlier_threshold_m <= 0.0
+            || config.correspondence_weight < 0.0
+            || !(0.0..=1.0).contains(&config.min_inlier_fraction)
+        {
             return Err(RegistrationError::Config(
-                "flowfilter needs ransac_iterations > 0, inlier_threshold_m > 0, correspondence_weight >= 0".into(),
+                "flowfilter needs ransac_iterations > 0, inlier_threshold_m > 0, correspondence_weight >= 0, \
+                 min_inlier_fraction in [0, 1]"
+                    .into(),
             ));
         }
         Ok(Self { config })
@@ -134,17 +144,25 @@ impl Registrar for FlowFilter {
     fn register(&self, p: &RegistrationProblem) -> Result<Registration, RegistrationError> {
         validate_problem(p, None)?;
         let cfg = &self.config;
+        let usable = p.correspondences.as_ref().map_or(0, |c| c.weights.iter().filter(|w| **w > 0.0).count());
         let flow = p.correspondences.as_ref().and_then(|c| {
             ransac_kabsch(c, cfg.ransac_iterations, cfg.inlier_threshold_m, cfg.min_inliers, cfg.seed)
                 .map(|(pose, inl)| (c, pose, inl))
         });
-        let Some((corr, pose, inliers)) = flow else {
+        let agreeing = flow.as_ref().map_or(0, |f| f.2.iter().filter(|b| **b).count());
+        let trusted = flow.is_some() && agreeing as f64 >= cfg.min_inlier_fraction * usable as f64;
+        let Some((corr, pose, inliers)) = flow.filter(|_| trusted) else {
             // No usable flow: plain FilterReg, flagged.
             let mut r = FilterReg::new(cfg.filterreg.clone())?.register(p)?;
-            r.warnings.push("too few consistent flow correspondences: Flow Filter fell back to FilterReg".into());
+            r.warnings.push(format!(
+                "too few consistent flow correspondences ({agreeing} of {usable} agree on a rigid motion; \
+                 needed {} and {:.0}%): Flow Filter fell back to FilterReg",
+                cfg.min_inliers,
+                cfg.min_inlier_fraction * 100.0
+            ));
             return Ok(r);
         };
-        let n_in = inliers.iter().filter(|b| **b).count();
+        let n_in = agreeing;
         if cfg.mode == FlowFilterMode::FlowOnly {
             let (fitness, inlier_rmse) = (n_in as f64 / corr.len() as f64, 0.0);
             return Ok(Registration {

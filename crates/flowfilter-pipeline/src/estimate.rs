@@ -1,0 +1,128 @@
+//! The pipeline's result and its JSON schema (`flowfilter estimate --json`).
+//!
+//! Schema `flowfilter estimate v1` (all lengths in metres, angles in degrees, times in ms):
+//! - `schema`: the string `"flowfilter estimate v1"`;
+//! - `method`, `flow_estimator` (null when the method uses no flow), `model`, `target` (frame labels);
+//! - `transform`: the 4x4 row-major matrix `T` with `target ~ T * model` (colour camera frame);
+//! - `rotation_angle_deg`, `rotation_axis` (unit, `[0,0,0]` for no rotation), `translation_m`;
+//! - `registration`: `iterations`, `converged`, `fitness`, `inlier_rmse_m`, `sigma2` (or null),
+//!   `model_points`, `target_points`;
+//! - `correspondences` (null without flow): `tracked`, `consistent`, `inliers`;
+//! - `stage_ms`: `depth_model`, `depth_target`, `flow`, `correspondences`, `registration`, `total`;
+//! - `warnings`: strings (a fallback taken, flow that failed);
+//! - `ground_truth` (null when unknown): `transform` and `errors` (`angle_error_deg`,
+//!   `geodesic_error_deg`, `translation_error_m`, `add_s_m`, `success`).
+
+use flowfilter_eval::PoseErrors;
+use flowfilter_geometry::{Point3, Pose};
+use serde::Serialize;
+
+/// The schema tag of [`Estimate`]'s JSON.
+pub const ESTIMATE_SCHEMA: &str = "flowfilter estimate v1";
+
+/// What the registration backend reported.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RegistrationSummary {
+    /// Iterations run.
+    pub iterations: usize,
+    /// Whether the backend's convergence criterion was met.
+    pub converged: bool,
+    /// Fraction of model points with a target neighbour within the inlier distance.
+    pub fitness: f64,
+    /// RMSE of those pairs, metres.
+    pub inlier_rmse_m: f64,
+    /// Final sigma^2 of GMM backends.
+    pub sigma2: Option<f64>,
+    /// Points of the model cloud given to the backend.
+    pub model_points: usize,
+    /// Points of the target cloud.
+    pub target_points: usize,
+}
+
+/// How many flow correspondences survived each check.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct CorrespondenceSummary {
+    /// Model pixels tracked.
+    pub tracked: usize,
+    /// Pairs that passed the consistency, mask and depth checks.
+    pub consistent: usize,
+    /// Pairs kept by the depth-change fit (weight > 0).
+    pub inliers: usize,
+}
+
+/// Wall time per stage, milliseconds.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
+pub struct StageTimes {
+    /// Depth stage and cloud of the model frame.
+    pub depth_model: f64,
+    /// Depth stage and cloud of the target frame.
+    pub depth_target: f64,
+    /// Optical flow (forward and backward).
+    pub flow: f64,
+    /// Correspondence geometry and checks.
+    pub correspondences: f64,
+    /// Registration.
+    pub registration: f64,
+    /// Everything.
+    pub total: f64,
+}
+
+/// The ground truth and the estimate's errors against it.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct GroundTruth {
+    /// The true transform, row-major 4x4.
+    pub transform: [[f64; 4]; 4],
+    /// Errors of the estimate.
+    pub errors: PoseErrors,
+}
+
+/// The pipeline's estimate of the relative pose between two frames.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Estimate {
+    /// Always [`ESTIMATE_SCHEMA`].
+    pub schema: &'static str,
+    /// Registration method.
+    pub method: String,
+    /// Flow estimator (methods that use flow).
+    pub flow_estimator: Option<String>,
+    /// Model frame label.
+    pub model: String,
+    /// Target frame label.
+    pub target: String,
+    /// `T` with `target ~ T * model`, row-major.
+    pub transform: [[f64; 4]; 4],
+    /// Rotation angle of `T`.
+    pub rotation_angle_deg: f64,
+    /// Rotation axis of `T`.
+    pub rotation_axis: [f64; 3],
+    /// Translation of `T`.
+    pub translation_m: [f64; 3],
+    /// Backend report.
+    pub registration: RegistrationSummary,
+    /// Flow correspondences.
+    pub correspondences: Option<CorrespondenceSummary>,
+    /// Time per stage.
+    pub stage_ms: StageTimes,
+    /// Conditions the caller should know about.
+    pub warnings: Vec<String>,
+    /// Ground truth, when known.
+    pub ground_truth: Option<GroundTruth>,
+    /// The estimate as a pose.
+    #[serde(skip)]
+    pub pose: Pose,
+}
+
+/// Row-major 4x4 of a pose.
+pub fn matrix_rows(p: &Pose) -> [[f64; 4]; 4] {
+    let m = p.to_homogeneous();
+    std::array::from_fn(|r| std::array::from_fn(|c| m[(r, c)]))
+}
+
+impl Estimate {
+    /// Attach the ground truth; `model_points` (the model cloud) gives ADD-S.
+    pub fn with_ground_truth(mut self, truth: &Pose, model_points: Option<&[Point3]>) -> Self {
+        self.ground_truth =
+            Some(GroundTruth { transform: matrix_rows(truth), errors: PoseErrors::new(&self.pose, truth, model_points) });
+        self
+    }
+}

@@ -1,0 +1,138 @@
+//! The pipeline's seams: frame preparation and correspondence search, each a trait with the
+//! project's default implementation.
+
+use crate::config::{CloudPrepConfig, FlowStageConfig};
+use crate::error::PipelineError;
+use crate::frame::RgbdFrame;
+use flowfilter_camera::{RayTable, RgbdSensor};
+use flowfilter_depth::cloud::voxel_downsample;
+use flowfilter_depth::{DepthConfig, DepthStage};
+use flowfilter_flow::correspondences::{CorrespondenceParams, FlowPairs, FlowView, flow_correspondences};
+use flowfilter_flow::dis::Dis;
+use flowfilter_flow::lk::{Gray, to_gray};
+use flowfilter_flow::{FlowError, FlowEstimator};
+use flowfilter_geometry::{DepthMap, Mask, PointCloud};
+use std::sync::Arc;
+use std::time::Instant;
+
+/// A frame after the depth stage: what correspondence search and registration need.
+#[derive(Debug, Clone)]
+pub struct PreparedFrame {
+    /// The frame's label.
+    pub label: String,
+    /// Grey image in [0, 1] (colour grid).
+    pub gray: Gray,
+    /// Dense depth on the colour grid, metres (0 = none).
+    pub depth: DepthMap,
+    /// Object mask.
+    pub mask: Mask,
+    /// The registration cloud (colour camera frame, thinned, with normals).
+    pub cloud: PointCloud,
+    /// Points of the full organised cloud before thinning.
+    pub full_points: usize,
+    /// The sensor.
+    pub sensor: RgbdSensor,
+    /// Rays of the colour camera.
+    pub rays: Arc<RayTable>,
+    /// Seconds spent preparing the frame.
+    pub seconds: f64,
+}
+
+/// Turns an RGB-D frame into a [`PreparedFrame`].
+pub trait FramePreparer: Send + Sync {
+    /// Prepare one frame.
+    fn prepare(&self, frame: &RgbdFrame) -> Result<PreparedFrame, PipelineError>;
+}
+
+/// The default preparer: the depth stage, then a voxel grid on its object cloud.
+pub struct DepthPreparer {
+    stage: DepthStage,
+    cloud: CloudPrepConfig,
+}
+
+impl DepthPreparer {
+    /// A preparer with these stage configurations.
+    pub fn new(depth: DepthConfig, cloud: CloudPrepConfig) -> Result<Self, PipelineError> {
+        let stage = DepthStage::new(depth).map_err(|source| PipelineError::Depth { frame: "config".into(), source })?;
+        Ok(Self { stage, cloud })
+    }
+}
+
+impl FramePreparer for DepthPreparer {
+    fn prepare(&self, frame: &RgbdFrame) -> Result<PreparedFrame, PipelineError> {
+        let t0 = Instant::now();
+        let p = self
+            .stage
+            .process(&frame.depth, &frame.color, &frame.mask, &frame.sensor)
+            .map_err(|source| PipelineError::Depth { frame: frame.label.clone(), source })?;
+        let mut cloud = if self.cloud.voxel_m > 0.0 { voxel_downsample(&p.cloud, self.cloud.voxel_m) } else { p.cloud.clone() };
+        cloud.colors = None;
+        Ok(PreparedFrame {
+            label: frame.label.clone(),
+            gray: to_gray(&frame.color),
+            depth: p.depth,
+            mask: frame.mask.clone(),
+            full_points: p.cloud.len(),
+            cloud,
+            sensor: frame.sensor.clone(),
+            rays: self.stage.rays(&frame.sensor.color),
+            seconds: t0.elapsed().as_secs_f64(),
+        })
+    }
+}
+
+/// Finds weighted 3-D pairs between two prepared frames.
+pub trait CorrespondenceFinder: Send + Sync {
+    /// A short name (the flow estimator's).
+    fn name(&self) -> &str;
+    /// The pairs, model frame to target frame.
+    fn find(&self, model: &PreparedFrame, target: &PreparedFrame) -> Result<FlowPairs, PipelineError>;
+}
+
+/// The default finder: optical flow by any [`FlowEstimator`], forward-backward consistency,
+/// target mask and depth checks, depth-change outliers (stage 4 of the method).
+pub struct FlowCorrespondenceFinder {
+    estimator: Box<dyn FlowEstimator>,
+    params: CorrespondenceParams,
+}
+
+impl FlowCorrespondenceFinder {
+    /// A finder from an estimator and the rejection parameters.
+    pub fn new(estimator: Box<dyn FlowEstimator>, params: CorrespondenceParams) -> Self {
+        Self { estimator, params }
+    }
+}
+
+impl CorrespondenceFinder for FlowCorrespondenceFinder {
+    fn name(&self) -> &str {
+        self.estimator.name()
+    }
+
+    fn find(&self, model: &PreparedFrame, target: &PreparedFrame) -> Result<FlowPairs, PipelineError> {
+        Ok(flow_correspondences(
+            self.estimator.as_ref(),
+            &FlowView { gray: &model.gray, depth: &model.depth, mask: &model.mask },
+            &FlowView { gray: &target.gray, depth: &target.depth, mask: &target.mask },
+            &model.rays,
+            &self.params,
+        )?)
+    }
+}
+
+/// Names accepted by [`flow_estimator_by_name`].
+pub const FLOW_ESTIMATOR_NAMES: [&str; 2] = ["lk", "dis"];
+
+/// The flow estimator named in the configuration.
+pub fn flow_estimator_by_name(config: &FlowStageConfig) -> Result<Box<dyn FlowEstimator>, FlowError> {
+    match config.estimator.as_str() {
+        "lk" => {
+            config.lk.validate()?;
+            Ok(Box::new(config.lk.clone()))
+        }
+        "dis" => Ok(Box::new(Dis::new(config.dis.clone())?)),
+        other => Err(FlowError::Config(format!(
+            "unknown estimator '{other}' (available: {})",
+            FLOW_ESTIMATOR_NAMES.join(", ")
+        ))),
+    }
+}

@@ -1,0 +1,60 @@
+//! The commented configurations in `configs/` parse, document the real defaults, and bad
+//! files are errors naming the key and the file.
+
+use flowfilter_pipeline::{PipelineConfig, PipelineError};
+use std::path::{Path, PathBuf};
+
+fn configs_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs")
+}
+
+#[test]
+fn every_shipped_config_parses_and_builds_a_pipeline() {
+    let mut names = vec![];
+    for entry in std::fs::read_dir(configs_dir()).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "toml") {
+            let c = PipelineConfig::from_file(&path).unwrap_or_else(|e| panic!("{e}"));
+            flowfilter_pipeline::Pipeline::from_config(c.clone()).unwrap();
+            names.push(c.method);
+        }
+    }
+    names.sort();
+    assert_eq!(names, ["cpd", "filterreg-pt2pt", "flowfilter", "icp-pt2pl"]);
+}
+
+#[test]
+fn flowfilter_toml_documents_the_defaults() {
+    let c = PipelineConfig::from_file(&configs_dir().join("flowfilter.toml")).unwrap();
+    assert_eq!(c, PipelineConfig::default());
+}
+
+#[test]
+fn unknown_keys_are_named_with_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("bad.toml");
+    std::fs::write(&path, "method = \"cpd\"\n\n[registration.cpd]\nmax_iteratons = 3\n").unwrap();
+    let e = PipelineConfig::from_file(&path).unwrap_err();
+    let msg = e.to_string();
+    assert!(matches!(e, PipelineError::Config { .. }));
+    assert!(msg.contains("bad.toml") && msg.contains("max_iteratons") && msg.contains("line 4"), "{msg}");
+}
+
+#[test]
+fn bad_values_are_named() {
+    let origin = Path::new("x.toml");
+    for (text, needle) in [
+        ("method = \"ransac\"", "method"),
+        ("[flow]\nestimator = \"farneback\"", "farneback"),
+        ("[cloud]\nvoxel_m = -1.0", "cloud.voxel_m"),
+        ("[depth.gaussian_filter]\nwindow = 4", "gaussian_filter.window"),
+        ("[flow.lk]\nwindow = 20", "lk.window"),
+        ("[flow.dis]\npatch_stride = 0", "patch_stride"),
+        ("method = 3", "method"),
+    ] {
+        let msg = PipelineConfig::from_toml_str(text, origin).unwrap_err().to_string();
+        assert!(msg.contains("x.toml") && msg.contains(needle), "{text}: {msg}");
+    }
+    let missing = PipelineConfig::from_file(Path::new("/nonexistent/c.toml")).unwrap_err().to_string();
+    assert!(missing.contains("/nonexistent/c.toml") && missing.contains("cannot read"), "{missing}");
+}
