@@ -156,7 +156,9 @@ fn halve(img: &Img) -> Img {
     let (nw, nh) = ((w / 2).max(1), (h / 2).max(1));
     let d = img.as_slice();
     let at = |x: usize, y: usize| d[y.min(h - 1) * w + x.min(w - 1)];
-    Img::from_fn(nw, nh, |x, y| 0.25 * (at(2 * x, 2 * y) + at(2 * x + 1, 2 * y) + at(2 * x, 2 * y + 1) + at(2 * x + 1, 2 * y + 1)))
+    Img::from_fn(nw, nh, |x, y| {
+        0.25 * (at(2 * x, 2 * y) + at(2 * x + 1, 2 * y) + at(2 * x, 2 * y + 1) + at(2 * x + 1, 2 * y + 1))
+    })
 }
 
 /// Central-difference gradients (one-sided at the border).
@@ -282,7 +284,15 @@ impl Scale<'_> {
     }
 
     /// Inverse-compositional Gauss-Newton from `f`; returns the flow with the lowest SSD seen.
-    fn search(&self, t: &Template, ox: usize, oy: usize, f: [f32; 2], iterations: usize, buf: &mut [f32]) -> ([f32; 2], f32) {
+    fn search(
+        &self,
+        t: &Template,
+        ox: usize,
+        oy: usize,
+        f: [f32; 2],
+        iterations: usize,
+        buf: &mut [f32],
+    ) -> ([f32; 2], f32) {
         let Some(ih) = t.inv_h else {
             let s = self.ssd(t, ox, oy, f, buf);
             return (f, s);
@@ -340,13 +350,19 @@ fn patch_flows(sc: &Scale<'_>, init: &(Img, Img), p: &DisParams) -> (Vec<usize>,
             let nr = rows.len();
             let mut buf = vec![0.0f32; ps * ps];
             let (xs, ys) = (&xs, &ys);
-            let templates: Vec<Template> =
-                rows.clone().flat_map(|j| xs.iter().map(move |&x| (x, ys[j]))).map(|(x, y)| sc.template(x, y)).collect();
+            let templates: Vec<Template> = rows
+                .clone()
+                .flat_map(|j| xs.iter().map(move |&x| (x, ys[j])))
+                .map(|(x, y)| sc.template(x, y))
+                .collect();
             let mut flows: Vec<[f32; 2]> = rows
                 .clone()
                 .flat_map(|j| xs.iter().map(move |&x| (x, ys[j])))
                 .map(|(x, y)| {
-                    [bilinear(&init.0, x as f32 + half, y as f32 + half), bilinear(&init.1, x as f32 + half, y as f32 + half)]
+                    [
+                        bilinear(&init.0, x as f32 + half, y as f32 + half),
+                        bilinear(&init.1, x as f32 + half, y as f32 + half),
+                    ]
                 })
                 .collect();
             let initial = flows.clone();
@@ -388,7 +404,8 @@ fn patch_flows(sc: &Scale<'_>, init: &(Img, Img), p: &DisParams) -> (Vec<usize>,
                 let (i, lj) = (k % nx, k / nx);
                 let (ox, oy) = (xs[i], ys[rows.start + lj]);
                 sc.warp(ox, oy, flows[k][0], flows[k][1], &mut buf);
-                let shift = if sc.mean_norm { buf.iter().sum::<f32>() / buf.len() as f32 - templates[k].mean } else { 0.0 };
+                let shift =
+                    if sc.mean_norm { buf.iter().sum::<f32>() / buf.len() as f32 - templates[k].mean } else { 0.0 };
                 shifts.push(shift);
             }
             (flows, shifts)
@@ -507,7 +524,8 @@ fn refine(i0: &Img, i1: &Img, u: &mut Img, v: &mut Img, p: &DisParams) {
                     return [0.0; 5];
                 }
                 let (a, b) = (du[k], dv[k]);
-                let r1 = p.delta * psi_prime((d.iz + d.ix * a + d.iy * b).powi(2)) / (d.ix * d.ix + d.iy * d.iy + zeta2);
+                let r1 =
+                    p.delta * psi_prime((d.iz + d.ix * a + d.iy * b).powi(2)) / (d.ix * d.ix + d.iy * d.iy + zeta2);
                 let r2 = p.gamma * psi_prime((d.ixz + d.ixx * a + d.ixy * b).powi(2))
                     / (d.ixx * d.ixx + d.ixy * d.ixy + zeta2);
                 let r3 = p.gamma * psi_prime((d.iyz + d.ixy * a + d.iyy * b).powi(2))
@@ -531,7 +549,10 @@ fn refine(i0: &Img, i1: &Img, u: &mut Img, v: &mut Img, p: &DisParams) {
                 let fu = |q: usize| us[q] + du[q];
                 let fv = |q: usize| vs[q] + dv[q];
                 let (r, b) = (if x + 1 < w { k + 1 } else { k }, if y + 1 < h { k + w } else { k });
-                let g = (fu(r) - fu(k)).powi(2) + (fu(b) - fu(k)).powi(2) + (fv(r) - fv(k)).powi(2) + (fv(b) - fv(k)).powi(2);
+                let g = (fu(r) - fu(k)).powi(2)
+                    + (fu(b) - fu(k)).powi(2)
+                    + (fv(r) - fv(k)).powi(2)
+                    + (fv(b) - fv(k)).powi(2);
                 p.alpha * psi_prime(g)
             })
             .collect();

@@ -17,6 +17,6 @@ pub mod metrics;
 pub mod sintel;
 pub mod viz;
 
-pub use field::FlowField;
 pub use estimator::{FlowError, FlowEstimator, LucasKanade};
+pub use field::FlowField;
 pub use flo::FloError;

@@ -116,7 +116,9 @@ impl PipelineConfig {
         self.flow.dis.validate().map_err(|e| format!("table [flow.dis]: {e}"))?;
         let c = &self.flow.correspondences;
         if c.grid_step == 0 || !(c.fb_threshold > 0.0) || !(c.depth_k_sigma > 0.0) {
-            return Err("table [flow.correspondences]: grid_step >= 1, fb_threshold > 0 and depth_k_sigma > 0 required".into());
+            return Err(
+                "table [flow.correspondences]: grid_step >= 1, fb_threshold > 0 and depth_k_sigma > 0 required".into(),
+            );
         }
         crate::stages::flow_estimator_by_name(&self.flow).map_err(|e| format!("table [flow]: {e}"))?;
         Ok(())
@@ -136,4 +138,3 @@ fn describe_toml_error(e: &toml::de::Error, text: &str) -> String {
         None => msg,
     }
 }
-

@@ -121,8 +121,10 @@ pub fn matrix_rows(p: &Pose) -> [[f64; 4]; 4] {
 impl Estimate {
     /// Attach the ground truth; `model_points` (the model cloud) gives ADD-S.
     pub fn with_ground_truth(mut self, truth: &Pose, model_points: Option<&[Point3]>) -> Self {
-        self.ground_truth =
-            Some(GroundTruth { transform: matrix_rows(truth), errors: PoseErrors::new(&self.pose, truth, model_points) });
+        self.ground_truth = Some(GroundTruth {
+            transform: matrix_rows(truth),
+            errors: PoseErrors::new(&self.pose, truth, model_points),
+        });
         self
     }
 }

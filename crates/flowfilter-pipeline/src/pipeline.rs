@@ -73,7 +73,8 @@ impl Pipeline {
     /// Estimate from frames already prepared (their preparation times are reported).
     pub fn estimate_prepared(&self, model: &PreparedFrame, target: &PreparedFrame) -> Result<Estimate, PipelineError> {
         let t0 = Instant::now();
-        let mut times = StageTimes { depth_model: model.seconds * 1e3, depth_target: target.seconds * 1e3, ..Default::default() };
+        let mut times =
+            StageTimes { depth_model: model.seconds * 1e3, depth_target: target.seconds * 1e3, ..Default::default() };
         let mut warnings = vec![];
         let mut problem = RegistrationProblem::new(model.cloud.clone(), target.cloud.clone());
         let mut summary = None;
@@ -91,8 +92,11 @@ impl Pipeline {
                         times.flow = pairs.flow_seconds * 1e3;
                         times.correspondences = (all - pairs.flow_seconds).max(0.0) * 1e3;
                         let inliers = pairs.weights.iter().filter(|w| **w > 0.0).count();
-                        summary =
-                            Some(CorrespondenceSummary { tracked: pairs.tracked, consistent: pairs.model.len(), inliers });
+                        summary = Some(CorrespondenceSummary {
+                            tracked: pairs.tracked,
+                            consistent: pairs.model.len(),
+                            inliers,
+                        });
                         problem.correspondences =
                             Some(Correspondences { source: pairs.model, target: pairs.target, weights: pairs.weights });
                     }

@@ -65,7 +65,8 @@ impl FramePreparer for DepthPreparer {
             .stage
             .process(&frame.depth, &frame.color, &frame.mask, &frame.sensor)
             .map_err(|source| PipelineError::Depth { frame: frame.label.clone(), source })?;
-        let mut cloud = if self.cloud.voxel_m > 0.0 { voxel_downsample(&p.cloud, self.cloud.voxel_m) } else { p.cloud.clone() };
+        let mut cloud =
+            if self.cloud.voxel_m > 0.0 { voxel_downsample(&p.cloud, self.cloud.voxel_m) } else { p.cloud.clone() };
         cloud.colors = None;
         Ok(PreparedFrame {
             label: frame.label.clone(),

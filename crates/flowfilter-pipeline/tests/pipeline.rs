@@ -49,7 +49,12 @@ fn flowfilter_recovers_a_turntable_step_and_times_every_stage() {
     let c = e.correspondences.expect("flow ran");
     assert!(c.inliers > 100 && c.inliers <= c.consistent && c.consistent <= c.tracked, "{c:?}");
     let s = e.stage_ms;
-    for (name, v) in [("depth_model", s.depth_model), ("depth_target", s.depth_target), ("flow", s.flow), ("registration", s.registration)] {
+    for (name, v) in [
+        ("depth_model", s.depth_model),
+        ("depth_target", s.depth_target),
+        ("flow", s.flow),
+        ("registration", s.registration),
+    ] {
         assert!(v > 0.0, "{name} not timed");
     }
     assert!(s.total >= s.depth_model + s.depth_target + s.flow + s.registration, "{s:?}");
@@ -117,4 +122,3 @@ fn the_prepared_path_equals_the_direct_one() {
     let prepared = p.estimate_prepared(&p.prepare(&a).unwrap(), &p.prepare(&b).unwrap()).unwrap();
     assert_eq!(direct.transform, prepared.transform);
 }
-

@@ -1,5 +1,7 @@
 //! `flowfilter`: the command-line front end of the Flow Filter workspace.
 
+mod estimate;
+mod flow;
 mod inspect;
 mod register;
 mod synth;
@@ -23,6 +25,10 @@ enum Command {
     Synth(synth::SynthArgs),
     /// Align two PLY point clouds with ICP, CPD or FilterReg.
     Register(register::RegisterArgs),
+    /// Estimate an object's relative pose between two frames of one camera (the pipeline).
+    Estimate(estimate::EstimateArgs),
+    /// Optical flow between two images (EPE against a ground-truth .flo).
+    Flow(flow::FlowArgs),
 }
 
 fn main() -> ExitCode {
@@ -35,6 +41,8 @@ fn main() -> ExitCode {
         Command::Inspect(args) => inspect::run(&args),
         Command::Synth(args) => synth::run(&args),
         Command::Register(args) => register::run(&args),
+        Command::Estimate(args) => estimate::run(&args),
+        Command::Flow(args) => flow::run(&args),
     };
     match result {
         Ok(code) => code,

@@ -1,0 +1,81 @@
+//! `flowfilter flow`: optical flow between two images, with EPE against ground truth.
+
+use anyhow::{Context, bail};
+use clap::Args;
+use flowfilter_flow::dis::{Dis, DisParams};
+use flowfilter_flow::lk::to_gray;
+use flowfilter_flow::metrics::epe;
+use flowfilter_flow::{FlowEstimator, LucasKanade, flo, viz};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Instant;
+
+/// Arguments of `flow`.
+#[derive(Args)]
+pub struct FlowArgs {
+    /// First image.
+    #[arg(long)]
+    pub from: PathBuf,
+    /// Second image.
+    #[arg(long)]
+    pub to: PathBuf,
+    /// lk (dense by grid + interpolation), dis (OpenCV "medium" preset), dis-fast, dis-ultrafast.
+    #[arg(long, default_value = "dis")]
+    pub method: String,
+    /// Ground-truth flow (.flo): print the end-point error.
+    #[arg(long)]
+    pub gt: Option<PathBuf>,
+    /// Write the estimate as .flo.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Write the colour-wheel visualisation (PNG).
+    #[arg(long)]
+    pub viz: Option<PathBuf>,
+}
+
+fn estimator(name: &str) -> anyhow::Result<Box<dyn FlowEstimator>> {
+    Ok(match name {
+        "lk" => Box::new(LucasKanade::default()),
+        "dis" | "dis-medium" => Box::new(Dis::new(DisParams::medium())?),
+        "dis-fast" => Box::new(Dis::new(DisParams::fast())?),
+        "dis-ultrafast" => Box::new(Dis::new(DisParams::ultrafast())?),
+        other if other.starts_with("onnx:") => {
+            bail!("--method {other}: ONNX models need a build with the `onnx` feature, which is not available yet")
+        }
+        other => bail!("--method '{other}': expected lk, dis, dis-fast or dis-ultrafast"),
+    })
+}
+
+/// Run `flow`.
+pub fn run(args: &FlowArgs) -> anyhow::Result<ExitCode> {
+    let est = estimator(&args.method)?;
+    let open = |p: &PathBuf| -> anyhow::Result<image::RgbImage> {
+        Ok(image::open(p).with_context(|| format!("reading {}", p.display()))?.to_rgb8())
+    };
+    let (a, b) = (to_gray(&open(&args.from)?), to_gray(&open(&args.to)?));
+    let start = Instant::now();
+    let field = est.dense(&a, &b, None).with_context(|| format!("{} -> {}", args.from.display(), args.to.display()))?;
+    let ms = start.elapsed().as_secs_f64() * 1e3;
+    println!("{}: {}x{} in {ms:.1} ms", est.name(), field.width(), field.height());
+    if let Some(gt) = &args.gt {
+        let truth = flo::read(gt)?;
+        match epe(&field, &truth, None) {
+            Some((e, n)) => println!("EPE {e:.4} px over {n} pixels"),
+            None => bail!(
+                "{}: ground truth is {}x{}, the estimate {}x{}",
+                gt.display(),
+                truth.width(),
+                truth.height(),
+                field.width(),
+                field.height()
+            ),
+        }
+    }
+    if let Some(out) = &args.out {
+        flo::write(&field, out)?;
+    }
+    if let Some(path) = &args.viz {
+        viz::colorize(&field, None).save(path).with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(ExitCode::SUCCESS)
+}

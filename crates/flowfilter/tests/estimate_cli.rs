@@ -1,0 +1,144 @@
+//! `flowfilter estimate` on a synthesised capture: the human and JSON outputs, the JSON schema
+//! (an insta snapshot of its shape), --save-ply, --viz, and bad input.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+
+fn flowfilter(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_flowfilter")).args(args).output().unwrap();
+    (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
+}
+
+/// A box captured by NP3 at 0 and 15 degrees (rendered once per test binary).
+fn capture() -> &'static Path {
+    static DIR: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
+    &DIR.get_or_init(|| {
+        let tmp = tempfile::tempdir().unwrap();
+        let out = tmp.path().join("box");
+        let (ok, _, err) = flowfilter(&[
+            "synth",
+            "--procedural",
+            "box",
+            "--out",
+            out.to_str().unwrap(),
+            "--cameras",
+            "NP3",
+            "--angles",
+            "0:15:15",
+        ]);
+        assert!(ok, "synth: {err}");
+        (tmp, out)
+    })
+    .1
+}
+
+/// The JSON's shape: every number replaced by "number" (values are checked separately).
+fn shape(v: &serde_json::Value) -> serde_json::Value {
+    use serde_json::Value;
+    match v {
+        Value::Number(_) => Value::String("number".into()),
+        Value::Array(a) => Value::Array(a.iter().map(shape).collect()),
+        Value::Object(o) => Value::Object(o.iter().map(|(k, v)| (k.clone(), shape(v))).collect()),
+        other => other.clone(),
+    }
+}
+
+#[test]
+fn json_output_has_the_documented_schema_and_is_accurate() {
+    let dir = capture();
+    let (ok, stdout, stderr) = flowfilter(&[
+        "estimate",
+        "--object",
+        dir.to_str().unwrap(),
+        "--camera",
+        "NP3",
+        "--from",
+        "0",
+        "--to",
+        "15",
+        "--json",
+    ]);
+    assert!(ok, "{stderr}");
+    let v: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    insta::assert_json_snapshot!("estimate_json_schema", shape(&v));
+    let err = v["ground_truth"]["errors"]["angle_error_deg"].as_f64().unwrap();
+    assert!(err < 1.0, "rotation-angle error {err}");
+    assert!((v["rotation_angle_deg"].as_f64().unwrap() - 15.0).abs() < 1.0);
+    assert!(v["correspondences"]["inliers"].as_u64().unwrap() > 50);
+}
+
+#[test]
+fn human_output_saved_clouds_and_overlay() {
+    let dir = capture();
+    let tmp = tempfile::tempdir().unwrap();
+    let (plys, viz) = (tmp.path().join("clouds"), tmp.path().join("viz.png"));
+    let (ok, stdout, stderr) = flowfilter(&[
+        "estimate",
+        "--object",
+        dir.to_str().unwrap(),
+        "--camera",
+        "NP3",
+        "--from",
+        "0",
+        "--to",
+        "15",
+        "--method",
+        "filterreg",
+        "--save-ply",
+        plys.to_str().unwrap(),
+        "--viz",
+        viz.to_str().unwrap(),
+    ]);
+    assert!(ok, "{stderr}");
+    for needle in ["with filterreg", "rotation", "time (ms): depth", "vs ground truth: rotation-angle error"] {
+        assert!(stdout.contains(needle), "missing '{needle}' in:\n{stdout}");
+    }
+    let model = flowfilter_depth_points(&plys.join("model.ply"));
+    let aligned = flowfilter_depth_points(&plys.join("aligned.ply"));
+    assert_eq!(model, aligned);
+    assert!(model > 100 && flowfilter_depth_points(&plys.join("target.ply")) > 100);
+    let img = image::open(&viz).unwrap().to_rgb8();
+    assert_eq!((img.width(), img.height()), (1280, 1024));
+    // Green overlay pixels exist (the aligned model).
+    assert!(img.pixels().filter(|p| p.0 == [40, 230, 60]).count() > 500);
+}
+
+/// Vertex count from a PLY header.
+fn flowfilter_depth_points(path: &Path) -> usize {
+    let bytes = std::fs::read(path).unwrap();
+    let text = String::from_utf8_lossy(&bytes[..bytes.len().min(600)]).to_string();
+    let line = text.lines().find(|l| l.starts_with("element vertex")).unwrap();
+    line.split_whitespace().nth(2).unwrap().parse().unwrap()
+}
+
+#[test]
+fn bad_input_is_reported() {
+    let dir = capture();
+    let d = dir.to_str().unwrap();
+    let (ok, _, err) = flowfilter(&["estimate", "--object", d, "--camera", "NP3", "--from", "0", "--to", "30"]);
+    assert!(!ok && err.contains("no frame NP3_30"), "{err}");
+    let (ok, _, err) =
+        flowfilter(&["estimate", "--object", d, "--camera", "NP3", "--from", "0", "--to", "15", "--method", "ransac"]);
+    assert!(!ok && err.contains("unknown method 'ransac'"), "{err}");
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = tmp.path().join("typo.toml");
+    std::fs::write(&cfg, "[flow]\nestimater = \"lk\"\n").unwrap();
+    let (ok, _, err) = flowfilter(&[
+        "estimate",
+        "--object",
+        d,
+        "--camera",
+        "NP3",
+        "--from",
+        "0",
+        "--to",
+        "15",
+        "--config",
+        cfg.to_str().unwrap(),
+    ]);
+    assert!(!ok && err.contains("typo.toml") && err.contains("estimater"), "{err}");
+    let (ok, _, err) =
+        flowfilter(&["estimate", "--object", "/nonexistent", "--camera", "NP3", "--from", "0", "--to", "15"]);
+    assert!(!ok && err.contains("/nonexistent"), "{err}");
+}

@@ -1,0 +1,68 @@
+//! `flowfilter flow` on a pair with known motion, and bad input.
+
+use flowfilter_flow::{FlowField, flo};
+use image::{GrayImage, Luma};
+use std::process::Command;
+
+fn flowfilter(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_flowfilter")).args(args).output().unwrap();
+    (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
+}
+
+fn pattern(w: u32, h: u32, shift: (f32, f32)) -> GrayImage {
+    GrayImage::from_fn(w, h, |x, y| {
+        let (u, v) = (x as f32 - shift.0, y as f32 - shift.1);
+        let s = 0.5
+            + 0.2 * (u * 0.21).sin() * (v * 0.17).cos()
+            + 0.15 * ((u + 2.0 * v) * 0.093).sin()
+            + 0.1 * ((3.0 * u - v) * 0.051).cos();
+        Luma([(s * 255.0).round().clamp(0.0, 255.0) as u8])
+    })
+}
+
+#[test]
+fn dense_flow_of_a_translation_with_epe_and_outputs() {
+    let tmp = tempfile::tempdir().unwrap();
+    let p = |n: &str| tmp.path().join(n);
+    pattern(200, 150, (0.0, 0.0)).save(p("a.png")).unwrap();
+    pattern(200, 150, (2.5, -1.5)).save(p("b.png")).unwrap();
+    let mut gt = FlowField::zeros(200, 150);
+    gt.flow.as_mut_slice().iter_mut().for_each(|f| *f = [2.5, -1.5]);
+    flo::write(&gt, &p("gt.flo")).unwrap();
+    for method in ["dis", "lk"] {
+        let (ok, stdout, stderr) = flowfilter(&[
+            "flow",
+            "--from",
+            p("a.png").to_str().unwrap(),
+            "--to",
+            p("b.png").to_str().unwrap(),
+            "--method",
+            method,
+            "--gt",
+            p("gt.flo").to_str().unwrap(),
+            "--out",
+            p("out.flo").to_str().unwrap(),
+            "--viz",
+            p("viz.png").to_str().unwrap(),
+        ]);
+        assert!(ok, "{method}: {stderr}");
+        let epe: f64 = stdout.split("EPE ").nth(1).unwrap().split_whitespace().next().unwrap().parse().unwrap();
+        assert!(epe < 0.15, "{method}: EPE {epe}\n{stdout}");
+        assert_eq!(flo::read(&p("out.flo")).unwrap().width(), 200);
+        assert_eq!(image::open(p("viz.png")).unwrap().width(), 200);
+    }
+}
+
+#[test]
+fn mismatched_sizes_and_unknown_methods_are_errors() {
+    let tmp = tempfile::tempdir().unwrap();
+    let p = |n: &str| tmp.path().join(n);
+    pattern(200, 150, (0.0, 0.0)).save(p("a.png")).unwrap();
+    pattern(100, 150, (0.0, 0.0)).save(p("b.png")).unwrap();
+    let (a, b) = (p("a.png"), p("b.png"));
+    let (ok, _, err) = flowfilter(&["flow", "--from", a.to_str().unwrap(), "--to", b.to_str().unwrap()]);
+    assert!(!ok && err.contains("image sizes differ"), "{err}");
+    let (ok, _, err) =
+        flowfilter(&["flow", "--from", a.to_str().unwrap(), "--to", a.to_str().unwrap(), "--method", "farneback"]);
+    assert!(!ok && err.contains("farneback"), "{err}");
+}
