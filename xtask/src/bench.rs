@@ -6,18 +6,11 @@ use crate::dataset::{default_objects, ensure_object};
 use anyhow::{Context, bail};
 use clap::Args;
 use flowfilter_bigbird::{BigBirdObject, FrameId, SensorId};
-use flowfilter_depth::cloud::voxel_downsample;
-use flowfilter_depth::{DepthConfig, DepthStage};
 use flowfilter_eval::{PoseErrors, mean_median};
-use flowfilter_flow::correspondences::{CorrespondenceParams, flow_correspondences};
-use flowfilter_flow::lk::{Gray, to_gray};
-use flowfilter_geometry::{DepthMap, Mask, PointCloud};
-use flowfilter_registration::{
-    Correspondences, FLOW_METHOD_NAMES, RegistrationConfig, RegistrationProblem, registrar_by_name,
-};
+use flowfilter_pipeline::{Pipeline, PipelineConfig, PreparedFrame, StageTimes, load_bigbird_frame};
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, BTreeSet};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -36,37 +29,91 @@ pub struct BenchArgs {
     /// (default: ../shared/data/ycb when present; not used with --quick).
     #[arg(long)]
     pub meshes: Option<PathBuf>,
-    /// Methods, comma separated.
-    #[arg(long, value_delimiter = ',', default_value = "icp-pt2pl,cpd,filterreg-pt2pt,flowfilter")]
-    pub methods: Vec<String>,
+    /// The protocol (TOML; default configs/bench/full.toml, or configs/bench/quick.toml with
+    /// --quick).
+    #[arg(long)]
+    pub protocol: Option<PathBuf>,
+    /// Methods, comma separated (overrides the protocol's).
+    #[arg(long, value_delimiter = ',')]
+    pub methods: Option<Vec<String>>,
     /// Output root (a timestamped directory is created inside).
     #[arg(long, default_value = "results")]
     pub out: PathBuf,
-    /// Voxel size of the clouds given to the registration, metres.
-    #[arg(long, default_value_t = 0.004)]
-    pub voxel: f64,
+    /// Voxel size of the clouds given to the registration, metres (overrides the pipeline
+    /// configurations' `cloud.voxel_m`).
+    #[arg(long)]
+    pub voxel: Option<f64>,
     /// Exit non-zero unless results.json holds every method with every metric and no pair
     /// failed (what CI checks).
     #[arg(long)]
     pub check: bool,
 }
 
-/// The experiment's protocol.
-#[derive(Debug, Clone, Serialize)]
+/// The experiment's protocol, read from TOML (`configs/bench/*.toml`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Protocol {
-    /// Cameras.
-    pub cameras: Vec<SensorId>,
+    /// Cameras (`NP1`..`NP5`).
+    pub cameras: Vec<String>,
     /// Model-frame angles.
     pub base_angles: Vec<u32>,
     /// Rotation steps (degrees).
     pub steps: Vec<u32>,
     /// Methods.
     pub methods: Vec<String>,
-    /// Voxel size, metres.
-    pub voxel_m: f64,
+    /// Pipeline configuration shared by the methods (relative to the repository root).
+    #[serde(default)]
+    pub pipeline: Option<PathBuf>,
+    /// Per-method pipeline configurations.
+    #[serde(default)]
+    pub method_configs: BTreeMap<String, PathBuf>,
+}
+
+/// The repository root (relative paths in protocols are resolved against it).
+fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
 impl Protocol {
+    /// Parse a protocol; `origin` names it in errors.
+    pub fn from_toml(text: &str, origin: &str) -> anyhow::Result<Self> {
+        let p: Self = toml::from_str(text).map_err(|e| anyhow::anyhow!("{origin}: {}", e.message().trim()))?;
+        if p.cameras.is_empty() || p.base_angles.is_empty() || p.steps.is_empty() || p.methods.is_empty() {
+            bail!("{origin}: cameras, base_angles, steps and methods must not be empty");
+        }
+        p.sensors().map_err(|e| anyhow::anyhow!("{origin}: {e}"))?;
+        Ok(p)
+    }
+
+    /// The cameras as sensor ids.
+    pub fn sensors(&self) -> Result<Vec<SensorId>, String> {
+        self.cameras.iter().map(|c| c.parse::<SensorId>().map_err(|e| format!("cameras: '{c}': {e}"))).collect()
+    }
+
+    /// The pipeline configuration of each method.
+    fn method_configs(&self, voxel: Option<f64>) -> anyhow::Result<Vec<PipelineConfig>> {
+        let load = |p: &Path| -> anyhow::Result<PipelineConfig> {
+            let path = if p.is_absolute() { p.to_path_buf() } else { repo_root().join(p) };
+            Ok(PipelineConfig::from_file(&path)?)
+        };
+        let base = self.pipeline.as_deref().map(load).transpose()?.unwrap_or_default();
+        self.methods
+            .iter()
+            .map(|m| {
+                let mut c = match self.method_configs.get(m) {
+                    Some(p) => load(p)?,
+                    None => base.clone(),
+                };
+                c.method = m.clone();
+                if let Some(v) = voxel {
+                    c.cloud.voxel_m = v;
+                }
+                c.validate().map_err(|e| anyhow::anyhow!("method '{m}': {e}"))?;
+                Ok(c)
+            })
+            .collect()
+    }
+
     fn angles(&self) -> Vec<u32> {
         let mut set = BTreeSet::new();
         for &b in &self.base_angles {
@@ -98,8 +145,12 @@ pub struct PairResult {
     pub errors: Option<PoseErrors>,
     /// Whether the method reported convergence.
     pub converged: Option<bool>,
-    /// Registration time, seconds.
+    /// Time of the pair (flow, correspondences, registration), seconds.
     pub seconds: Option<f64>,
+    /// Per-stage times (the two frames' depth stages included).
+    pub stage_ms: Option<StageTimes>,
+    /// Warnings of the pipeline (fallbacks taken).
+    pub warnings: Vec<String>,
     /// The stage that failed and why.
     pub failure: Option<String>,
 }
@@ -129,31 +180,36 @@ fn timestamp() -> String {
     format!("{y:04}-{m:02}-{d:02}T{:02}{:02}{:02}Z", rem / 3600, rem % 3600 / 60, rem % 60)
 }
 
+/// The protocol files shipped in `configs/bench/` (embedded: they work from any directory).
+const FULL_PROTOCOL: &str = include_str!("../../configs/bench/full.toml");
+const QUICK_PROTOCOL: &str = include_str!("../../configs/bench/quick.toml");
+
 /// Run the benchmark.
 pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
-    let all: Vec<SensorId> = SensorId::ALL.to_vec();
-    let np = |c: u8| SensorId::new(c).expect("valid sensor");
-    let protocol = if args.quick {
-        Protocol {
-            cameras: vec![np(3)],
-            base_angles: vec![0, 120, 240],
-            steps: vec![3, 15, 30],
-            methods: args.methods.clone(),
-            voxel_m: args.voxel,
-        }
-    } else {
-        Protocol {
-            cameras: vec![np(1), np(3), np(5)],
-            base_angles: vec![0, 180],
-            steps: vec![3, 9, 15, 21, 30],
-            methods: args.methods.clone(),
-            voxel_m: args.voxel,
-        }
+    let mut protocol = match &args.protocol {
+        Some(p) => Protocol::from_toml(
+            &std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
+            &p.display().to_string(),
+        )?,
+        None if args.quick => Protocol::from_toml(QUICK_PROTOCOL, "configs/bench/quick.toml")?,
+        None => Protocol::from_toml(FULL_PROTOCOL, "configs/bench/full.toml")?,
     };
-    let reg_config = RegistrationConfig::default();
-    for m in &protocol.methods {
-        registrar_by_name(m, &reg_config).with_context(|| format!("--methods: '{m}'"))?;
+    if let Some(m) = &args.methods {
+        protocol.methods = m.clone();
     }
+    let cameras = protocol.sensors().map_err(anyhow::Error::msg)?;
+    let configs = protocol.method_configs(args.voxel)?;
+    let pipelines: Vec<Pipeline> = configs
+        .iter()
+        .map(|c| Pipeline::from_config(c.clone()).with_context(|| format!("method '{}'", c.method)))
+        .collect::<anyhow::Result<_>>()?;
+    // Methods whose depth and cloud stages agree share their prepared frames.
+    let mut groups: Vec<usize> = vec![];
+    for (i, c) in configs.iter().enumerate() {
+        let same = (0..i).find(|&j| configs[j].depth == c.depth && configs[j].cloud == c.cloud);
+        groups.push(same.map_or(i, |j| groups[j]));
+    }
+    let preparers: BTreeSet<usize> = groups.iter().copied().collect();
     let started = Instant::now();
     // The objects: a real download, or the embedded dataset (synthesised once, cached).
     let object_dirs: Vec<PathBuf> = match &args.data {
@@ -183,13 +239,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
             let dirs = objects
                 .par_iter()
                 .map(|o| {
-                    let d = ensure_object(
-                        &root,
-                        o,
-                        &all.iter().copied().filter(|s| protocol.cameras.contains(s)).collect::<Vec<_>>(),
-                        &angles,
-                        7,
-                    );
+                    let d = ensure_object(&root, o, &cameras, &angles, 7);
                     bar.inc(1);
                     d
                 })
@@ -198,7 +248,6 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
             dirs
         }
     };
-    let depth = DepthStage::new(DepthConfig::default())?;
     let mut results: Vec<PairResult> = Vec::new();
     let mut skipped: Vec<String> = Vec::new();
     for dir in &object_dirs {
@@ -211,38 +260,32 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
                 continue;
             }
         };
-        // Clouds of every frame the protocol needs.
-        let frames: Vec<FrameId> = protocol
-            .cameras
+        // Every frame the protocol needs, prepared once per group of methods.
+        let frames: Vec<FrameId> = cameras
             .iter()
             .flat_map(|&sensor| protocol.angles().into_iter().map(move |angle| FrameId { sensor, angle }))
             .filter(|id| obj.has_frame(*id))
             .collect();
-        let bar = progress(frames.len() as u64, &format!("{name}: depth stage"));
-        let wants_flow = protocol.methods.iter().any(|m| FLOW_METHOD_NAMES.contains(&m.as_str()));
-        let clouds: BTreeMap<FrameId, Result<FrameData, String>> = frames
+        let work: Vec<(usize, FrameId)> =
+            preparers.iter().flat_map(|&g| frames.iter().map(move |&f| (g, f))).collect();
+        let bar = progress(work.len() as u64, &format!("{name}: depth stage"));
+        let prepared: BTreeMap<(usize, FrameId), Result<PreparedFrame, String>> = work
             .par_iter()
-            .map(|&id| {
-                let data = obj.load_frame(id).map_err(|e| format!("loading: {e}")).and_then(|f| {
-                    let sensor = obj.rgbd_sensor(&f).map_err(|e| format!("calibration: {e}"))?;
-                    let p =
-                        depth.process(&f.depth, &f.color, &f.mask, &sensor).map_err(|e| format!("depth stage: {e}"))?;
-                    let mut cloud = voxel_downsample(&p.cloud, protocol.voxel_m);
-                    cloud.colors = None;
-                    let flow_inputs = wants_flow.then(|| (to_gray(&f.color), p.depth, f.mask, sensor));
-                    Ok(FrameData { cloud, flow_inputs })
-                });
+            .map(|&(g, id)| {
+                let data = load_bigbird_frame(&obj, id)
+                    .map_err(|e| format!("loading: {e}"))
+                    .and_then(|f| pipelines[g].prepare(&f).map_err(|e| e.to_string()));
                 bar.inc(1);
-                (id, data)
+                ((g, id), data)
             })
             .collect();
         bar.finish();
         let mut jobs = vec![];
-        for &sensor in &protocol.cameras {
+        for &sensor in &cameras {
             for &base in &protocol.base_angles {
                 for &step in &protocol.steps {
-                    for method in &protocol.methods {
-                        jobs.push((sensor, base, (base + step) % 360, step, method.clone()));
+                    for m in 0..protocol.methods.len() {
+                        jobs.push((sensor, base, (base + step) % 360, step, m));
                     }
                 }
             }
@@ -250,46 +293,36 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         let bar = progress(jobs.len() as u64, &format!("{name}: registration"));
         let mut rows: Vec<PairResult> = jobs
             .par_iter()
-            .map(|(sensor, from, to, step, method)| {
+            .map(|&(sensor, from, to, step, m)| {
                 let mut row = PairResult {
                     object: name.clone(),
                     camera: sensor.to_string(),
-                    from: *from,
-                    to: *to,
-                    step: *step,
-                    method: method.clone(),
+                    from,
+                    to,
+                    step,
+                    method: protocol.methods[m].clone(),
                     errors: None,
                     converged: None,
                     seconds: None,
+                    stage_ms: None,
+                    warnings: vec![],
                     failure: None,
                 };
-                let get = |angle: u32| match clouds.get(&FrameId { sensor: *sensor, angle }) {
+                let get = |angle: u32| match prepared.get(&(groups[m], FrameId { sensor, angle })) {
                     Some(Ok(c)) => Ok(c),
                     Some(Err(e)) => Err(format!("frame {sensor}_{angle}: {e}")),
                     None => Err(format!("frame {sensor}_{angle}: not in the dataset")),
                 };
                 let outcome = (|| -> Result<(), String> {
-                    let (model, target) = (get(*from)?, get(*to)?);
-                    let truth = obj.relative_motion(*sensor, *from, *to).map_err(|e| format!("ground truth: {e}"))?;
-                    let reg = registrar_by_name(method, &reg_config).map_err(|e| e.to_string())?;
+                    let (model, target) = (get(from)?, get(to)?);
+                    let truth = obj.relative_motion(sensor, from, to).map_err(|e| format!("ground truth: {e}"))?;
                     let t0 = Instant::now();
-                    let mut problem = RegistrationProblem::new(model.cloud.clone(), target.cloud.clone());
-                    if FLOW_METHOD_NAMES.contains(&method.as_str()) {
-                        let (Some((ga, da, ma, sa)), Some((gb, db, mb, _))) = (&model.flow_inputs, &target.flow_inputs)
-                        else {
-                            return Err("flow: frame data missing".into());
-                        };
-                        let rays = depth.rays(&sa.color);
-                        let pairs =
-                            flow_correspondences(ga, gb, da, db, ma, mb, &rays, &CorrespondenceParams::default());
-                        let c = Correspondences { source: pairs.model, target: pairs.target, weights: pairs.weights };
-                        problem.correspondences = Some(c);
-                    }
-                    let source = &model.cloud;
-                    let r = reg.register(&problem).map_err(|e| format!("registration: {e}"))?;
+                    let e = pipelines[m].estimate_prepared(model, target).map_err(|e| e.to_string())?;
                     row.seconds = Some(t0.elapsed().as_secs_f64());
-                    row.converged = Some(r.converged);
-                    row.errors = Some(PoseErrors::new(&r.transform, &truth, Some(&source.points)));
+                    row.converged = Some(e.registration.converged);
+                    row.errors = Some(PoseErrors::new(&e.pose, &truth, Some(&model.cloud.points)));
+                    row.stage_ms = Some(e.stage_ms);
+                    row.warnings = e.warnings;
                     Ok(())
                 })();
                 row.failure = outcome.err();
@@ -301,13 +334,6 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         results.append(&mut rows);
     }
     write_outputs(args, &protocol, &results, &skipped, started.elapsed().as_secs_f64())
-}
-
-/// What a frame contributes: its downsampled object cloud and, for flow methods, the grey
-/// image, colour-grid depth, mask and sensor.
-struct FrameData {
-    cloud: PointCloud,
-    flow_inputs: Option<(Gray, DepthMap, Mask, flowfilter_camera::RgbdSensor)>,
 }
 
 fn progress(len: u64, msg: &str) -> ProgressBar {
@@ -331,6 +357,10 @@ struct Summary {
     mean_add_s_mm: Option<f64>,
     success_rate: Option<f64>,
     mean_seconds: Option<f64>,
+    /// Mean time per stage over the pairs that ran, ms.
+    mean_stage_ms: Option<StageTimes>,
+    /// Pairs with a pipeline warning (a fallback taken).
+    warned: usize,
 }
 
 fn summarise(results: &[PairResult]) -> Vec<Summary> {
@@ -360,9 +390,36 @@ fn summarise(results: &[PairResult]) -> Vec<Summary> {
                 success_rate: (!ok.is_empty())
                     .then(|| ok.iter().filter(|e| e.success).count() as f64 / ok.len() as f64),
                 mean_seconds: mean_median(&secs).map(|a| a.0),
+                mean_stage_ms: mean_stages(rows.iter().filter_map(|r| r.stage_ms.as_ref())),
+                warned: rows.iter().filter(|r| !r.warnings.is_empty()).count(),
             }
         })
         .collect()
+}
+
+/// Mean of each stage's time.
+fn mean_stages<'a>(times: impl Iterator<Item = &'a StageTimes>) -> Option<StageTimes> {
+    let (mut acc, mut n) = (StageTimes::default(), 0usize);
+    for t in times {
+        acc.depth_model += t.depth_model;
+        acc.depth_target += t.depth_target;
+        acc.flow += t.flow;
+        acc.correspondences += t.correspondences;
+        acc.registration += t.registration;
+        acc.total += t.total;
+        n += 1;
+    }
+    (n > 0).then(|| {
+        let k = 1.0 / n as f64;
+        StageTimes {
+            depth_model: acc.depth_model * k,
+            depth_target: acc.depth_target * k,
+            flow: acc.flow * k,
+            correspondences: acc.correspondences * k,
+            registration: acc.registration * k,
+            total: acc.total * k,
+        }
+    })
 }
 
 fn fmt(v: Option<f64>, digits: usize) -> String {
@@ -414,6 +471,7 @@ fn write_outputs(
         );
     }
     std::fs::write(dir.join("pairs.csv"), csv)?;
+    let plots = crate::plots::write_all(&dir, results, &summary_for_plots(&summary), &protocol.methods)?;
     // The paper-style table: mean rotation-angle error per object and method.
     let methods = &protocol.methods;
     let objects: BTreeSet<&str> = summary.iter().map(|s| s.object.as_str()).collect();
@@ -440,19 +498,21 @@ fn write_outputs(
     }
     let failures = results.iter().filter(|r| r.failure.is_some()).count();
     let md = format!(
-        "# bench-bigbird results\n\nMean absolute rotation-angle error (degrees; the paper's metric) and success rate (< 2 deg, < 1 cm) per object and method; {} pairs, {} failed, {:.0} s.\n\nProtocol: cameras {:?}, base angles {:?}, steps {:?}, voxel {} m.\n\n{}\nThe paper's published numbers (real BigBIRD objects, for reference):\n\n{}",
+        "# bench-bigbird results\n\nMean absolute rotation-angle error (degrees; the paper's metric) and success rate (< 2 deg, < 1 cm) per object and method; {} pairs, {} failed, {:.0} s.\n\nProtocol: cameras {:?}, base angles {:?}, steps {:?}, pipeline {}.\n\n{}\n{}\nThe paper's published numbers (real BigBIRD objects, for reference):\n\n{}\n{}",
         results.len(),
         failures,
         seconds,
-        protocol.cameras.iter().map(ToString::to_string).collect::<Vec<_>>(),
+        protocol.cameras,
         protocol.base_angles,
         protocol.steps,
-        protocol.voxel_m,
+        protocol.pipeline.as_ref().map_or("defaults".into(), |p| p.display().to_string()),
         table,
-        paper
+        stage_table(&summary, &protocol.methods),
+        paper,
+        plots.iter().map(|p| format!("![{p}]({p})\n")).collect::<String>()
     );
     std::fs::write(dir.join("summary.md"), &md)?;
-    println!("\n{table}\npaper (real BigBIRD, mean rotation error in degrees):\n{paper}");
+    println!("\n{table}\n{}\npaper (real BigBIRD, mean rotation error in degrees):\n{paper}", stage_table(&summary, &protocol.methods));
     println!("{} pairs, {} failed; results in {}", results.len(), failures, dir.display());
     for r in results.iter().filter(|r| r.failure.is_some()).take(10) {
         println!(
@@ -470,6 +530,43 @@ fn write_outputs(
         println!("check: results.json has every method and metric, and no pair failed");
     }
     Ok(())
+}
+
+/// Mean time per stage and method over all objects (ms).
+fn stage_table(summary: &[Summary], methods: &[String]) -> String {
+    let mut t = String::from(
+        "| method | depth (per frame) | flow | correspondences | registration | pair total | pairs with a warning |\n| --- | --- | --- | --- | --- | --- | --- |\n",
+    );
+    for m in methods {
+        if let Some(s) = summary.iter().find(|s| s.object == "ALL" && &s.method == m)
+            && let Some(st) = s.mean_stage_ms
+        {
+            let _ = writeln!(
+                t,
+                "| {m} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {} |",
+                0.5 * (st.depth_model + st.depth_target),
+                st.flow,
+                st.correspondences,
+                st.registration,
+                st.total,
+                s.warned
+            );
+        }
+    }
+    t
+}
+
+/// What the plots need of the summary.
+fn summary_for_plots(summary: &[Summary]) -> Vec<crate::plots::MethodObject> {
+    summary
+        .iter()
+        .map(|s| crate::plots::MethodObject {
+            object: s.object.clone(),
+            method: s.method.clone(),
+            mean_angle_error_deg: s.mean_angle_error_deg,
+            stage_ms: s.mean_stage_ms,
+        })
+        .collect()
 }
 
 /// Re-read results.json and verify it (what `--check` and CI rely on).
@@ -495,6 +592,9 @@ fn check(path: &Path, protocol: &Protocol) -> anyhow::Result<()> {
                 p["method"],
                 p["failure"]
             );
+        }
+        if p["stage_ms"]["registration"].as_f64().is_none() || p["stage_ms"]["total"].as_f64().is_none() {
+            bail!("results.json: pair {} {} {}->{} {} lacks per-stage times", p["object"], p["camera"], p["from"], p["to"], p["method"]);
         }
         for metric in ["angle_error_deg", "geodesic_error_deg", "translation_error_m", "add_s_m", "success"] {
             if p["errors"][metric].is_null() {

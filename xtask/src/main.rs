@@ -6,6 +6,7 @@
 
 mod bench;
 mod dataset;
+mod plots;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
