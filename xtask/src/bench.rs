@@ -266,8 +266,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
             .flat_map(|&sensor| protocol.angles().into_iter().map(move |angle| FrameId { sensor, angle }))
             .filter(|id| obj.has_frame(*id))
             .collect();
-        let work: Vec<(usize, FrameId)> =
-            preparers.iter().flat_map(|&g| frames.iter().map(move |&f| (g, f))).collect();
+        let work: Vec<(usize, FrameId)> = preparers.iter().flat_map(|&g| frames.iter().map(move |&f| (g, f))).collect();
         let bar = progress(work.len() as u64, &format!("{name}: depth stage"));
         let prepared: BTreeMap<(usize, FrameId), Result<PreparedFrame, String>> = work
             .par_iter()
@@ -512,7 +511,10 @@ fn write_outputs(
         plots.iter().map(|p| format!("![{p}]({p})\n")).collect::<String>()
     );
     std::fs::write(dir.join("summary.md"), &md)?;
-    println!("\n{table}\n{}\npaper (real BigBIRD, mean rotation error in degrees):\n{paper}", stage_table(&summary, &protocol.methods));
+    println!(
+        "\n{table}\n{}\npaper (real BigBIRD, mean rotation error in degrees):\n{paper}",
+        stage_table(&summary, &protocol.methods)
+    );
     println!("{} pairs, {} failed; results in {}", results.len(), failures, dir.display());
     for r in results.iter().filter(|r| r.failure.is_some()).take(10) {
         println!(
@@ -594,7 +596,14 @@ fn check(path: &Path, protocol: &Protocol) -> anyhow::Result<()> {
             );
         }
         if p["stage_ms"]["registration"].as_f64().is_none() || p["stage_ms"]["total"].as_f64().is_none() {
-            bail!("results.json: pair {} {} {}->{} {} lacks per-stage times", p["object"], p["camera"], p["from"], p["to"], p["method"]);
+            bail!(
+                "results.json: pair {} {} {}->{} {} lacks per-stage times",
+                p["object"],
+                p["camera"],
+                p["from"],
+                p["to"],
+                p["method"]
+            );
         }
         for metric in ["angle_error_deg", "geodesic_error_deg", "translation_error_m", "add_s_m", "success"] {
             if p["errors"][metric].is_null() {

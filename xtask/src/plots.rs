@@ -115,9 +115,8 @@ fn per_object(path: &Path, summary: &[MethodObject], methods: &[String]) -> anyh
         .filter(|o| *o != "ALL")
         .chain(std::iter::once("ALL"))
         .collect();
-    let value = |o: &str, m: &str| {
-        summary.iter().find(|s| s.object == o && s.method == m).and_then(|s| s.mean_angle_error_deg)
-    };
+    let value =
+        |o: &str, m: &str| summary.iter().find(|s| s.object == o && s.method == m).and_then(|s| s.mean_angle_error_deg);
     let ymax = summary.iter().filter_map(|s| s.mean_angle_error_deg).fold(1.0f64, f64::max) * 1.1;
     let width = (160 + objects.len() * 28 * methods.len().max(1)).clamp(800, 2400) as u32;
     let root = SVGBackend::new(path, (width, 520)).into_drawing_area();
@@ -190,7 +189,11 @@ fn stage_times(path: &Path, summary: &[MethodObject], methods: &[String]) -> any
     let rows: Vec<(&str, StageTimes)> = methods
         .iter()
         .filter_map(|m| {
-            summary.iter().find(|s| s.object == "ALL" && &s.method == m).and_then(|s| s.stage_ms).map(|t| (m.as_str(), t))
+            summary
+                .iter()
+                .find(|s| s.object == "ALL" && &s.method == m)
+                .and_then(|s| s.stage_ms)
+                .map(|t| (m.as_str(), t))
         })
         .collect();
     let xmax = rows.iter().map(|(_, t)| stages(t).iter().map(|s| s.1).sum::<f64>()).fold(1.0f64, f64::max) * 1.45;

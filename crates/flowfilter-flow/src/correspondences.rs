@@ -46,12 +46,39 @@ pub struct CorrespondenceParams {
     /// Reject pairs whose depth change is more than this many standard deviations from the
     /// mean depth change (the paper's Gaussian fit applied to the flowed depths).
     pub depth_k_sigma: f64,
+    /// Flow is estimated on the crop of both images around the union of the two masks, widened
+    /// by this margin (pixels): the result is the same as on the full frames when the margin
+    /// covers the estimator's reach, at a fraction of the cost. 0 = no cropping.
+    pub crop_margin_px: usize,
 }
 
 impl Default for CorrespondenceParams {
     fn default() -> Self {
-        Self { grid_step: 6, fb_threshold: 1.0, depth_k_sigma: 2.5 }
+        Self { grid_step: 6, fb_threshold: 1.0, depth_k_sigma: 2.5, crop_margin_px: 96 }
     }
+}
+
+/// The box `(x0, y0, x1, y1)` (exclusive ends) around both masks, widened by `margin`; the
+/// whole image when `margin` is 0 or the masks are empty.
+fn crop_box(a: &Mask, b: &Mask, margin: usize) -> (usize, usize, usize, usize) {
+    let (w, h) = a.dims();
+    if margin == 0 {
+        return (0, 0, w, h);
+    }
+    let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
+    for m in [a, b] {
+        for y in 0..h {
+            for (x, &v) in m.row(y).iter().enumerate() {
+                if v {
+                    (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x + 1), y1.max(y + 1));
+                }
+            }
+        }
+    }
+    if x0 == usize::MAX {
+        return (0, 0, w, h);
+    }
+    (x0.saturating_sub(margin), y0.saturating_sub(margin), (x1 + margin).min(w), (y1 + margin).min(h))
 }
 
 /// Depth at a sub-pixel position by bilinear interpolation of four valid neighbours that agree
@@ -111,10 +138,19 @@ pub fn flow_correspondences(
         }
     }
     let t0 = Instant::now();
-    let forward = estimator.sparse(model_gray, target_gray, &pixels, Some(model_mask))?;
-    let moved: Vec<[f32; 2]> =
-        pixels.iter().zip(&forward).map(|(q, f)| f.map_or(*q, |f| [q[0] + f[0], q[1] + f[1]])).collect();
-    let backward = estimator.sparse(target_gray, model_gray, &moved, Some(target_mask))?;
+    // Crop both views to the masks' region (flow vectors do not depend on the origin).
+    let (x0, y0, x1, y1) = crop_box(model_mask, target_mask, p.crop_margin_px);
+    let (cw, ch) = (x1 - x0, y1 - y0);
+    let crop = |g: &Gray| Gray::from_fn(cw, ch, |x, y| *g.at(x + x0, y + y0));
+    let crop_mask = |m: &Mask| Mask::from_fn(cw, ch, |x, y| *m.at(x + x0, y + y0));
+    let (ga, gb, ma, mb) = (crop(model_gray), crop(target_gray), crop_mask(model_mask), crop_mask(target_mask));
+    let shift = [x0 as f32, y0 as f32];
+    let local: Vec<[f32; 2]> = pixels.iter().map(|q| [q[0] - shift[0], q[1] - shift[1]]).collect();
+    let forward = estimator.sparse(&ga, &gb, &local, Some(&ma))?;
+    let moved_local: Vec<[f32; 2]> =
+        local.iter().zip(&forward).map(|(q, f)| f.map_or(*q, |f| [q[0] + f[0], q[1] + f[1]])).collect();
+    let backward = estimator.sparse(&gb, &ga, &moved_local, Some(&mb))?;
+    let moved: Vec<[f32; 2]> = moved_local.iter().map(|q| [q[0] + shift[0], q[1] + shift[1]]).collect();
     let flow_seconds = t0.elapsed().as_secs_f64();
     let consistent = forward_backward_sparse(&forward, &backward, p.fb_threshold);
     let mut pairs = FlowPairs { tracked: pixels.len(), flow_seconds, ..Default::default() };
