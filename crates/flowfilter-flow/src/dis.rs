@@ -304,11 +304,11 @@ impl Scale<'_> {
             self.warp(ox, oy, cur[0], cur[1], buf);
             let shift = if self.mean_norm { buf.iter().sum::<f32>() / n - t.mean } else { 0.0 };
             let (mut bx, mut by, mut ssd) = (0.0f32, 0.0f32, 0.0f32);
-            for k in 0..buf.len() {
-                let r = buf[k] - t.values[k] - shift;
+            for (((b, v), gx), gy) in buf.iter().zip(&t.values).zip(&t.gx).zip(&t.gy) {
+                let r = b - v - shift;
                 ssd += r * r;
-                bx += t.gx[k] * r;
-                by += t.gy[k] * r;
+                bx += gx * r;
+                by += gy * r;
             }
             if ssd < best.1 {
                 best = (cur, ssd);

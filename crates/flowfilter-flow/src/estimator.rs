@@ -170,7 +170,7 @@ impl LucasKanade {
 
     /// Check parameter ranges.
     pub fn validate(&self) -> Result<(), FlowError> {
-        if self.window < 3 || self.window % 2 == 0 {
+        if self.window < 3 || self.window.is_multiple_of(2) {
             return Err(FlowError::Config(format!("lk.window must be odd and >= 3, found {}", self.window)));
         }
         if self.dense_step == 0 || self.max_iterations == 0 {

@@ -60,13 +60,15 @@ pub struct LkParams {
     pub max_iterations: usize,
     /// Stop when the update is below this (pixels).
     pub epsilon: f32,
-    /// Reject when the gradient matrix's minimum eigenvalue / window area is below this.
+    /// Reject when the gradient matrix's minimum eigenvalue / window area is below this
+    /// (intensities in [0, 1]; the default is OpenCV's `minEigThreshold = 1e-4` converted from
+    /// its scaled 0-255 derivatives: `1e-4 * 1024 / 255^2`).
     pub min_eigen: f32,
 }
 
 impl Default for LkParams {
     fn default() -> Self {
-        Self { window: 21, levels: 3, max_iterations: 30, epsilon: 0.01, min_eigen: 1e-4 }
+        Self { window: 21, levels: 3, max_iterations: 30, epsilon: 0.01, min_eigen: 1.6e-6 }
     }
 }
 

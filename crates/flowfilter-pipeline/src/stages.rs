@@ -75,7 +75,7 @@ impl FramePreparer for DepthPreparer {
             mask: frame.mask.clone(),
             full_points: p.cloud.len(),
             cloud,
-            sensor: frame.sensor.clone(),
+            sensor: frame.sensor,
             rays: self.stage.rays(&frame.sensor.color),
             seconds: t0.elapsed().as_secs_f64(),
         })
