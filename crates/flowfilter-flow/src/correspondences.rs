@@ -3,8 +3,8 @@
 
 use crate::estimator::{FlowError, FlowEstimator, forward_backward_sparse};
 use crate::lk::Gray;
-use flowfilter_camera::RayTable;
-use flowfilter_geometry::{DepthMap, Mask, Point3};
+use flowfilter_camera::{CameraModel, RayTable};
+use flowfilter_geometry::{DepthMap, Mask, Point3, Pose};
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
 
@@ -50,12 +50,62 @@ pub struct CorrespondenceParams {
     /// by this margin (pixels): the result is the same as on the full frames when the margin
     /// covers the estimator's reach, at a fraction of the cost. 0 = no cropping.
     pub crop_margin_px: usize,
+    /// Model pixels closer than this to the mask's border are not tracked (their windows
+    /// straddle the silhouette, which does not move like the surface). 0 = track all.
+    pub border_px: usize,
+    /// Standard deviation (pixels) of the Gaussian whose blur is subtracted from both images
+    /// before tracking: removes shading that stays put while the object turns. 0 = off.
+    pub high_pass_sigma_px: f32,
 }
 
 impl Default for CorrespondenceParams {
     fn default() -> Self {
-        Self { grid_step: 6, fb_threshold: 1.0, depth_k_sigma: 2.5, crop_margin_px: 96 }
+        Self {
+            grid_step: 6,
+            fb_threshold: 1.0,
+            depth_k_sigma: 2.5,
+            crop_margin_px: 96,
+            border_px: 0,
+            high_pass_sigma_px: 0.0,
+        }
     }
+}
+
+/// Whether the mask is set at the eight points `r` pixels away from `(x, y)` (a cheap erosion).
+fn inside_by(m: &Mask, x: usize, y: usize, r: usize) -> bool {
+    if r == 0 {
+        return true;
+    }
+    let (x, y, r) = (x as isize, y as isize, r as isize);
+    [(-r, 0), (r, 0), (0, -r), (0, r), (-r, -r), (r, -r), (-r, r), (r, r)].iter().all(|(dx, dy)| {
+        let (qx, qy) = (x + dx, y + dy);
+        qx >= 0 && qy >= 0 && m.get(qx as usize, qy as usize).copied().unwrap_or(false)
+    })
+}
+
+/// `img - gaussian(img, sigma) + 0.5` (separable blur, clamped borders).
+pub fn high_pass(img: &Gray, sigma: f32) -> Gray {
+    let r = (3.0 * sigma).ceil() as isize;
+    let k: Vec<f32> = (-r..=r).map(|i| (-(i * i) as f32 / (2.0 * sigma * sigma)).exp()).collect();
+    let norm: f32 = k.iter().sum();
+    let (w, h) = img.dims();
+    let blur_x = Gray::from_fn(w, h, |x, y| {
+        let row = img.row(y);
+        k.iter()
+            .enumerate()
+            .map(|(i, kv)| kv * row[(x as isize + i as isize - r).clamp(0, w as isize - 1) as usize])
+            .sum::<f32>()
+            / norm
+    });
+    Gray::from_fn(w, h, |x, y| {
+        let b = k
+            .iter()
+            .enumerate()
+            .map(|(i, kv)| kv * *blur_x.at(x, (y as isize + i as isize - r).clamp(0, h as isize - 1) as usize))
+            .sum::<f32>()
+            / norm;
+        *img.at(x, y) - b + 0.5
+    })
 }
 
 /// The box `(x0, y0, x1, y1)` (exclusive ends) around both masks, widened by `margin`; the
@@ -110,6 +160,30 @@ pub fn flow_correspondences(
     rays: &RayTable,
     p: &CorrespondenceParams,
 ) -> Result<FlowPairs, FlowError> {
+    flow_correspondences_guided(estimator, model, target, rays, p, None)
+}
+
+/// A motion prediction for guided tracking: the colour camera and a pose `T` with
+/// `P_target ~ T * P_model` (e.g. from a geometric registration).
+#[derive(Debug, Clone, Copy)]
+pub struct FlowGuide<'a> {
+    /// The colour camera (projection with distortion).
+    pub camera: &'a CameraModel,
+    /// The predicted motion.
+    pub pose: &'a Pose,
+}
+
+/// [`flow_correspondences`], each model pixel's track starting from the flow that `guide`
+/// predicts (its back-projected point moved by the pose and projected), the backward track from
+/// the forward result reversed.
+pub fn flow_correspondences_guided(
+    estimator: &dyn FlowEstimator,
+    model: &FlowView<'_>,
+    target: &FlowView<'_>,
+    rays: &RayTable,
+    p: &CorrespondenceParams,
+    guide: Option<FlowGuide<'_>>,
+) -> Result<FlowPairs, FlowError> {
     if p.grid_step == 0 || p.fb_threshold <= 0.0 || p.depth_k_sigma <= 0.0 {
         return Err(FlowError::Config(format!(
             "correspondences: grid_step >= 1, fb_threshold > 0 and depth_k_sigma > 0 required, found {}, {}, {}",
@@ -132,7 +206,7 @@ pub fn flow_correspondences(
     let mut pixels = vec![];
     for y in (0..h).step_by(p.grid_step) {
         for x in (0..w).step_by(p.grid_step) {
-            if *model_mask.at(x, y) && *model_depth.at(x, y) > 0.0 {
+            if *model_mask.at(x, y) && *model_depth.at(x, y) > 0.0 && inside_by(model_mask, x, y, p.border_px) {
                 pixels.push([x as f32, y as f32]);
             }
         }
@@ -141,15 +215,38 @@ pub fn flow_correspondences(
     // Crop both views to the masks' region (flow vectors do not depend on the origin).
     let (x0, y0, x1, y1) = crop_box(model_mask, target_mask, p.crop_margin_px);
     let (cw, ch) = (x1 - x0, y1 - y0);
-    let crop = |g: &Gray| Gray::from_fn(cw, ch, |x, y| *g.at(x + x0, y + y0));
+    let crop = |g: &Gray| {
+        let c = Gray::from_fn(cw, ch, |x, y| *g.at(x + x0, y + y0));
+        if p.high_pass_sigma_px > 0.0 { high_pass(&c, p.high_pass_sigma_px) } else { c }
+    };
     let crop_mask = |m: &Mask| Mask::from_fn(cw, ch, |x, y| *m.at(x + x0, y + y0));
     let (ga, gb, ma, mb) = (crop(model_gray), crop(target_gray), crop_mask(model_mask), crop_mask(target_mask));
     let shift = [x0 as f32, y0 as f32];
     let local: Vec<[f32; 2]> = pixels.iter().map(|q| [q[0] - shift[0], q[1] - shift[1]]).collect();
-    let forward = estimator.sparse(&ga, &gb, &local, Some(&ma))?;
+    let (forward, backward_guess) = match guide {
+        None => (estimator.sparse(&ga, &gb, &local, Some(&ma))?, None),
+        Some(g) => {
+            let guesses: Vec<[f32; 2]> = pixels
+                .iter()
+                .map(|q| {
+                    let (x, y) = (q[0] as usize, q[1] as usize);
+                    rays.backproject(x, y, f64::from(*model_depth.at(x, y)))
+                        .and_then(|a| g.camera.project(&(g.pose * a)))
+                        .map_or([0.0; 2], |t| [(t.x - f64::from(q[0])) as f32, (t.y - f64::from(q[1])) as f32])
+                })
+                .collect();
+            let f = estimator.sparse_guided(&ga, &gb, &local, &guesses, Some(&ma))?;
+            let back: Vec<[f32; 2]> =
+                f.iter().zip(&guesses).map(|(f, g)| f.map_or([-g[0], -g[1]], |f| [-f[0], -f[1]])).collect();
+            (f, Some(back))
+        }
+    };
     let moved_local: Vec<[f32; 2]> =
         local.iter().zip(&forward).map(|(q, f)| f.map_or(*q, |f| [q[0] + f[0], q[1] + f[1]])).collect();
-    let backward = estimator.sparse(&gb, &ga, &moved_local, Some(&mb))?;
+    let backward = match &backward_guess {
+        None => estimator.sparse(&gb, &ga, &moved_local, Some(&mb))?,
+        Some(b) => estimator.sparse_guided(&gb, &ga, &moved_local, b, Some(&mb))?,
+    };
     let moved: Vec<[f32; 2]> = moved_local.iter().map(|q| [q[0] + shift[0], q[1] + shift[1]]).collect();
     let flow_seconds = t0.elapsed().as_secs_f64();
     let consistent = forward_backward_sparse(&forward, &backward, p.fb_threshold);

@@ -2,7 +2,7 @@
 //! with typed errors for inputs no estimator can use, and the forward-backward consistency check.
 
 use crate::FlowField;
-use crate::lk::{Gray, LkParams, track_masked};
+use crate::lk::{Gray, LkParams, track_guided, track_masked};
 use flowfilter_geometry::Mask;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
@@ -93,6 +93,20 @@ pub trait FlowEstimator: Send + Sync {
     ) -> Result<Vec<Option<[f32; 2]>>, FlowError> {
         let field = self.dense(from, to, mask)?;
         Ok(points.iter().map(|p| field.sample(f64::from(p[0]), f64::from(p[1]))).collect())
+    }
+
+    /// [`FlowEstimator::sparse`] with a predicted flow per point to start from. Estimators that
+    /// cannot use a prediction (the default) ignore it.
+    fn sparse_guided(
+        &self,
+        from: &Gray,
+        to: &Gray,
+        points: &[[f32; 2]],
+        guesses: &[[f32; 2]],
+        mask: Option<&Mask>,
+    ) -> Result<Vec<Option<[f32; 2]>>, FlowError> {
+        let _ = guesses;
+        self.sparse(from, to, points, mask)
     }
 }
 
@@ -195,6 +209,22 @@ impl FlowEstimator for LucasKanade {
         self.validate()?;
         check_pair(from, to, mask)?;
         Ok(track_masked(from, to, points, &self.params(), mask))
+    }
+
+    fn sparse_guided(
+        &self,
+        from: &Gray,
+        to: &Gray,
+        points: &[[f32; 2]],
+        guesses: &[[f32; 2]],
+        mask: Option<&Mask>,
+    ) -> Result<Vec<Option<[f32; 2]>>, FlowError> {
+        self.validate()?;
+        check_pair(from, to, mask)?;
+        if guesses.len() != points.len() {
+            return Err(FlowError::Config(format!("{} guesses for {} points", guesses.len(), points.len())));
+        }
+        Ok(track_guided(from, to, points, Some(guesses), &self.params(), mask))
     }
 
     fn dense(&self, from: &Gray, to: &Gray, mask: Option<&Mask>) -> Result<FlowField, FlowError> {

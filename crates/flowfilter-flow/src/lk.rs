@@ -97,6 +97,20 @@ pub fn track_masked(
     p: &LkParams,
     mask: Option<&Mask>,
 ) -> Vec<Option<[f32; 2]>> {
+    track_guided(from, to, points, None, p, mask)
+}
+
+/// [`track_masked`] starting each point from a guessed flow (`guesses[i]` for `points[i]`)
+/// instead of zero: large displacements that the pyramid cannot bridge become reachable when a
+/// prediction (e.g. from a geometric pose estimate) is available.
+pub fn track_guided(
+    from: &Gray,
+    to: &Gray,
+    points: &[[f32; 2]],
+    guesses: Option<&[[f32; 2]]>,
+    p: &LkParams,
+    mask: Option<&Mask>,
+) -> Vec<Option<[f32; 2]>> {
     let mut pa = vec![from.clone()];
     let mut pb = vec![to.clone()];
     let mut pm: Vec<Mask> = mask.map(|m| vec![m.clone()]).unwrap_or_default();
@@ -110,11 +124,17 @@ pub fn track_masked(
     }
     let r = (p.window / 2) as isize;
     let area = (p.window * p.window) as f32;
+    // A prediction is trusted to within a few pixels: refine it on the two finest levels only
+    // (the coarse levels, where the silhouette dominates the object's texture, would pull it
+    // back towards whatever does not move).
+    let start_level = if guesses.is_some() { p.levels.min(1) } else { p.levels };
+    let top = (1u32 << start_level) as f32;
     points
         .par_iter()
-        .map(|pt| {
-            let mut g = [0.0f32; 2];
-            for level in (0..=p.levels).rev() {
+        .enumerate()
+        .map(|(i, pt)| {
+            let mut g = guesses.and_then(|gs| gs.get(i)).map_or([0.0f32; 2], |q| [q[0] / top, q[1] / top]);
+            for level in (0..=start_level).rev() {
                 let s = (1u32 << level) as f32;
                 let (a, b) = (&pa[level], &pb[level]);
                 let (px, py) = (pt[0] / s, pt[1] / s);

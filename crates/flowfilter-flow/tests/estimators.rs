@@ -169,3 +169,26 @@ fn bad_input_gives_typed_errors() {
     }
     assert!(LucasKanade { window: 20, ..LucasKanade::default() }.validate().is_err());
 }
+
+#[test]
+fn a_prediction_lets_lk_reach_displacements_its_pyramid_cannot() {
+    let (w, h) = (260usize, 200usize);
+    let (dx, dy) = (37.0f32, -21.0f32);
+    let (a, b, _) = pair(w, h, move |x, y| (x + dx, y + dy), move |x, y| (x - dx, y - dy));
+    let lk = LucasKanade { levels: 1, window: 15, min_eigen: 1e-5, ..LucasKanade::default() };
+    let pts: Vec<[f32; 2]> =
+        (0..5).flat_map(|i| (0..4).map(move |j| [60.0 + 30.0 * i as f32, 60.0 + 25.0 * j as f32])).collect();
+    let err = |f: &[Option<[f32; 2]>]| {
+        f.iter()
+            .map(|v| v.map_or(f32::INFINITY, |v| ((v[0] - dx).powi(2) + (v[1] - dy).powi(2)).sqrt()))
+            .fold(0.0f32, f32::max)
+    };
+    let plain = lk.sparse(&a, &b, &pts, None).unwrap();
+    // A prediction 2-3 px off (as a geometric pose gives) is refined to the truth.
+    let guesses = vec![[dx - 2.5, dy + 1.5]; pts.len()];
+    let guided = lk.sparse_guided(&a, &b, &pts, &guesses, None).unwrap();
+    println!("worst error: unguided {}, guided {}", err(&plain), err(&guided));
+    assert!(err(&plain) > 5.0, "the unguided tracker should not reach a 42-px motion with one level");
+    assert!(err(&guided) < 0.1, "guided worst error {}", err(&guided));
+    assert!(matches!(lk.sparse_guided(&a, &b, &pts, &guesses[..3], None), Err(FlowError::Config(_))));
+}

@@ -30,6 +30,10 @@ impl Default for CloudPrepConfig {
 pub struct FlowStageConfig {
     /// Estimator name: `lk` (sparse pyramidal Lucas-Kanade) or `dis` (dense inverse search).
     pub estimator: String,
+    /// Also track from the motion predicted by a geometric registration (FilterReg on the
+    /// clouds) and keep whichever set of pairs agrees on a rigid motion more widely: reaches
+    /// displacements the pyramid alone cannot bridge.
+    pub guided: bool,
     /// Lucas-Kanade parameters.
     pub lk: LucasKanade,
     /// Dense inverse search parameters.
@@ -42,6 +46,7 @@ impl Default for FlowStageConfig {
     fn default() -> Self {
         Self {
             estimator: "lk".into(),
+            guided: true,
             lk: LucasKanade::default(),
             dis: DisParams::default(),
             correspondences: CorrespondenceParams::default(),

@@ -7,7 +7,7 @@
 //! - `rotation_angle_deg`, `rotation_axis` (unit, `[0,0,0]` for no rotation), `translation_m`;
 //! - `registration`: `iterations`, `converged`, `fitness`, `inlier_rmse_m`, `sigma2` (or null),
 //!   `model_points`, `target_points`;
-//! - `correspondences` (null without flow): `tracked`, `consistent`, `inliers`;
+//! - `correspondences` (null without flow): `tracked`, `consistent`, `inliers`, `guided`;
 //! - `stage_ms`: `depth_model`, `depth_target`, `flow`, `correspondences`, `registration`, `total`;
 //! - `warnings`: strings (a fallback taken, flow that failed);
 //! - `ground_truth` (null when unknown): `transform` and `errors` (`angle_error_deg`,
@@ -48,6 +48,8 @@ pub struct CorrespondenceSummary {
     pub consistent: usize,
     /// Pairs kept by the depth-change fit (weight > 0).
     pub inliers: usize,
+    /// Whether the pairs come from tracking guided by the geometric prediction.
+    pub guided: bool,
 }
 
 /// Wall time per stage, milliseconds.

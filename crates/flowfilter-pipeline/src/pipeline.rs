@@ -7,7 +7,10 @@ use crate::frame::RgbdFrame;
 use crate::stages::{
     CorrespondenceFinder, DepthPreparer, FlowCorrespondenceFinder, FramePreparer, PreparedFrame, flow_estimator_by_name,
 };
-use flowfilter_registration::{Correspondences, Registrar, RegistrationProblem, registrar_by_name};
+use flowfilter_flow::correspondences::FlowPairs;
+use flowfilter_registration::{
+    Correspondences, FilterReg, Registrar, RegistrationProblem, ransac_kabsch, registrar_by_name,
+};
 use std::time::Instant;
 
 /// Two RGB-D frames in, a relative pose out.
@@ -70,6 +73,35 @@ impl Pipeline {
         Ok(e)
     }
 
+    /// Flow pairs: unguided, and (when configured) guided by a geometric registration; the set
+    /// whose largest rigid consensus is bigger wins. Returns the pairs, whether they are the
+    /// guided ones, and the seconds spent in flow estimation.
+    fn find_pairs(
+        &self,
+        finder: &dyn CorrespondenceFinder,
+        model: &PreparedFrame,
+        target: &PreparedFrame,
+    ) -> Result<(FlowPairs, bool, f64), PipelineError> {
+        let plain = finder.find(model, target)?;
+        if !self.config.flow.guided {
+            let s = plain.flow_seconds;
+            return Ok((plain, false, s));
+        }
+        let ff = &self.config.registration.flowfilter;
+        let mut geo_cfg = ff.filterreg.clone();
+        geo_cfg.correspondence_weight = 0.0;
+        let geometric =
+            FilterReg::new(geo_cfg)?.register(&RegistrationProblem::new(model.cloud.clone(), target.cloud.clone()))?;
+        let guided = finder.find_guided(model, target, &geometric.transform)?;
+        let seconds = plain.flow_seconds + guided.flow_seconds;
+        let consensus = |p: &FlowPairs| {
+            let c = Correspondences { source: p.model.clone(), target: p.target.clone(), weights: p.weights.clone() };
+            ransac_kabsch(&c, ff.ransac_iterations, ff.inlier_threshold_m, ff.min_inliers, ff.seed)
+                .map_or(0, |(_, inl)| inl.iter().filter(|b| **b).count())
+        };
+        Ok(if consensus(&guided) > consensus(&plain) { (guided, true, seconds) } else { (plain, false, seconds) })
+    }
+
     /// Estimate from frames already prepared (their preparation times are reported).
     pub fn estimate_prepared(&self, model: &PreparedFrame, target: &PreparedFrame) -> Result<Estimate, PipelineError> {
         let t0 = Instant::now();
@@ -86,16 +118,17 @@ impl Pipeline {
                 ));
             } else {
                 let tf = Instant::now();
-                match finder.find(model, target) {
-                    Ok(pairs) => {
+                match self.find_pairs(finder.as_ref(), model, target) {
+                    Ok((pairs, guided, flow_seconds)) => {
                         let all = tf.elapsed().as_secs_f64();
-                        times.flow = pairs.flow_seconds * 1e3;
-                        times.correspondences = (all - pairs.flow_seconds).max(0.0) * 1e3;
+                        times.flow = flow_seconds * 1e3;
+                        times.correspondences = (all - flow_seconds).max(0.0) * 1e3;
                         let inliers = pairs.weights.iter().filter(|w| **w > 0.0).count();
                         summary = Some(CorrespondenceSummary {
                             tracked: pairs.tracked,
                             consistent: pairs.model.len(),
                             inliers,
+                            guided,
                         });
                         problem.correspondences =
                             Some(Correspondences { source: pairs.model, target: pairs.target, weights: pairs.weights });

@@ -7,11 +7,13 @@ use crate::frame::RgbdFrame;
 use flowfilter_camera::{RayTable, RgbdSensor};
 use flowfilter_depth::cloud::voxel_downsample;
 use flowfilter_depth::{DepthConfig, DepthStage};
-use flowfilter_flow::correspondences::{CorrespondenceParams, FlowPairs, FlowView, flow_correspondences};
+use flowfilter_flow::correspondences::{
+    CorrespondenceParams, FlowGuide, FlowPairs, FlowView, flow_correspondences, flow_correspondences_guided,
+};
 use flowfilter_flow::dis::Dis;
 use flowfilter_flow::lk::{Gray, to_gray};
 use flowfilter_flow::{FlowError, FlowEstimator};
-use flowfilter_geometry::{DepthMap, Mask, PointCloud};
+use flowfilter_geometry::{DepthMap, Mask, PointCloud, Pose};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -88,6 +90,17 @@ pub trait CorrespondenceFinder: Send + Sync {
     fn name(&self) -> &str;
     /// The pairs, model frame to target frame.
     fn find(&self, model: &PreparedFrame, target: &PreparedFrame) -> Result<FlowPairs, PipelineError>;
+    /// The pairs, searched around a predicted motion `guide` (`P_target ~ guide * P_model`).
+    /// Finders that cannot use a prediction (the default) ignore it.
+    fn find_guided(
+        &self,
+        model: &PreparedFrame,
+        target: &PreparedFrame,
+        guide: &Pose,
+    ) -> Result<FlowPairs, PipelineError> {
+        let _ = guide;
+        self.find(model, target)
+    }
 }
 
 /// The default finder: optical flow by any [`FlowEstimator`], forward-backward consistency,
@@ -116,6 +129,22 @@ impl CorrespondenceFinder for FlowCorrespondenceFinder {
             &FlowView { gray: &target.gray, depth: &target.depth, mask: &target.mask },
             &model.rays,
             &self.params,
+        )?)
+    }
+
+    fn find_guided(
+        &self,
+        model: &PreparedFrame,
+        target: &PreparedFrame,
+        guide: &Pose,
+    ) -> Result<FlowPairs, PipelineError> {
+        Ok(flow_correspondences_guided(
+            self.estimator.as_ref(),
+            &FlowView { gray: &model.gray, depth: &model.depth, mask: &model.mask },
+            &FlowView { gray: &target.gray, depth: &target.depth, mask: &target.mask },
+            &model.rays,
+            &self.params,
+            Some(FlowGuide { camera: &model.sensor.color, pose: guide }),
         )?)
     }
 }

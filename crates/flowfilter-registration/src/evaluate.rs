@@ -16,6 +16,47 @@ pub fn evaluate(source: &[Point3], target: &KnnIndex, transform: &Pose, max_dist
     if count == 0 { (0.0, 0.0) } else { (count as f64 / source.len() as f64, (sum / count as f64).sqrt()) }
 }
 
+/// Mean over the moved source points of `min(distance to the nearest target point, tau)`: a
+/// robust geometric misfit (0 for a perfect overlap, `tau` where nothing overlaps). Sequential,
+/// so the same input always gives the same bits.
+pub fn truncated_residual(source: &[Point3], target: &KnnIndex, transform: &Pose, tau: f64) -> f64 {
+    if source.is_empty() {
+        return tau;
+    }
+    let sum: f64 =
+        source.iter().map(|p| target.nearest(&(transform * p)).map_or(tau, |n| n.dist2.sqrt().min(tau))).sum();
+    sum / source.len() as f64
+}
+
+/// [`truncated_residual`] over the source points that the move leaves facing the camera (the
+/// clouds are in the camera frame, camera at the origin): the cosine between the moved normal
+/// and the direction to the camera must exceed `min_cos`. A correct pose on a partial view
+/// turns some points out of view, which then have no partner and must not count against it.
+/// Without normals every point counts.
+pub fn visible_residual(
+    source: &[Point3],
+    normals: Option<&[Vector3]>,
+    target: &KnnIndex,
+    transform: &Pose,
+    tau: f64,
+    min_cos: f64,
+) -> f64 {
+    let Some(normals) = normals else { return truncated_residual(source, target, transform, tau) };
+    let (mut sum, mut n) = (0.0, 0usize);
+    for (p, nrm) in source.iter().zip(normals) {
+        let q = transform * p;
+        let m = transform.rotation * nrm;
+        let to_camera = -q.coords / q.coords.norm().max(1e-12);
+        // Normals may point either way: the surface faces the camera if |cos| is large.
+        if m.dot(&to_camera).abs() < min_cos {
+            continue;
+        }
+        sum += target.nearest(&q).map_or(tau, |nb| nb.dist2.sqrt().min(tau));
+        n += 1;
+    }
+    if n * 5 < source.len() { tau } else { sum / n as f64 }
+}
+
 /// Robust kernels on residual magnitudes (IRLS weights).
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case")]

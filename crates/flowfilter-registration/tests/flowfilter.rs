@@ -1,6 +1,8 @@
 //! Flow Filter on a rotationally symmetric object: geometry alone cannot see a rotation about
 //! the axis, correspondences can.
 
+mod common;
+
 use flowfilter_geometry::{Point3, PointCloud, Pose, Vector3};
 use flowfilter_registration::{
     Correspondences, FlowFilter, FlowFilterConfig, FlowFilterMode, Registrar, RegistrationConfig, RegistrationProblem,
@@ -62,4 +64,56 @@ fn without_flow_it_falls_back_to_filterreg_and_says_so() {
         .register(&RegistrationProblem::new(source, target))
         .unwrap();
     assert!(r.warnings.iter().any(|w| w.contains("fell back to FilterReg")), "{:?}", r.warnings);
+}
+
+/// A rotation of `deg` about `axis` through `centre`.
+fn rotation_about(centre: &Point3, axis: Vector3, deg: f64) -> Pose {
+    Pose::translation(centre.x, centre.y, centre.z)
+        * Pose::rotation(axis.normalize() * deg.to_radians())
+        * Pose::translation(-centre.x, -centre.y, -centre.z)
+}
+
+#[test]
+fn geometry_overrules_flow_that_contradicts_it() {
+    // An asymmetric shape 70 cm in front of the camera; the true motion is 8 degrees, but the
+    // "flow" pairs agree on a motion 20 degrees away from it (a tracker locked on the wrong
+    // thing). The geometric check must notice that the flow result does not fit the clouds.
+    let mut source = common::bumpy_shape(2500, 3);
+    source.transform(&Pose::translation(0.0, 0.0, 0.7));
+    let c0 = source.centroid().unwrap();
+    let truth = rotation_about(&c0, Vector3::new(0.2, 1.0, 0.1), 8.0);
+    let wrong = rotation_about(&c0, Vector3::new(1.0, -0.3, 0.4), 20.0) * truth;
+    let target = source.transformed(&truth);
+    let mut c = Correspondences::default();
+    for p in source.points.iter().step_by(5) {
+        c.source.push(*p);
+        c.target.push(wrong * p);
+        c.weights.push(1.0);
+    }
+    let mut problem = RegistrationProblem::new(source.clone(), target);
+    problem.correspondences = Some(c.clone());
+    let err = |t: &Pose| (t * truth.inverse()).rotation.angle().to_degrees();
+    let checked = FlowFilter::new(FlowFilterConfig::default()).unwrap().register(&problem).unwrap();
+    let unchecked = FlowFilter::new(FlowFilterConfig { geometric_check: false, ..Default::default() })
+        .unwrap()
+        .register(&problem)
+        .unwrap();
+    println!(
+        "with the check {:.3} deg {:?}; without {:.3} deg",
+        err(&checked.transform),
+        checked.warnings,
+        err(&unchecked.transform)
+    );
+    assert!(err(&unchecked.transform) > 5.0, "the wrong flow should mislead the unchecked method");
+    assert!(err(&checked.transform) < 0.5, "{} deg", err(&checked.transform));
+    assert!(checked.warnings.iter().any(|w| w.contains("geometric check")), "{:?}", checked.warnings);
+    // Flow that agrees with the geometry passes the check untouched.
+    let good: Correspondences = Correspondences {
+        source: c.source.clone(),
+        target: c.source.iter().map(|p| truth * p).collect(),
+        weights: c.weights.clone(),
+    };
+    problem.correspondences = Some(good);
+    let r = FlowFilter::new(FlowFilterConfig::default()).unwrap().register(&problem).unwrap();
+    assert!(r.warnings.is_empty() && err(&r.transform) < 0.1, "{:?} {}", r.warnings, err(&r.transform));
 }

@@ -33,11 +33,13 @@ fn capture() -> &'static Path {
     .1
 }
 
-/// The JSON's shape: every number replaced by "number" (values are checked separately).
+/// The JSON's shape: every number replaced by "number" and every boolean by "bool" (values are
+/// checked separately).
 fn shape(v: &serde_json::Value) -> serde_json::Value {
     use serde_json::Value;
     match v {
         Value::Number(_) => Value::String("number".into()),
+        Value::Bool(_) => Value::String("bool".into()),
         Value::Array(a) => Value::Array(a.iter().map(shape).collect()),
         Value::Object(o) => Value::Object(o.iter().map(|(k, v)| (k.clone(), shape(v))).collect()),
         other => other.clone(),
