@@ -427,32 +427,46 @@ fn covering(o: &[usize], ps: usize, c: usize) -> std::ops::Range<usize> {
 }
 
 /// Densification: per pixel, the photometric-error-weighted average of the covering patches.
+/// Row by row; within a row each covering patch contributes a segment warped with one set of
+/// bilinear weights (its flow is constant).
 fn densify(sc: &Scale<'_>, xs: &[usize], ys: &[usize], flows: &[[f32; 2]], shifts: &[f32]) -> (Img, Img) {
     let (w, h) = sc.i0.dims();
     let nx = xs.len();
     let ps = sc.ps;
-    let col_ranges: Vec<std::ops::Range<usize>> = (0..w).map(|x| covering(xs, ps, x)).collect();
+    let d1 = sc.i1.as_slice();
     let mut u = vec![0.0f32; w * h];
     let mut v = vec![0.0f32; w * h];
     u.par_chunks_mut(w).zip(v.par_chunks_mut(w)).enumerate().for_each(|(y, (ur, vr))| {
-        let rows = covering(ys, ps, y);
         let i0 = sc.i0.row(y);
-        for x in 0..w {
-            let (mut su, mut sv, mut sw) = (0.0f32, 0.0f32, 0.0f32);
-            for j in rows.clone() {
-                for i in col_ranges[x].clone() {
-                    let k = j * nx + i;
-                    let f = flows[k];
-                    let diff = bilinear(sc.i1, x as f32 + f[0], y as f32 + f[1]) - i0[x] - shifts[k];
-                    let wt = 1.0 / diff.abs().max(1.0);
-                    su += wt * f[0];
-                    sv += wt * f[1];
-                    sw += wt;
+        let mut sw = vec![0.0f32; w];
+        for j in covering(ys, ps, y) {
+            for (i, &x0) in xs.iter().enumerate() {
+                let k = j * nx + i;
+                let f = flows[k];
+                let (fx, fy) = (x0 as f32 + f[0], y as f32 + f[1]);
+                let (bx, by) = (fx.floor(), fy.floor());
+                let (ax, ay) = (fx - bx, fy - by);
+                let inside = bx >= 0.0 && by >= 0.0 && (bx as usize + ps) < w && (by as usize) + 1 < h;
+                for dx in 0..ps {
+                    let x = x0 + dx;
+                    let warped = if inside {
+                        let (ix, iy) = (bx as usize + dx, by as usize);
+                        let (r0, r1) = (iy * w + ix, (iy + 1) * w + ix);
+                        (d1[r0] * (1.0 - ax) + d1[r0 + 1] * ax) * (1.0 - ay) + (d1[r1] * (1.0 - ax) + d1[r1 + 1] * ax) * ay
+                    } else {
+                        bilinear(sc.i1, fx + dx as f32, fy)
+                    };
+                    let wt = 1.0 / (warped - i0[x] - shifts[k]).abs().max(1.0);
+                    ur[x] += wt * f[0];
+                    vr[x] += wt * f[1];
+                    sw[x] += wt;
                 }
             }
-            if sw > 0.0 {
-                ur[x] = su / sw;
-                vr[x] = sv / sw;
+        }
+        for x in 0..w {
+            if sw[x] > 0.0 {
+                ur[x] /= sw[x];
+                vr[x] /= sw[x];
             }
         }
     });
@@ -465,6 +479,52 @@ fn psi_prime(s2: f32) -> f32 {
     0.5 / (s2 + 1e-6).sqrt()
 }
 
+/// Central-difference gradients of several images, in parallel.
+fn gradients_par(imgs: &[&Img]) -> Vec<(Img, Img)> {
+    imgs.par_iter().map(|i| gradients(i)).collect()
+}
+
+/// The linearised data term at one pixel.
+#[derive(Clone, Copy, Default)]
+struct DataTerm {
+    ix: f32,
+    iy: f32,
+    iz: f32,
+    ixx: f32,
+    ixy: f32,
+    iyy: f32,
+    ixz: f32,
+    iyz: f32,
+}
+
+/// Red-black index helpers: pixel `(x, y)` has colour `(x + y) % 2` and index `x / 2` in its
+/// row of that colour's array (rows of `(w + 1) / 2` entries).
+struct Checker {
+    w: usize,
+    h: usize,
+    hw: usize,
+}
+
+impl Checker {
+    fn split(&self, full: &[f32]) -> [Vec<f32>; 2] {
+        let mut out = [vec![0.0f32; self.hw * self.h], vec![0.0f32; self.hw * self.h]];
+        for y in 0..self.h {
+            for x in 0..self.w {
+                out[(x + y) % 2][y * self.hw + x / 2] = full[y * self.w + x];
+            }
+        }
+        out
+    }
+
+    fn merge(&self, parts: &[Vec<f32>; 2], full: &mut [f32]) {
+        for y in 0..self.h {
+            for x in 0..self.w {
+                full[y * self.w + x] = parts[(x + y) % 2][y * self.hw + x / 2];
+            }
+        }
+    }
+}
+
 /// Variational refinement of `(u, v)` in place (see the module documentation).
 fn refine(i0: &Img, i1: &Img, u: &mut Img, v: &mut Img, p: &DisParams) {
     if p.refinement_iterations == 0 {
@@ -472,76 +532,43 @@ fn refine(i0: &Img, i1: &Img, u: &mut Img, v: &mut Img, p: &DisParams) {
     }
     let (w, h) = i0.dims();
     let n = w * h;
-    let (i0x, i0y) = gradients(i0);
-    let (i1x, i1y) = gradients(i1);
-    let (i0xx, i0xy) = gradients(&i0x);
-    let (_, i0yy) = gradients(&i0y);
-    let (i1xx, i1xy) = gradients(&i1x);
-    let (_, i1yy) = gradients(&i1y);
+    let g = gradients_par(&[i0, i1]);
+    let ((i0x, i0y), (i1x, i1y)) = (&g[0], &g[1]);
+    let g2 = gradients_par(&[i0x, i0y, i1x, i1y]);
+    let ((i0xx, i0xy), (_, i0yy), (i1xx, i1xy), (_, i1yy)) = (&g2[0], &g2[1], &g2[2], &g2[3]);
     // Linearisation at the current flow: warped second image and the data terms.
-    struct Px {
-        ix: f32,
-        iy: f32,
-        iz: f32,
-        ixx: f32,
-        ixy: f32,
-        iyy: f32,
-        ixz: f32,
-        iyz: f32,
-        valid: bool,
-    }
     let (us, vs) = (u.as_slice(), v.as_slice());
-    let data: Vec<Px> = (0..n)
-        .into_par_iter()
-        .map(|k| {
-            let (x, y) = ((k % w) as f32 + us[k], (k / w) as f32 + vs[k]);
-            let valid = x >= 0.0 && y >= 0.0 && x <= (w - 1) as f32 && y <= (h - 1) as f32;
-            let s = |img: &Img| bilinear(img, x, y);
-            let (wx, wy) = (s(&i1x), s(&i1y));
-            Px {
+    let mut data = vec![DataTerm::default(); n];
+    data.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        for (x, d) in row.iter_mut().enumerate() {
+            let k = y * w + x;
+            let (fx, fy) = (x as f32 + us[k], y as f32 + vs[k]);
+            if !(fx >= 0.0 && fy >= 0.0 && fx <= (w - 1) as f32 && fy <= (h - 1) as f32) {
+                continue;
+            }
+            let s = |img: &Img| bilinear(img, fx, fy);
+            let (wx, wy) = (s(i1x), s(i1y));
+            *d = DataTerm {
                 ix: 0.5 * (wx + i0x.as_slice()[k]),
                 iy: 0.5 * (wy + i0y.as_slice()[k]),
                 iz: s(i1) - i0.as_slice()[k],
-                ixx: 0.5 * (s(&i1xx) + i0xx.as_slice()[k]),
-                ixy: 0.5 * (s(&i1xy) + i0xy.as_slice()[k]),
-                iyy: 0.5 * (s(&i1yy) + i0yy.as_slice()[k]),
+                ixx: 0.5 * (s(i1xx) + i0xx.as_slice()[k]),
+                ixy: 0.5 * (s(i1xy) + i0xy.as_slice()[k]),
+                iyy: 0.5 * (s(i1yy) + i0yy.as_slice()[k]),
                 ixz: wx - i0x.as_slice()[k],
                 iyz: wy - i0y.as_slice()[k],
-                valid,
-            }
-        })
-        .collect();
+            };
+        }
+    });
     let zeta2 = 0.01f32;
+    let ck = Checker { w, h, hw: w.div_ceil(2) };
     let mut du = vec![0.0f32; n];
     let mut dv = vec![0.0f32; n];
+    // Per pixel and fixed-point iteration: [a12, 1/(a11 + sum w), 1/(a22 + sum w), r1, r2,
+    // w_left, w_right, w_up, w_down], with r = -b + sum_q w_q (u_q - u_p).
+    let mut sys = vec![[0.0f32; 9]; n];
     for _ in 0..p.refinement_iterations {
-        // Data-term coefficients `[a11, a12, a22, b1, b2]` under the current increments.
-        let coeffs: Vec<[f32; 5]> = (0..n)
-            .into_par_iter()
-            .map(|k| {
-                let d = &data[k];
-                if !d.valid {
-                    return [0.0; 5];
-                }
-                let (a, b) = (du[k], dv[k]);
-                let r1 =
-                    p.delta * psi_prime((d.iz + d.ix * a + d.iy * b).powi(2)) / (d.ix * d.ix + d.iy * d.iy + zeta2);
-                let r2 = p.gamma * psi_prime((d.ixz + d.ixx * a + d.ixy * b).powi(2))
-                    / (d.ixx * d.ixx + d.ixy * d.ixy + zeta2);
-                let r3 = p.gamma * psi_prime((d.iyz + d.ixy * a + d.iyy * b).powi(2))
-                    / (d.ixy * d.ixy + d.iyy * d.iyy + zeta2);
-                [
-                    r1 * d.ix * d.ix + r2 * d.ixx * d.ixx + r3 * d.ixy * d.ixy,
-                    r1 * d.ix * d.iy + r2 * d.ixx * d.ixy + r3 * d.ixy * d.iyy,
-                    r1 * d.iy * d.iy + r2 * d.ixy * d.ixy + r3 * d.iyy * d.iyy,
-                    r1 * d.ix * d.iz + r2 * d.ixx * d.ixz + r3 * d.ixy * d.iyz,
-                    r1 * d.iy * d.iz + r2 * d.ixy * d.ixz + r3 * d.iyy * d.iyz,
-                ]
-            })
-            .collect();
-        // Smoothness weights: alpha * Psi'(|grad (u + du)|^2 + |grad (v + dv)|^2) per pixel,
-        // averaged over each pair of neighbours.
-        let (us, vs) = (u.as_slice(), v.as_slice());
+        // Smoothness weights per pixel: alpha * Psi'(|grad (u + du)|^2 + |grad (v + dv)|^2).
         let smooth: Vec<f32> = (0..n)
             .into_par_iter()
             .map(|k| {
@@ -549,48 +576,94 @@ fn refine(i0: &Img, i1: &Img, u: &mut Img, v: &mut Img, p: &DisParams) {
                 let fu = |q: usize| us[q] + du[q];
                 let fv = |q: usize| vs[q] + dv[q];
                 let (r, b) = (if x + 1 < w { k + 1 } else { k }, if y + 1 < h { k + w } else { k });
-                let g = (fu(r) - fu(k)).powi(2)
-                    + (fu(b) - fu(k)).powi(2)
-                    + (fv(r) - fv(k)).powi(2)
-                    + (fv(b) - fv(k)).powi(2);
+                let g = (fu(r) - fu(k)).powi(2) + (fu(b) - fu(k)).powi(2) + (fv(r) - fv(k)).powi(2) + (fv(b) - fv(k)).powi(2);
                 p.alpha * psi_prime(g)
             })
             .collect();
+        sys.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+            for (x, out) in row.iter_mut().enumerate() {
+                let k = y * w + x;
+                let d = &data[k];
+                let (a, b) = (du[k], dv[k]);
+                let r1 = p.delta * psi_prime((d.iz + d.ix * a + d.iy * b).powi(2)) / (d.ix * d.ix + d.iy * d.iy + zeta2);
+                let r2 = p.gamma * psi_prime((d.ixz + d.ixx * a + d.ixy * b).powi(2))
+                    / (d.ixx * d.ixx + d.ixy * d.ixy + zeta2);
+                let r3 = p.gamma * psi_prime((d.iyz + d.ixy * a + d.iyy * b).powi(2))
+                    / (d.ixy * d.ixy + d.iyy * d.iyy + zeta2);
+                let a11 = r1 * d.ix * d.ix + r2 * d.ixx * d.ixx + r3 * d.ixy * d.ixy;
+                let a12 = r1 * d.ix * d.iy + r2 * d.ixx * d.ixy + r3 * d.ixy * d.iyy;
+                let a22 = r1 * d.iy * d.iy + r2 * d.ixy * d.ixy + r3 * d.iyy * d.iyy;
+                let b1 = r1 * d.ix * d.iz + r2 * d.ixx * d.ixz + r3 * d.ixy * d.iyz;
+                let b2 = r1 * d.iy * d.iz + r2 * d.ixy * d.ixz + r3 * d.iyy * d.iyz;
+                let wt = |q: usize| 0.5 * (smooth[k] + smooth[q]);
+                let wl = if x > 0 { wt(k - 1) } else { 0.0 };
+                let wr = if x + 1 < w { wt(k + 1) } else { 0.0 };
+                let wu = if y > 0 { wt(k - w) } else { 0.0 };
+                let wd = if y + 1 < h { wt(k + w) } else { 0.0 };
+                let lap = |f: &[f32]| {
+                    let c = f[k];
+                    let at = |q: usize, wq: f32| if wq > 0.0 { wq * (f[q] - c) } else { 0.0 };
+                    at(k.wrapping_sub(1), wl) + at(k + 1, wr) + at(k.wrapping_sub(w), wu) + at(k + w, wd)
+                };
+                let sw = wl + wr + wu + wd;
+                *out = [
+                    a12,
+                    1.0 / (a11 + sw).max(1e-9),
+                    1.0 / (a22 + sw).max(1e-9),
+                    lap(us) - b1,
+                    lap(vs) - b2,
+                    wl,
+                    wr,
+                    wu,
+                    wd,
+                ];
+            }
+        });
+        // Red-black SOR on split arrays: a colour's update reads only the other colour.
+        let mut dus = ck.split(&du);
+        let mut dvs = ck.split(&dv);
+        let hw = ck.hw;
         for _ in 0..p.sor_iterations {
             for colour in 0..2 {
-                let (old_u, old_v) = (du.clone(), dv.clone());
-                du.par_chunks_mut(w).zip(dv.par_chunks_mut(w)).enumerate().for_each(|(y, (dur, dvr))| {
+                let [red_u, black_u] = &mut dus;
+                let [red_v, black_v] = &mut dvs;
+                let (cur_u, other_u, cur_v, other_v) =
+                    if colour == 0 { (red_u, &*black_u, red_v, &*black_v) } else { (black_u, &*red_u, black_v, &*red_v) };
+                cur_u.par_chunks_mut(hw).zip(cur_v.par_chunks_mut(hw)).enumerate().for_each(|(y, (ru, rv))| {
                     let start = (y + colour) % 2;
+                    let row = y * hw;
                     for x in (start..w).step_by(2) {
                         let k = y * w + x;
-                        let [a11, a12, a22, b1, b2] = coeffs[k];
-                        let (mut sw, mut su, mut sv) = (0.0f32, 0.0f32, 0.0f32);
-                        let mut add = |q: usize| {
-                            let wt = 0.5 * (smooth[k] + smooth[q]);
-                            sw += wt;
-                            su += wt * (us[q] + old_u[q] - us[k]);
-                            sv += wt * (vs[q] + old_v[q] - vs[k]);
-                        };
-                        if x > 0 {
-                            add(k - 1);
+                        let c = &sys[k];
+                        let i = x / 2;
+                        let mut nu = 0.0f32;
+                        let mut nv = 0.0f32;
+                        if c[5] > 0.0 {
+                            nu += c[5] * other_u[row + (x - 1) / 2];
+                            nv += c[5] * other_v[row + (x - 1) / 2];
                         }
-                        if x + 1 < w {
-                            add(k + 1);
+                        if c[6] > 0.0 {
+                            nu += c[6] * other_u[row + (x + 1) / 2];
+                            nv += c[6] * other_v[row + (x + 1) / 2];
                         }
-                        if y > 0 {
-                            add(k - w);
+                        if c[7] > 0.0 {
+                            nu += c[7] * other_u[row - hw + i];
+                            nv += c[7] * other_v[row - hw + i];
                         }
-                        if y + 1 < h {
-                            add(k + w);
+                        if c[8] > 0.0 {
+                            nu += c[8] * other_u[row + hw + i];
+                            nv += c[8] * other_v[row + hw + i];
                         }
-                        let nu = (su - b1 - a12 * dvr[x]) / (a11 + sw).max(1e-9);
-                        dur[x] = (1.0 - p.omega) * dur[x] + p.omega * nu;
-                        let nv = (sv - b2 - a12 * dur[x]) / (a22 + sw).max(1e-9);
-                        dvr[x] = (1.0 - p.omega) * dvr[x] + p.omega * nv;
+                        let new_u = (c[3] + nu - c[0] * rv[i]) * c[1];
+                        ru[i] = (1.0 - p.omega) * ru[i] + p.omega * new_u;
+                        let new_v = (c[4] + nv - c[0] * ru[i]) * c[2];
+                        rv[i] = (1.0 - p.omega) * rv[i] + p.omega * new_v;
                     }
                 });
             }
         }
+        ck.merge(&dus, &mut du);
+        ck.merge(&dvs, &mut dv);
     }
     u.as_mut_slice().iter_mut().zip(&du).for_each(|(a, d)| *a += d);
     v.as_mut_slice().iter_mut().zip(&dv).for_each(|(a, d)| *a += d);
