@@ -436,7 +436,7 @@ fn densify(sc: &Scale<'_>, xs: &[usize], ys: &[usize], flows: &[[f32; 2]], shift
     let d1 = sc.i1.as_slice();
     let mut u = vec![0.0f32; w * h];
     let mut v = vec![0.0f32; w * h];
-    u.par_chunks_mut(w).zip(v.par_chunks_mut(w)).enumerate().for_each(|(y, (ur, vr))| {
+    u.par_chunks_mut(w).zip(v.par_chunks_mut(w)).enumerate().with_min_len(ROWS_PER_TASK).for_each(|(y, (ur, vr))| {
         let i0 = sc.i0.row(y);
         let mut sw = vec![0.0f32; w];
         for j in covering(ys, ps, y) {
@@ -452,7 +452,8 @@ fn densify(sc: &Scale<'_>, xs: &[usize], ys: &[usize], flows: &[[f32; 2]], shift
                     let warped = if inside {
                         let (ix, iy) = (bx as usize + dx, by as usize);
                         let (r0, r1) = (iy * w + ix, (iy + 1) * w + ix);
-                        (d1[r0] * (1.0 - ax) + d1[r0 + 1] * ax) * (1.0 - ay) + (d1[r1] * (1.0 - ax) + d1[r1 + 1] * ax) * ay
+                        (d1[r0] * (1.0 - ax) + d1[r0 + 1] * ax) * (1.0 - ay)
+                            + (d1[r1] * (1.0 - ax) + d1[r1 + 1] * ax) * ay
                     } else {
                         bilinear(sc.i1, fx + dx as f32, fy)
                     };
@@ -497,6 +498,9 @@ struct DataTerm {
     iyz: f32,
 }
 
+/// Rows handed to one rayon task at least (small scales are not worth splitting finely).
+const ROWS_PER_TASK: usize = 24;
+
 /// Red-black index helpers: pixel `(x, y)` has colour `(x + y) % 2` and index `x / 2` in its
 /// row of that colour's array (rows of `(w + 1) / 2` entries).
 struct Checker {
@@ -508,20 +512,24 @@ struct Checker {
 impl Checker {
     fn split(&self, full: &[f32]) -> [Vec<f32>; 2] {
         let mut out = [vec![0.0f32; self.hw * self.h], vec![0.0f32; self.hw * self.h]];
-        for y in 0..self.h {
-            for x in 0..self.w {
-                out[(x + y) % 2][y * self.hw + x / 2] = full[y * self.w + x];
-            }
-        }
+        let [a, b] = &mut out;
+        a.par_chunks_mut(self.hw).zip(b.par_chunks_mut(self.hw)).enumerate().with_min_len(ROWS_PER_TASK).for_each(
+            |(y, (ra, rb))| {
+                for x in 0..self.w {
+                    let dst = if (x + y) % 2 == 0 { &mut *ra } else { &mut *rb };
+                    dst[x / 2] = full[y * self.w + x];
+                }
+            },
+        );
         out
     }
 
     fn merge(&self, parts: &[Vec<f32>; 2], full: &mut [f32]) {
-        for y in 0..self.h {
-            for x in 0..self.w {
-                full[y * self.w + x] = parts[(x + y) % 2][y * self.hw + x / 2];
+        full.par_chunks_mut(self.w).enumerate().with_min_len(ROWS_PER_TASK).for_each(|(y, row)| {
+            for (x, v) in row.iter_mut().enumerate() {
+                *v = parts[(x + y) % 2][y * self.hw + x / 2];
             }
-        }
+        });
     }
 }
 
@@ -539,7 +547,7 @@ fn refine(i0: &Img, i1: &Img, u: &mut Img, v: &mut Img, p: &DisParams) {
     // Linearisation at the current flow: warped second image and the data terms.
     let (us, vs) = (u.as_slice(), v.as_slice());
     let mut data = vec![DataTerm::default(); n];
-    data.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+    data.par_chunks_mut(w).enumerate().with_min_len(ROWS_PER_TASK).for_each(|(y, row)| {
         for (x, d) in row.iter_mut().enumerate() {
             let k = y * w + x;
             let (fx, fy) = (x as f32 + us[k], y as f32 + vs[k]);
@@ -571,21 +579,26 @@ fn refine(i0: &Img, i1: &Img, u: &mut Img, v: &mut Img, p: &DisParams) {
         // Smoothness weights per pixel: alpha * Psi'(|grad (u + du)|^2 + |grad (v + dv)|^2).
         let smooth: Vec<f32> = (0..n)
             .into_par_iter()
+            .with_min_len(ROWS_PER_TASK * w)
             .map(|k| {
                 let (x, y) = (k % w, k / w);
                 let fu = |q: usize| us[q] + du[q];
                 let fv = |q: usize| vs[q] + dv[q];
                 let (r, b) = (if x + 1 < w { k + 1 } else { k }, if y + 1 < h { k + w } else { k });
-                let g = (fu(r) - fu(k)).powi(2) + (fu(b) - fu(k)).powi(2) + (fv(r) - fv(k)).powi(2) + (fv(b) - fv(k)).powi(2);
+                let g = (fu(r) - fu(k)).powi(2)
+                    + (fu(b) - fu(k)).powi(2)
+                    + (fv(r) - fv(k)).powi(2)
+                    + (fv(b) - fv(k)).powi(2);
                 p.alpha * psi_prime(g)
             })
             .collect();
-        sys.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        sys.par_chunks_mut(w).enumerate().with_min_len(ROWS_PER_TASK).for_each(|(y, row)| {
             for (x, out) in row.iter_mut().enumerate() {
                 let k = y * w + x;
                 let d = &data[k];
                 let (a, b) = (du[k], dv[k]);
-                let r1 = p.delta * psi_prime((d.iz + d.ix * a + d.iy * b).powi(2)) / (d.ix * d.ix + d.iy * d.iy + zeta2);
+                let r1 =
+                    p.delta * psi_prime((d.iz + d.ix * a + d.iy * b).powi(2)) / (d.ix * d.ix + d.iy * d.iy + zeta2);
                 let r2 = p.gamma * psi_prime((d.ixz + d.ixx * a + d.ixy * b).powi(2))
                     / (d.ixx * d.ixx + d.ixy * d.ixy + zeta2);
                 let r3 = p.gamma * psi_prime((d.iyz + d.ixy * a + d.iyy * b).powi(2))
@@ -627,39 +640,47 @@ fn refine(i0: &Img, i1: &Img, u: &mut Img, v: &mut Img, p: &DisParams) {
             for colour in 0..2 {
                 let [red_u, black_u] = &mut dus;
                 let [red_v, black_v] = &mut dvs;
-                let (cur_u, other_u, cur_v, other_v) =
-                    if colour == 0 { (red_u, &*black_u, red_v, &*black_v) } else { (black_u, &*red_u, black_v, &*red_v) };
-                cur_u.par_chunks_mut(hw).zip(cur_v.par_chunks_mut(hw)).enumerate().for_each(|(y, (ru, rv))| {
-                    let start = (y + colour) % 2;
-                    let row = y * hw;
-                    for x in (start..w).step_by(2) {
-                        let k = y * w + x;
-                        let c = &sys[k];
-                        let i = x / 2;
-                        let mut nu = 0.0f32;
-                        let mut nv = 0.0f32;
-                        if c[5] > 0.0 {
-                            nu += c[5] * other_u[row + (x - 1) / 2];
-                            nv += c[5] * other_v[row + (x - 1) / 2];
+                let (cur_u, other_u, cur_v, other_v) = if colour == 0 {
+                    (red_u, &*black_u, red_v, &*black_v)
+                } else {
+                    (black_u, &*red_u, black_v, &*red_v)
+                };
+                cur_u
+                    .par_chunks_mut(hw)
+                    .zip(cur_v.par_chunks_mut(hw))
+                    .enumerate()
+                    .with_min_len(ROWS_PER_TASK)
+                    .for_each(|(y, (ru, rv))| {
+                        let start = (y + colour) % 2;
+                        let row = y * hw;
+                        for x in (start..w).step_by(2) {
+                            let k = y * w + x;
+                            let c = &sys[k];
+                            let i = x / 2;
+                            let mut nu = 0.0f32;
+                            let mut nv = 0.0f32;
+                            if c[5] > 0.0 {
+                                nu += c[5] * other_u[row + (x - 1) / 2];
+                                nv += c[5] * other_v[row + (x - 1) / 2];
+                            }
+                            if c[6] > 0.0 {
+                                nu += c[6] * other_u[row + (x + 1) / 2];
+                                nv += c[6] * other_v[row + (x + 1) / 2];
+                            }
+                            if c[7] > 0.0 {
+                                nu += c[7] * other_u[row - hw + i];
+                                nv += c[7] * other_v[row - hw + i];
+                            }
+                            if c[8] > 0.0 {
+                                nu += c[8] * other_u[row + hw + i];
+                                nv += c[8] * other_v[row + hw + i];
+                            }
+                            let new_u = (c[3] + nu - c[0] * rv[i]) * c[1];
+                            ru[i] = (1.0 - p.omega) * ru[i] + p.omega * new_u;
+                            let new_v = (c[4] + nv - c[0] * ru[i]) * c[2];
+                            rv[i] = (1.0 - p.omega) * rv[i] + p.omega * new_v;
                         }
-                        if c[6] > 0.0 {
-                            nu += c[6] * other_u[row + (x + 1) / 2];
-                            nv += c[6] * other_v[row + (x + 1) / 2];
-                        }
-                        if c[7] > 0.0 {
-                            nu += c[7] * other_u[row - hw + i];
-                            nv += c[7] * other_v[row - hw + i];
-                        }
-                        if c[8] > 0.0 {
-                            nu += c[8] * other_u[row + hw + i];
-                            nv += c[8] * other_v[row + hw + i];
-                        }
-                        let new_u = (c[3] + nu - c[0] * rv[i]) * c[1];
-                        ru[i] = (1.0 - p.omega) * ru[i] + p.omega * new_u;
-                        let new_v = (c[4] + nv - c[0] * ru[i]) * c[2];
-                        rv[i] = (1.0 - p.omega) * rv[i] + p.omega * new_v;
-                    }
-                });
+                    });
             }
         }
         ck.merge(&dus, &mut du);
