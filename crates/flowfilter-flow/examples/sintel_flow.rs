@@ -40,6 +40,29 @@ fn main() {
                 let noc = epe(&f, &pair.flow, Some(&pair.non_occluded)).map_or(f64::NAN, |e| e.0);
                 println!("| {pass} | {scene} | {name} | {all:.3} | {noc:.3} | {:.1} |", times[times.len() / 2]);
             }
+            // Sparse LK on OpenCV's grid (16 px step, offset 8), as in fixtures/peers/flow_opencv.json.
+            let grid: Vec<[usize; 2]> = (0..)
+                .map(|j| 8 + 16 * j)
+                .take_while(|y| *y < a.height() - 8)
+                .flat_map(|y| (0..).map(|i| 8 + 16 * i).take_while(|x| *x < a.width() - 8).map(move |x| [x, y]))
+                .collect();
+            let pts: Vec<[f32; 2]> = grid.iter().map(|&[x, y]| [x as f32, y as f32]).collect();
+            let lk = LucasKanade::default();
+            let mut times = vec![];
+            let mut tracked = vec![];
+            for _ in 0..repeats {
+                let t = Instant::now();
+                tracked = lk.sparse(&a, &b, &pts, None).expect("lk");
+                times.push(t.elapsed().as_secs_f64() * 1e3);
+            }
+            times.sort_by(f64::total_cmp);
+            let rows: Vec<([usize; 2], Option<[f32; 2]>)> = grid.iter().copied().zip(tracked).collect();
+            let (e, n) = flowfilter_flow::metrics::epe_at_points(&rows, &pair.flow).expect("points");
+            println!(
+                "| {pass} | {scene} | lk-sparse ({n}/{} points) | {e:.3} | - | {:.1} |",
+                grid.len(),
+                times[times.len() / 2]
+            );
         }
     }
 }

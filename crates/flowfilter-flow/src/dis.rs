@@ -664,8 +664,8 @@ fn refine(i0: &Img, i1: &Img, u: &mut Img, v: &mut Img, p: &DisParams) {
                                 nv += c[5] * other_v[row + (x - 1) / 2];
                             }
                             if c[6] > 0.0 {
-                                nu += c[6] * other_u[row + (x + 1) / 2];
-                                nv += c[6] * other_v[row + (x + 1) / 2];
+                                nu += c[6] * other_u[row + x.div_ceil(2)];
+                                nv += c[6] * other_v[row + x.div_ceil(2)];
                             }
                             if c[7] > 0.0 {
                                 nu += c[7] * other_u[row - hw + i];

@@ -14,6 +14,8 @@ mod field;
 pub mod flo;
 pub mod lk;
 pub mod metrics;
+#[cfg(feature = "onnx")]
+pub mod onnx;
 pub mod sintel;
 pub mod viz;
 

@@ -58,3 +58,18 @@ fn bad_values_are_named() {
     let missing = PipelineConfig::from_file(Path::new("/nonexistent/c.toml")).unwrap_err().to_string();
     assert!(missing.contains("/nonexistent/c.toml") && missing.contains("cannot read"), "{missing}");
 }
+
+#[test]
+fn bench_protocols_name_known_methods_and_configs() {
+    // The protocols of configs/bench/ are read by xtask; here: every method they name builds.
+    for entry in std::fs::read_dir(configs_dir().join("bench")).unwrap() {
+        let path = entry.unwrap().path();
+        let v: toml::Value = toml::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        let pipeline = v["pipeline"].as_str().unwrap();
+        let base = PipelineConfig::from_file(&configs_dir().join("..").join(pipeline)).unwrap();
+        for m in v["methods"].as_array().unwrap() {
+            let c = PipelineConfig { method: m.as_str().unwrap().into(), ..base.clone() };
+            flowfilter_pipeline::Pipeline::from_config(c).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        }
+    }
+}

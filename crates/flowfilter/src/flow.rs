@@ -19,7 +19,8 @@ pub struct FlowArgs {
     /// Second image.
     #[arg(long)]
     pub to: PathBuf,
-    /// lk (dense by grid + interpolation), dis (OpenCV "medium" preset), dis-fast, dis-ultrafast.
+    /// lk (dense by grid + interpolation), dis (OpenCV "medium" preset), dis-fast, dis-ultrafast,
+    /// or onnx:MODEL.onnx (feature `onnx`; the contract MODEL.toml beside it).
     #[arg(long, default_value = "dis")]
     pub method: String,
     /// Ground-truth flow (.flo): print the end-point error.
@@ -39,8 +40,13 @@ fn estimator(name: &str) -> anyhow::Result<Box<dyn FlowEstimator>> {
         "dis" | "dis-medium" => Box::new(Dis::new(DisParams::medium())?),
         "dis-fast" => Box::new(Dis::new(DisParams::fast())?),
         "dis-ultrafast" => Box::new(Dis::new(DisParams::ultrafast())?),
+        #[cfg(feature = "onnx")]
         other if other.starts_with("onnx:") => {
-            bail!("--method {other}: ONNX models need a build with the `onnx` feature, which is not available yet")
+            Box::new(flowfilter_flow::onnx::OnnxFlow::load(std::path::Path::new(&other["onnx:".len()..]))?)
+        }
+        #[cfg(not(feature = "onnx"))]
+        other if other.starts_with("onnx:") => {
+            bail!("--method {other}: ONNX networks need a build with the `onnx` feature (cargo build --features onnx)")
         }
         other => bail!("--method '{other}': expected lk, dis, dis-fast or dis-ultrafast"),
     })

@@ -66,3 +66,26 @@ fn mismatched_sizes_and_unknown_methods_are_errors() {
         flowfilter(&["flow", "--from", a.to_str().unwrap(), "--to", a.to_str().unwrap(), "--method", "farneback"]);
     assert!(!ok && err.contains("farneback"), "{err}");
 }
+
+#[cfg(feature = "onnx")]
+#[test]
+fn onnx_networks_run_from_the_cli() {
+    let models = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/models");
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("net.flo");
+    let method = format!("onnx:{}", models.join("tiny_warp.onnx").display());
+    let (ok, stdout, stderr) = flowfilter(&[
+        "flow",
+        "--from",
+        models.join("pair_a.png").to_str().unwrap(),
+        "--to",
+        models.join("pair_b.png").to_str().unwrap(),
+        "--method",
+        &method,
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{stderr}");
+    assert!(stdout.contains("onnx:tiny_warp.onnx: 64x48"), "{stdout}");
+    assert_eq!(flo::read(&out).unwrap().width(), 64);
+}
