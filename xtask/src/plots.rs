@@ -4,6 +4,8 @@
 use crate::bench::PairResult;
 use anyhow::Context;
 use flowfilter_pipeline::StageTimes;
+use plotters::coord::Shift;
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
@@ -33,6 +35,40 @@ const COLOURS: [RGBColor; 8] = [
 
 fn colour(i: usize) -> RGBColor {
     COLOURS[i % COLOURS.len()]
+}
+
+/// Bars' legend swatch.
+fn swatch(c: RGBColor) -> impl Fn((i32, i32)) -> Rectangle<(i32, i32)> {
+    move |(x, y)| Rectangle::new([(x, y - 5), (x + 15, y + 5)], c.filled())
+}
+
+/// Labels for categories centred at 0.5, 1.5, ... on a continuous axis.
+fn category_labels(labels: Vec<String>) -> impl Fn(&f64) -> String {
+    move |v| {
+        let i = (v - 0.5).round();
+        if (v - 0.5 - i).abs() < 1e-6 && i >= 0.0 && (i as usize) < labels.len() {
+            labels[i as usize].clone()
+        } else {
+            String::new()
+        }
+    }
+}
+
+/// Draw the legend box and write the file.
+fn finish<'b>(
+    chart: &mut ChartContext<'b, SVGBackend<'b>, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
+    root: &DrawingArea<SVGBackend<'b>, Shift>,
+    position: SeriesLabelPosition,
+) -> anyhow::Result<()> {
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .position(position)
+        .draw()
+        .map_err(plot_error)?;
+    root.present().map_err(plot_error)?;
+    Ok(())
 }
 
 fn plot_error(e: impl std::fmt::Display) -> anyhow::Error {
@@ -94,15 +130,7 @@ fn error_vs_step(path: &Path, pairs: &[PairResult], methods: &[String]) -> anyho
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
         chart.draw_series(pts.iter().map(|&p| Circle::new(p, 4, c.filled()))).map_err(plot_error)?;
     }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .position(SeriesLabelPosition::UpperLeft)
-        .draw()
-        .map_err(plot_error)?;
-    root.present().map_err(plot_error)?;
-    Ok(())
+    finish(&mut chart, &root, SeriesLabelPosition::UpperLeft)
 }
 
 /// Grouped bars: mean rotation-angle error per object and method.
@@ -129,19 +157,12 @@ fn per_object(path: &Path, summary: &[MethodObject], methods: &[String]) -> anyh
         .y_label_area_size(55)
         .build_cartesian_2d(0.0..n, 0.0..ymax)
         .map_err(plot_error)?;
-    let labels = objects.clone();
+    let labels = category_labels(objects.iter().map(|o| o.to_string()).collect());
     chart
         .configure_mesh()
         .disable_x_mesh()
         .x_labels(objects.len() * 2 + 1)
-        .x_label_formatter(&move |x| {
-            let i = (x - 0.5).round();
-            if (x - 0.5 - i).abs() < 1e-6 && i >= 0.0 && (i as usize) < labels.len() {
-                labels[i as usize].to_string()
-            } else {
-                String::new()
-            }
-        })
+        .x_label_formatter(&labels)
         .y_desc("mean rotation-angle error (degrees)")
         .draw()
         .map_err(plot_error)?;
@@ -158,21 +179,9 @@ fn per_object(path: &Path, summary: &[MethodObject], methods: &[String]) -> anyh
                 })
             })
             .collect();
-        chart
-            .draw_series(bars)
-            .map_err(plot_error)?
-            .label(m.clone())
-            .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 15, y + 5)], c.filled()));
+        chart.draw_series(bars).map_err(plot_error)?.label(m.clone()).legend(swatch(c));
     }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .position(SeriesLabelPosition::UpperRight)
-        .draw()
-        .map_err(plot_error)?;
-    root.present().map_err(plot_error)?;
-    Ok(())
+    finish(&mut chart, &root, SeriesLabelPosition::UpperRight)
 }
 
 /// Stacked bars: mean time per stage for each method (all objects).
@@ -207,19 +216,12 @@ fn stage_times(path: &Path, summary: &[MethodObject], methods: &[String]) -> any
         .y_label_area_size(130)
         .build_cartesian_2d(0.0..xmax, 0.0..n)
         .map_err(plot_error)?;
-    let labels: Vec<String> = rows.iter().map(|r| r.0.to_string()).collect();
+    let labels = category_labels(rows.iter().map(|r| r.0.to_string()).collect());
     chart
         .configure_mesh()
         .disable_y_mesh()
         .y_labels(rows.len() * 2 + 1)
-        .y_label_formatter(&move |y| {
-            let i = (y - 0.5).round();
-            if (y - 0.5 - i).abs() < 1e-6 && i >= 0.0 && (i as usize) < labels.len() {
-                labels[i as usize].clone()
-            } else {
-                String::new()
-            }
-        })
+        .y_label_formatter(&labels)
         .x_desc("milliseconds")
         .draw()
         .map_err(plot_error)?;
@@ -234,19 +236,7 @@ fn stage_times(path: &Path, summary: &[MethodObject], methods: &[String]) -> any
                 Rectangle::new([(start, i as f64 + 0.15), (start + s[k].1, i as f64 + 0.85)], c.filled())
             })
             .collect();
-        chart
-            .draw_series(bars)
-            .map_err(plot_error)?
-            .label(name.to_string())
-            .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 15, y + 5)], c.filled()));
+        chart.draw_series(bars).map_err(plot_error)?.label(name.to_string()).legend(swatch(c));
     }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .position(SeriesLabelPosition::LowerRight)
-        .draw()
-        .map_err(plot_error)?;
-    root.present().map_err(plot_error)?;
-    Ok(())
+    finish(&mut chart, &root, SeriesLabelPosition::LowerRight)
 }

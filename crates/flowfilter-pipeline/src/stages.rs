@@ -40,6 +40,13 @@ pub struct PreparedFrame {
     pub seconds: f64,
 }
 
+impl PreparedFrame {
+    /// The frame as the correspondence search sees it.
+    pub fn view(&self) -> FlowView<'_> {
+        FlowView { gray: &self.gray, depth: &self.depth, mask: &self.mask }
+    }
+}
+
 /// Turns an RGB-D frame into a [`PreparedFrame`].
 pub trait FramePreparer: Send + Sync {
     /// Prepare one frame.
@@ -123,13 +130,7 @@ impl CorrespondenceFinder for FlowCorrespondenceFinder {
     }
 
     fn find(&self, model: &PreparedFrame, target: &PreparedFrame) -> Result<FlowPairs, PipelineError> {
-        Ok(flow_correspondences(
-            self.estimator.as_ref(),
-            &FlowView { gray: &model.gray, depth: &model.depth, mask: &model.mask },
-            &FlowView { gray: &target.gray, depth: &target.depth, mask: &target.mask },
-            &model.rays,
-            &self.params,
-        )?)
+        Ok(flow_correspondences(self.estimator.as_ref(), &model.view(), &target.view(), &model.rays, &self.params)?)
     }
 
     fn find_guided(
@@ -138,13 +139,14 @@ impl CorrespondenceFinder for FlowCorrespondenceFinder {
         target: &PreparedFrame,
         guide: &Pose,
     ) -> Result<FlowPairs, PipelineError> {
+        let guide = FlowGuide { camera: &model.sensor.color, pose: guide };
         Ok(flow_correspondences_guided(
             self.estimator.as_ref(),
-            &FlowView { gray: &model.gray, depth: &model.depth, mask: &model.mask },
-            &FlowView { gray: &target.gray, depth: &target.depth, mask: &target.mask },
+            &model.view(),
+            &target.view(),
             &model.rays,
             &self.params,
-            Some(FlowGuide { camera: &model.sensor.color, pose: guide }),
+            Some(guide),
         )?)
     }
 }

@@ -33,6 +33,14 @@ fn capture() -> &'static Path {
     .1
 }
 
+/// `flowfilter estimate` on the capture, NP3, 0 -> `to`, with `extra` arguments.
+fn estimate(to: &str, extra: &[&str]) -> (bool, String, String) {
+    let dir = capture().to_str().unwrap().to_string();
+    let mut args = vec!["estimate", "--object", &dir, "--camera", "NP3", "--from", "0", "--to", to];
+    args.extend_from_slice(extra);
+    flowfilter(&args)
+}
+
 /// The JSON's shape: every number replaced by "number" and every boolean by "bool" (values are
 /// checked separately).
 fn shape(v: &serde_json::Value) -> serde_json::Value {
@@ -72,26 +80,12 @@ fn json_output_has_the_documented_schema_and_is_accurate() {
 
 #[test]
 fn human_output_saved_clouds_and_overlay() {
-    let dir = capture();
     let tmp = tempfile::tempdir().unwrap();
     let (plys, viz) = (tmp.path().join("clouds"), tmp.path().join("viz.png"));
-    let (ok, stdout, stderr) = flowfilter(&[
-        "estimate",
-        "--object",
-        dir.to_str().unwrap(),
-        "--camera",
-        "NP3",
-        "--from",
-        "0",
-        "--to",
+    let (ok, stdout, stderr) = estimate(
         "15",
-        "--method",
-        "filterreg",
-        "--save-ply",
-        plys.to_str().unwrap(),
-        "--viz",
-        viz.to_str().unwrap(),
-    ]);
+        &["--method", "filterreg", "--save-ply", plys.to_str().unwrap(), "--viz", viz.to_str().unwrap()],
+    );
     assert!(ok, "{stderr}");
     for needle in ["with filterreg", "rotation", "time (ms): depth", "vs ground truth: rotation-angle error"] {
         assert!(stdout.contains(needle), "missing '{needle}' in:\n{stdout}");
@@ -116,29 +110,14 @@ fn flowfilter_depth_points(path: &Path) -> usize {
 
 #[test]
 fn bad_input_is_reported() {
-    let dir = capture();
-    let d = dir.to_str().unwrap();
-    let (ok, _, err) = flowfilter(&["estimate", "--object", d, "--camera", "NP3", "--from", "0", "--to", "30"]);
+    let (ok, _, err) = estimate("30", &[]);
     assert!(!ok && err.contains("no frame NP3_30"), "{err}");
-    let (ok, _, err) =
-        flowfilter(&["estimate", "--object", d, "--camera", "NP3", "--from", "0", "--to", "15", "--method", "ransac"]);
+    let (ok, _, err) = estimate("15", &["--method", "ransac"]);
     assert!(!ok && err.contains("unknown method 'ransac'"), "{err}");
     let tmp = tempfile::tempdir().unwrap();
     let cfg = tmp.path().join("typo.toml");
     std::fs::write(&cfg, "[flow]\nestimater = \"lk\"\n").unwrap();
-    let (ok, _, err) = flowfilter(&[
-        "estimate",
-        "--object",
-        d,
-        "--camera",
-        "NP3",
-        "--from",
-        "0",
-        "--to",
-        "15",
-        "--config",
-        cfg.to_str().unwrap(),
-    ]);
+    let (ok, _, err) = estimate("15", &["--config", cfg.to_str().unwrap()]);
     assert!(!ok && err.contains("typo.toml") && err.contains("estimater"), "{err}");
     let (ok, _, err) =
         flowfilter(&["estimate", "--object", "/nonexistent", "--camera", "NP3", "--from", "0", "--to", "15"]);
