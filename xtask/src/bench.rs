@@ -352,8 +352,11 @@ struct Summary {
     mean_angle_error_deg: Option<f64>,
     median_angle_error_deg: Option<f64>,
     mean_geodesic_error_deg: Option<f64>,
+    median_geodesic_error_deg: Option<f64>,
     mean_translation_error_mm: Option<f64>,
+    median_translation_error_mm: Option<f64>,
     mean_add_s_mm: Option<f64>,
+    median_add_s_mm: Option<f64>,
     success_rate: Option<f64>,
     mean_seconds: Option<f64>,
     /// Mean time per stage over the pairs that ran, ms.
@@ -374,6 +377,9 @@ fn summarise(results: &[PairResult]) -> Vec<Summary> {
             let ok: Vec<&PoseErrors> = rows.iter().filter_map(|r| r.errors.as_ref()).collect();
             let col = |f: &dyn Fn(&PoseErrors) -> f64| ok.iter().map(|e| f(e)).collect::<Vec<_>>();
             let angle = mean_median(&col(&|e| e.angle_error_deg));
+            let geodesic = mean_median(&col(&|e| e.geodesic_error_deg));
+            let translation = mean_median(&col(&|e| e.translation_error_m * 1e3));
+            let add_s = mean_median(&ok.iter().filter_map(|e| e.add_s_m.map(|v| v * 1e3)).collect::<Vec<_>>());
             let secs: Vec<f64> = rows.iter().filter_map(|r| r.seconds).collect();
             Summary {
                 object,
@@ -382,10 +388,12 @@ fn summarise(results: &[PairResult]) -> Vec<Summary> {
                 failed: rows.iter().filter(|r| r.failure.is_some()).count(),
                 mean_angle_error_deg: angle.map(|a| a.0),
                 median_angle_error_deg: angle.map(|a| a.1),
-                mean_geodesic_error_deg: mean_median(&col(&|e| e.geodesic_error_deg)).map(|a| a.0),
-                mean_translation_error_mm: mean_median(&col(&|e| e.translation_error_m * 1e3)).map(|a| a.0),
-                mean_add_s_mm: mean_median(&ok.iter().filter_map(|e| e.add_s_m.map(|v| v * 1e3)).collect::<Vec<_>>())
-                    .map(|a| a.0),
+                mean_geodesic_error_deg: geodesic.map(|a| a.0),
+                median_geodesic_error_deg: geodesic.map(|a| a.1),
+                mean_translation_error_mm: translation.map(|a| a.0),
+                median_translation_error_mm: translation.map(|a| a.1),
+                mean_add_s_mm: add_s.map(|a| a.0),
+                median_add_s_mm: add_s.map(|a| a.1),
                 success_rate: (!ok.is_empty())
                     .then(|| ok.iter().filter(|e| e.success).count() as f64 / ok.len() as f64),
                 mean_seconds: mean_median(&secs).map(|a| a.0),
@@ -619,4 +627,84 @@ fn check(path: &Path, protocol: &Protocol) -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A real-layout object (the h5py fixture) beside a damaged one: the damaged one is skipped
+    /// with its reason, the other runs, and results.json passes the check.
+    #[test]
+    fn damaged_objects_are_skipped_and_the_run_continues() {
+        let tmp = tempfile::tempdir().unwrap();
+        let data = tmp.path().join("data");
+        std::fs::create_dir_all(data.join("broken_object")).unwrap();
+        std::fs::write(data.join("broken_object/calibration.h5"), b"not hdf5").unwrap();
+        let fixture = repo_root().join("fixtures/bigbird/latest/tiny_spheres");
+        let good = data.join("tiny_spheres");
+        std::fs::create_dir_all(&good).unwrap();
+        for entry in walk(&fixture) {
+            let rel = entry.strip_prefix(&fixture).unwrap();
+            std::fs::create_dir_all(good.join(rel).parent().unwrap()).unwrap();
+            std::fs::copy(&entry, good.join(rel)).unwrap();
+        }
+        let protocol = tmp.path().join("protocol.toml");
+        std::fs::write(
+            &protocol,
+            "cameras = [\"NP1\", \"NP5\"]\nbase_angles = [0]\nsteps = [3, 30]\nmethods = [\"icp-pt2pl\", \"filterreg-pt2pt\"]\n\
+             pipeline = \"configs/flowfilter.toml\"\n",
+        )
+        .unwrap();
+        let out = tmp.path().join("results");
+        let args = BenchArgs {
+            quick: false,
+            data: Some(data),
+            meshes: None,
+            protocol: Some(protocol),
+            methods: None,
+            out: out.clone(),
+            voxel: Some(0.002),
+            check: true,
+        };
+        run(&args).unwrap();
+        let run_dir = std::fs::read_dir(&out).unwrap().next().unwrap().unwrap().path();
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(run_dir.join("results.json")).unwrap()).unwrap();
+        let skipped = v["skipped_objects"].as_array().unwrap();
+        assert_eq!(skipped.len(), 1);
+        assert!(skipped[0].as_str().unwrap().starts_with("broken_object:"), "{skipped:?}");
+        assert_eq!(v["pairs"].as_array().unwrap().len(), 2 * 2 * 2);
+        for f in ["pairs.csv", "summary.md", "error_vs_step.svg", "per_object.svg", "stage_times.svg"] {
+            assert!(run_dir.join(f).is_file(), "{f} missing");
+        }
+    }
+
+    fn walk(dir: &Path) -> Vec<PathBuf> {
+        let mut out = vec![];
+        for e in std::fs::read_dir(dir).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() { out.extend(walk(&p)) } else { out.push(p) }
+        }
+        out
+    }
+
+    #[test]
+    fn protocols_reject_unknown_keys_and_cameras() {
+        let e = Protocol::from_toml(
+            "cameras = [\"NP1\"]\nbase_angles = [0]\nsteps = [3]\nmethods = [\"cpd\"]\nstep = 3\n",
+            "p.toml",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("p.toml") && e.contains("step"), "{e}");
+        let e =
+            Protocol::from_toml("cameras = [\"NP9\"]\nbase_angles = [0]\nsteps = [3]\nmethods = [\"cpd\"]\n", "p.toml")
+                .unwrap_err()
+                .to_string();
+        assert!(e.contains("NP9"), "{e}");
+        for text in [FULL_PROTOCOL, QUICK_PROTOCOL] {
+            Protocol::from_toml(text, "shipped").unwrap();
+        }
+    }
 }
