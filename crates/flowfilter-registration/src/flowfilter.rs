@@ -9,6 +9,7 @@
 use crate::error::RegistrationError;
 use crate::evaluate::visible_residual;
 use crate::filterreg::{FilterReg, FilterRegConfig};
+use crate::icp::{Icp, IcpConfig, IcpVariant};
 use crate::problem::{Correspondences, Registrar, Registration, RegistrationProblem, validate_problem};
 use flowfilter_geometry::{KnnIndex, Point3, Pose, weighted_kabsch};
 use rand::{Rng, SeedableRng};
@@ -59,6 +60,10 @@ pub struct FlowFilterConfig {
     pub geometric_ratio: f64,
     /// Truncation of the residual (metres).
     pub geometric_tau_m: f64,
+    /// Final point-to-plane ICP polish with this correspondence gate (metres; 0 = off): the GMM
+    /// estimate is biased by its own smoothing on partial views, a short point-to-plane ICP from
+    /// it is not (and cannot slide far: the gate is a few millimetres).
+    pub polish_distance_m: f64,
     /// The FilterReg part.
     pub filterreg: FilterRegConfig,
 }
@@ -77,6 +82,7 @@ impl Default for FlowFilterConfig {
             geometric_margin_m: 0.001,
             geometric_ratio: 1.8,
             geometric_tau_m: 0.01,
+            polish_distance_m: 0.005,
             filterreg: FilterRegConfig::default(),
         }
     }
@@ -142,6 +148,7 @@ impl FlowFilter {
             || config.geometric_margin_m < 0.0
             || config.geometric_ratio < 1.0
             || config.geometric_tau_m <= 0.0
+            || config.polish_distance_m < 0.0
         {
             return Err(RegistrationError::Config(
                 "flowfilter needs ransac_iterations > 0, inlier_threshold_m > 0, correspondence_weight >= 0, \
@@ -163,6 +170,48 @@ impl Registrar for FlowFilter {
     }
 
     fn register(&self, p: &RegistrationProblem) -> Result<Registration, RegistrationError> {
+        let r = self.solve(p)?;
+        self.polish(p, r)
+    }
+}
+
+impl FlowFilter {
+    /// Point-to-plane ICP from `r` with a short gate (see `polish_distance_m`); warnings kept.
+    fn polish(&self, p: &RegistrationProblem, r: Registration) -> Result<Registration, RegistrationError> {
+        let d = self.config.polish_distance_m;
+        if d <= 0.0 || self.config.mode == FlowFilterMode::FlowOnly || p.target.normals.is_none() {
+            return Ok(r);
+        }
+        let icp = Icp::new(IcpConfig {
+            variant: IcpVariant::PointToPlane,
+            max_correspondence_distance: d,
+            max_iterations: 30,
+            ..IcpConfig::default()
+        })?;
+        let mut plain = RegistrationProblem::new(p.source.clone(), p.target.clone()).with_init(r.transform);
+        plain.correspondences = None;
+        let q = icp.register(&plain)?;
+        // The polish must not undo what the flow decided (a slide along a symmetry): the flow
+        // pairs' median residual may not grow by more than 1 mm (or half of itself).
+        if let Some(c) = p.correspondences.as_ref().filter(|c| c.weights.iter().any(|w| *w > 0.0)) {
+            let median = |t: &Pose| {
+                let mut d: Vec<f64> = (0..c.len())
+                    .filter(|&i| c.weights[i] > 0.0)
+                    .map(|i| (t * c.source[i] - c.target[i]).norm())
+                    .collect();
+                d.sort_by(f64::total_cmp);
+                d[d.len() / 2]
+            };
+            let (before, after) = (median(&r.transform), median(&q.transform));
+            if after > before + (0.5 * before).max(0.001) {
+                return Ok(r);
+            }
+        }
+        Ok(Registration { transform: q.transform, fitness: q.fitness, inlier_rmse: q.inlier_rmse, ..r })
+    }
+
+    /// Flow Filter before the polish.
+    fn solve(&self, p: &RegistrationProblem) -> Result<Registration, RegistrationError> {
         validate_problem(p, None)?;
         let cfg = &self.config;
         let usable = p.correspondences.as_ref().map_or(0, |c| c.weights.iter().filter(|w| **w > 0.0).count());
