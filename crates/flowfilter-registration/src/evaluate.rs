@@ -5,14 +5,24 @@ use nalgebra::{Matrix6, Vector6};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+/// Points per chunk of the order-fixed parallel sums.
+const DETERMINISTIC_CHUNK: usize = 512;
+
 /// Fitness (fraction of source points with a target point within `max_distance`) and the RMSE of
 /// those pairs, for the source moved by `transform` (as Open3D's `evaluate_registration`).
 pub fn evaluate(source: &[Point3], target: &KnnIndex, transform: &Pose, max_distance: f64) -> (f64, f64) {
+    // Fixed chunks summed in order: the same bits whatever the thread count or scheduling.
     let (count, sum) = source
-        .par_iter()
-        .filter_map(|p| target.nearest(&(transform * p)).filter(|n| n.dist2 <= max_distance * max_distance))
-        .map(|n| (1usize, n.dist2))
-        .reduce(|| (0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
+        .par_chunks(DETERMINISTIC_CHUNK)
+        .map(|chunk| {
+            chunk
+                .iter()
+                .filter_map(|p| target.nearest(&(transform * p)).filter(|n| n.dist2 <= max_distance * max_distance))
+                .fold((0usize, 0.0f64), |a, n| (a.0 + 1, a.1 + n.dist2))
+        })
+        .collect::<Vec<_>>()
+        .into_iter()
+        .fold((0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
     if count == 0 { (0.0, 0.0) } else { (count as f64 / source.len() as f64, (sum / count as f64).sqrt()) }
 }
 
@@ -103,15 +113,20 @@ impl RobustKernel {
 /// perturbation) minimising `sum w_i (n_i . (exp(xi) x_i - y_i))^2` to first order. `None` when
 /// the normal equations are singular (e.g. all normals parallel).
 pub fn point_to_plane_step(x: &[Point3], y: &[Point3], n: &[Vector3], w: &[f64]) -> Option<Pose> {
-    let (h, g) = (0..x.len())
-        .into_par_iter()
-        .map(|i| {
-            let r = n[i].dot(&(x[i] - y[i]));
-            let c = x[i].coords.cross(&n[i]);
-            let j = Vector6::new(n[i].x, n[i].y, n[i].z, c.x, c.y, c.z);
-            (w[i] * j * j.transpose(), w[i] * r * j)
+    let indices: Vec<usize> = (0..x.len()).collect();
+    let (h, g) = indices
+        .par_chunks(DETERMINISTIC_CHUNK)
+        .map(|chunk| {
+            chunk.iter().fold((Matrix6::zeros(), Vector6::zeros()), |(h, g), &i| {
+                let r = n[i].dot(&(x[i] - y[i]));
+                let c = x[i].coords.cross(&n[i]);
+                let j = Vector6::new(n[i].x, n[i].y, n[i].z, c.x, c.y, c.z);
+                (h + w[i] * j * j.transpose(), g + w[i] * r * j)
+            })
         })
-        .reduce(|| (Matrix6::zeros(), Vector6::zeros()), |a, b| (a.0 + b.0, a.1 + b.1));
+        .collect::<Vec<_>>()
+        .into_iter()
+        .fold((Matrix6::zeros(), Vector6::zeros()), |a, b| (a.0 + b.0, a.1 + b.1));
     let xi = h.cholesky()?.solve(&(-g));
     xi.iter().all(|v| v.is_finite()).then(|| se3::exp(&xi))
 }

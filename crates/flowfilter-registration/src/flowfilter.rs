@@ -170,8 +170,9 @@ impl Registrar for FlowFilter {
     }
 
     fn register(&self, p: &RegistrationProblem) -> Result<Registration, RegistrationError> {
-        let r = self.solve(p)?;
-        self.polish(p, r)
+        let (r, flow_used) = self.solve(p)?;
+        // Without trusted flow the result is plain FilterReg, as documented: no polish.
+        if flow_used { self.polish(p, r) } else { Ok(r) }
     }
 }
 
@@ -210,8 +211,8 @@ impl FlowFilter {
         Ok(Registration { transform: q.transform, fitness: q.fitness, inlier_rmse: q.inlier_rmse, ..r })
     }
 
-    /// Flow Filter before the polish.
-    fn solve(&self, p: &RegistrationProblem) -> Result<Registration, RegistrationError> {
+    /// Flow Filter before the polish, and whether trusted flow was used.
+    fn solve(&self, p: &RegistrationProblem) -> Result<(Registration, bool), RegistrationError> {
         validate_problem(p, None)?;
         let cfg = &self.config;
         let usable = p.correspondences.as_ref().map_or(0, |c| c.weights.iter().filter(|w| **w > 0.0).count());
@@ -230,22 +231,25 @@ impl FlowFilter {
                 cfg.min_inliers,
                 cfg.min_inlier_fraction * 100.0
             ));
-            return Ok(r);
+            return Ok((r, false));
         };
         let n_in = agreeing;
         if cfg.mode == FlowFilterMode::FlowOnly {
             let (fitness, inlier_rmse) = (n_in as f64 / corr.len() as f64, 0.0);
-            return Ok(Registration {
-                transform: pose,
-                iterations: 1,
-                converged: true,
-                fitness,
-                inlier_rmse,
-                sigma2: None,
-                scale: None,
-                history: vec![],
-                warnings: vec![],
-            });
+            return Ok((
+                Registration {
+                    transform: pose,
+                    iterations: 1,
+                    converged: true,
+                    fitness,
+                    inlier_rmse,
+                    sigma2: None,
+                    scale: None,
+                    history: vec![],
+                    warnings: vec![],
+                },
+                true,
+            ));
         }
         let mut fr_cfg = cfg.filterreg.clone();
         let mut problem = p.clone().with_init(pose);
@@ -264,7 +268,7 @@ impl FlowFilter {
         fr_cfg.init_sigma2.get_or_insert(1e-4);
         let flow_result = FilterReg::new(fr_cfg.clone())?.register(&problem)?;
         if !cfg.geometric_check {
-            return Ok(flow_result);
+            return Ok((flow_result, true));
         }
         // Geometric verification against flow-free alternatives.
         let index = KnnIndex::new(&p.target.points);
@@ -298,8 +302,8 @@ impl FlowFilter {
                 s_flow * 1e3,
                 s * 1e3
             ));
-            return Ok(r);
+            return Ok((r, true));
         }
-        Ok(flow_result)
+        Ok((flow_result, true))
     }
 }
