@@ -62,20 +62,8 @@ pub fn splat(projected: &[Option<ScreenVertex>], width: usize, height: usize, ma
     DepthMap::from_vec(width, height, data).expect("sized")
 }
 
-/// The bounding box `(x0, y0, x1, y1)` (inclusive) of a mask's set pixels, `None` if empty.
-pub fn mask_bbox(mask: &Mask) -> Option<(usize, usize, usize, usize)> {
-    let mut bb: Option<(usize, usize, usize, usize)> = None;
-    for y in 0..mask.height() {
-        let row = mask.row(y);
-        if let (Some(first), Some(last)) = (row.iter().position(|&b| b), row.iter().rposition(|&b| b)) {
-            bb = Some(match bb {
-                None => (first, y, last, y),
-                Some((a, b, c, _)) => (a.min(first), b, c.max(last), y),
-            });
-        }
-    }
-    bb
-}
+/// The bounding box of a mask's set pixels (defined with the shared rasters).
+pub use flowfilter_geometry::grid::mask_bbox;
 
 /// The region of the depth grid that can land inside a colour-image box, for any depth
 /// between `z_near` and `z_far` (colour-camera z), grown by `margin` pixels:

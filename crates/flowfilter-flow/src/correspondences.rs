@@ -4,7 +4,7 @@
 use crate::estimator::{FlowError, FlowEstimator, forward_backward_sparse};
 use crate::lk::Gray;
 use flowfilter_camera::{CameraModel, RayTable};
-use flowfilter_geometry::{DepthMap, Mask, Point3, Pose};
+use flowfilter_geometry::{DepthMap, Mask, Point3, Pose, mask_bbox};
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
 
@@ -50,62 +50,27 @@ pub struct CorrespondenceParams {
     /// by this margin (pixels): the result is the same as on the full frames when the margin
     /// covers the estimator's reach, at a fraction of the cost. 0 = no cropping.
     pub crop_margin_px: usize,
-    /// Model pixels closer than this to the mask's border are not tracked (their windows
-    /// straddle the silhouette, which does not move like the surface). 0 = track all.
-    pub border_px: usize,
-    /// Standard deviation (pixels) of the Gaussian whose blur is subtracted from both images
-    /// before tracking: removes shading that stays put while the object turns. 0 = off.
-    pub high_pass_sigma_px: f32,
 }
 
 impl Default for CorrespondenceParams {
     fn default() -> Self {
-        Self {
-            grid_step: 6,
-            fb_threshold: 1.0,
-            depth_k_sigma: 2.5,
-            crop_margin_px: 96,
-            border_px: 0,
-            high_pass_sigma_px: 0.0,
+        Self { grid_step: 6, fb_threshold: 1.0, depth_k_sigma: 2.5, crop_margin_px: 96 }
+    }
+}
+
+impl CorrespondenceParams {
+    /// Check ranges.
+    pub fn validate(&self) -> Result<(), FlowError> {
+        let ok = self.grid_step > 0 && self.fb_threshold > 0.0 && self.depth_k_sigma > 0.0;
+        if ok {
+            Ok(())
+        } else {
+            Err(FlowError::Config(format!(
+                "correspondences: grid_step >= 1, fb_threshold > 0 and depth_k_sigma > 0 required, found {}, {}, {}",
+                self.grid_step, self.fb_threshold, self.depth_k_sigma
+            )))
         }
     }
-}
-
-/// Whether the mask is set at the eight points `r` pixels away from `(x, y)` (a cheap erosion).
-fn inside_by(m: &Mask, x: usize, y: usize, r: usize) -> bool {
-    if r == 0 {
-        return true;
-    }
-    let (x, y, r) = (x as isize, y as isize, r as isize);
-    [(-r, 0), (r, 0), (0, -r), (0, r), (-r, -r), (r, -r), (-r, r), (r, r)].iter().all(|(dx, dy)| {
-        let (qx, qy) = (x + dx, y + dy);
-        qx >= 0 && qy >= 0 && m.get(qx as usize, qy as usize).copied().unwrap_or(false)
-    })
-}
-
-/// `img - gaussian(img, sigma) + 0.5` (separable blur, clamped borders).
-pub fn high_pass(img: &Gray, sigma: f32) -> Gray {
-    let r = (3.0 * sigma).ceil() as isize;
-    let k: Vec<f32> = (-r..=r).map(|i| (-(i * i) as f32 / (2.0 * sigma * sigma)).exp()).collect();
-    let norm: f32 = k.iter().sum();
-    let (w, h) = img.dims();
-    let blur_x = Gray::from_fn(w, h, |x, y| {
-        let row = img.row(y);
-        k.iter()
-            .enumerate()
-            .map(|(i, kv)| kv * row[(x as isize + i as isize - r).clamp(0, w as isize - 1) as usize])
-            .sum::<f32>()
-            / norm
-    });
-    Gray::from_fn(w, h, |x, y| {
-        let b = k
-            .iter()
-            .enumerate()
-            .map(|(i, kv)| kv * *blur_x.at(x, (y as isize + i as isize - r).clamp(0, h as isize - 1) as usize))
-            .sum::<f32>()
-            / norm;
-        *img.at(x, y) - b + 0.5
-    })
 }
 
 /// The box `(x0, y0, x1, y1)` (exclusive ends) around both masks, widened by `margin`; the
@@ -115,19 +80,11 @@ fn crop_box(a: &Mask, b: &Mask, margin: usize) -> (usize, usize, usize, usize) {
     if margin == 0 {
         return (0, 0, w, h);
     }
-    let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
-    for m in [a, b] {
-        for y in 0..h {
-            for (x, &v) in m.row(y).iter().enumerate() {
-                if v {
-                    (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x + 1), y1.max(y + 1));
-                }
-            }
-        }
-    }
-    if x0 == usize::MAX {
-        return (0, 0, w, h);
-    }
+    let boxes: Vec<_> = [a, b].into_iter().filter_map(mask_bbox).collect();
+    let Some(x0) = boxes.iter().map(|bb| bb.0).min() else { return (0, 0, w, h) };
+    let y0 = boxes.iter().map(|bb| bb.1).min().expect("non-empty");
+    let x1 = boxes.iter().map(|bb| bb.2).max().expect("non-empty") + 1;
+    let y1 = boxes.iter().map(|bb| bb.3).max().expect("non-empty") + 1;
     (x0.saturating_sub(margin), y0.saturating_sub(margin), (x1 + margin).min(w), (y1 + margin).min(h))
 }
 
@@ -184,12 +141,7 @@ pub fn flow_correspondences_guided(
     p: &CorrespondenceParams,
     guide: Option<FlowGuide<'_>>,
 ) -> Result<FlowPairs, FlowError> {
-    if p.grid_step == 0 || p.fb_threshold <= 0.0 || p.depth_k_sigma <= 0.0 {
-        return Err(FlowError::Config(format!(
-            "correspondences: grid_step >= 1, fb_threshold > 0 and depth_k_sigma > 0 required, found {}, {}, {}",
-            p.grid_step, p.fb_threshold, p.depth_k_sigma
-        )));
-    }
+    p.validate()?;
     for (which, v) in [("model", model), ("target", target)] {
         if v.depth.dims() != v.gray.dims() || v.mask.dims() != v.gray.dims() {
             return Err(FlowError::Config(format!(
@@ -206,7 +158,7 @@ pub fn flow_correspondences_guided(
     let mut pixels = vec![];
     for y in (0..h).step_by(p.grid_step) {
         for x in (0..w).step_by(p.grid_step) {
-            if *model_mask.at(x, y) && *model_depth.at(x, y) > 0.0 && inside_by(model_mask, x, y, p.border_px) {
+            if *model_mask.at(x, y) && *model_depth.at(x, y) > 0.0 {
                 pixels.push([x as f32, y as f32]);
             }
         }
@@ -215,10 +167,7 @@ pub fn flow_correspondences_guided(
     // Crop both views to the masks' region (flow vectors do not depend on the origin).
     let (x0, y0, x1, y1) = crop_box(model_mask, target_mask, p.crop_margin_px);
     let (cw, ch) = (x1 - x0, y1 - y0);
-    let crop = |g: &Gray| {
-        let c = Gray::from_fn(cw, ch, |x, y| *g.at(x + x0, y + y0));
-        if p.high_pass_sigma_px > 0.0 { high_pass(&c, p.high_pass_sigma_px) } else { c }
-    };
+    let crop = |g: &Gray| Gray::from_fn(cw, ch, |x, y| *g.at(x + x0, y + y0));
     let crop_mask = |m: &Mask| Mask::from_fn(cw, ch, |x, y| *m.at(x + x0, y + y0));
     let (ga, gb, ma, mb) = (crop(model_gray), crop(target_gray), crop_mask(model_mask), crop_mask(target_mask));
     let shift = [x0 as f32, y0 as f32];

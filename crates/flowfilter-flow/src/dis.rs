@@ -19,7 +19,7 @@
 
 use crate::FlowField;
 use crate::estimator::{FlowError, FlowEstimator, check_pair};
-use crate::lk::Gray;
+use crate::lk::{Gray, bilinear};
 use flowfilter_geometry::{Grid, Mask};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -135,20 +135,6 @@ impl Dis {
 }
 
 type Img = Grid<f32>;
-
-/// Bilinear sample with clamped coordinates.
-#[inline]
-fn bilinear(img: &Img, x: f32, y: f32) -> f32 {
-    let (w, h) = img.dims();
-    let x = x.clamp(0.0, (w - 1) as f32);
-    let y = y.clamp(0.0, (h - 1) as f32);
-    let (x0, y0) = (x.floor() as usize, y.floor() as usize);
-    let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
-    let (fx, fy) = (x - x0 as f32, y - y0 as f32);
-    let d = img.as_slice();
-    let (a, b, c, e) = (d[y0 * w + x0], d[y0 * w + x1], d[y1 * w + x0], d[y1 * w + x1]);
-    (a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + e * fx) * fy
-}
 
 /// Half resolution by 2x2 box averaging (OpenCV's area interpolation for exact halves).
 fn halve(img: &Img) -> Img {

@@ -182,6 +182,20 @@ impl LucasKanade {
         }
     }
 
+    /// Checked tracking, from zero or from per-point guesses.
+    fn track(
+        &self,
+        from: &Gray,
+        to: &Gray,
+        points: &[[f32; 2]],
+        guesses: Option<&[[f32; 2]]>,
+        mask: Option<&Mask>,
+    ) -> Result<Vec<Option<[f32; 2]>>, FlowError> {
+        self.validate()?;
+        check_pair(from, to, mask)?;
+        Ok(track_guided(from, to, points, guesses, &self.params(), mask))
+    }
+
     /// Check parameter ranges.
     pub fn validate(&self) -> Result<(), FlowError> {
         if self.window < 3 || self.window.is_multiple_of(2) {
@@ -206,9 +220,7 @@ impl FlowEstimator for LucasKanade {
         points: &[[f32; 2]],
         mask: Option<&Mask>,
     ) -> Result<Vec<Option<[f32; 2]>>, FlowError> {
-        self.validate()?;
-        check_pair(from, to, mask)?;
-        Ok(track_masked(from, to, points, &self.params(), mask))
+        self.track(from, to, points, None, mask)
     }
 
     fn sparse_guided(
@@ -219,12 +231,10 @@ impl FlowEstimator for LucasKanade {
         guesses: &[[f32; 2]],
         mask: Option<&Mask>,
     ) -> Result<Vec<Option<[f32; 2]>>, FlowError> {
-        self.validate()?;
-        check_pair(from, to, mask)?;
         if guesses.len() != points.len() {
             return Err(FlowError::Config(format!("{} guesses for {} points", guesses.len(), points.len())));
         }
-        Ok(track_guided(from, to, points, Some(guesses), &self.params(), mask))
+        self.track(from, to, points, Some(guesses), mask)
     }
 
     fn dense(&self, from: &Gray, to: &Gray, mask: Option<&Mask>) -> Result<FlowField, FlowError> {

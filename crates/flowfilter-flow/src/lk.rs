@@ -36,8 +36,8 @@ pub fn downsample(img: &Gray) -> Gray {
     })
 }
 
-/// Bilinear sample with clamped borders.
-fn sample(img: &Gray, x: f32, y: f32) -> f32 {
+/// Bilinear sample with clamped borders (shared by the estimators).
+pub(crate) fn bilinear(img: &Gray, x: f32, y: f32) -> f32 {
     let (w, h) = (img.width() as f32, img.height() as f32);
     let x = x.clamp(0.0, w - 1.0);
     let y = y.clamp(0.0, h - 1.0);
@@ -155,9 +155,9 @@ pub fn track_guided(
                             tmpl.push((0.0, 0.0, 0.0));
                             continue;
                         }
-                        let ix = 0.5 * (sample(a, x + 1.0, y) - sample(a, x - 1.0, y));
-                        let iy = 0.5 * (sample(a, x, y + 1.0) - sample(a, x, y - 1.0));
-                        tmpl.push((sample(a, x, y), ix, iy));
+                        let ix = 0.5 * (bilinear(a, x + 1.0, y) - bilinear(a, x - 1.0, y));
+                        let iy = 0.5 * (bilinear(a, x, y + 1.0) - bilinear(a, x, y - 1.0));
+                        tmpl.push((bilinear(a, x, y), ix, iy));
                         gxx += ix * ix;
                         gxy += ix * iy;
                         gyy += iy * iy;
@@ -180,7 +180,7 @@ pub fn track_guided(
                             if ix == 0.0 && iy == 0.0 {
                                 continue;
                             }
-                            let diff = t - sample(b, px + g[0] + d[0] + dx as f32, py + g[1] + d[1] + dy as f32);
+                            let diff = t - bilinear(b, px + g[0] + d[0] + dx as f32, py + g[1] + d[1] + dy as f32);
                             bx += diff * ix;
                             by += diff * iy;
                         }

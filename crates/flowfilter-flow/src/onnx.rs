@@ -24,7 +24,7 @@
 
 use crate::FlowField;
 use crate::estimator::{FlowError, FlowEstimator, check_pair};
-use crate::lk::Gray;
+use crate::lk::{Gray, bilinear};
 use flowfilter_geometry::{Grid, Mask};
 use serde::Deserialize;
 use std::collections::HashMap;
@@ -321,17 +321,7 @@ pub struct NetworkOutput {
 fn resample(img: &Gray, w: usize, h: usize) -> Gray {
     let (sw, sh) = img.dims();
     let (fx, fy) = (sw as f32 / w as f32, sh as f32 / h as f32);
-    Gray::from_fn(w, h, |x, y| {
-        let (sx, sy) = (
-            ((x as f32 + 0.5) * fx - 0.5).clamp(0.0, (sw - 1) as f32),
-            ((y as f32 + 0.5) * fy - 0.5).clamp(0.0, (sh - 1) as f32),
-        );
-        let (x0, y0) = (sx.floor() as usize, sy.floor() as usize);
-        let (x1, y1) = ((x0 + 1).min(sw - 1), (y0 + 1).min(sh - 1));
-        let (ax, ay) = (sx - x0 as f32, sy - y0 as f32);
-        let g = |x: usize, y: usize| *img.at(x, y);
-        (g(x0, y0) * (1.0 - ax) + g(x1, y0) * ax) * (1.0 - ay) + (g(x0, y1) * (1.0 - ax) + g(x1, y1) * ax) * ay
-    })
+    Gray::from_fn(w, h, |x, y| bilinear(img, (x as f32 + 0.5) * fx - 0.5, (y as f32 + 0.5) * fy - 0.5))
 }
 
 /// The image padded to `w x h` by replicating its last row and column.

@@ -14,7 +14,7 @@ pub mod rigid;
 pub mod se3;
 
 pub use cloud::{CloudError, PointCloud};
-pub use grid::{DepthMap, Grid, GridSizeError, Mask, RawDepth};
+pub use grid::{DepthMap, Grid, GridSizeError, Mask, RawDepth, mask_bbox};
 pub use kabsch::{KabschError, weighted_kabsch};
 pub use knn::{KnnIndex, Neighbour};
 pub use rigid::{RigidTransformError, matrix_from_pose, nearest_rotation, rigid_from_matrix, rotation_angle_deg};

@@ -119,17 +119,7 @@ impl PipelineConfig {
         }
         self.flow.lk.validate().map_err(|e| format!("table [flow.lk]: {e}"))?;
         self.flow.dis.validate().map_err(|e| format!("table [flow.dis]: {e}"))?;
-        let c = &self.flow.correspondences;
-        if c.grid_step == 0
-            || c.fb_threshold.is_nan()
-            || c.fb_threshold <= 0.0
-            || c.depth_k_sigma.is_nan()
-            || c.depth_k_sigma <= 0.0
-        {
-            return Err(
-                "table [flow.correspondences]: grid_step >= 1, fb_threshold > 0 and depth_k_sigma > 0 required".into(),
-            );
-        }
+        self.flow.correspondences.validate().map_err(|e| format!("table [flow.correspondences]: {e}"))?;
         crate::stages::flow_estimator_by_name(&self.flow).map_err(|e| format!("table [flow]: {e}"))?;
         Ok(())
     }
