@@ -119,6 +119,21 @@ impl Mask {
     }
 }
 
+/// The bounding box `(x0, y0, x1, y1)` (inclusive) of a mask's set pixels, `None` if empty.
+pub fn mask_bbox(mask: &Mask) -> Option<(usize, usize, usize, usize)> {
+    let mut bb: Option<(usize, usize, usize, usize)> = None;
+    for y in 0..mask.height() {
+        let row = mask.row(y);
+        if let (Some(first), Some(last)) = (row.iter().position(|&b| b), row.iter().rposition(|&b| b)) {
+            bb = Some(match bb {
+                None => (first, y, last, y),
+                Some((a, b, c, _)) => (a.min(first), b, c.max(last), y),
+            });
+        }
+    }
+    bb
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -134,19 +149,4 @@ mod tests {
         let m: Mask = g.map(|v| v % 2 == 0);
         assert_eq!(m.count(), 4);
     }
-}
-
-/// The bounding box `(x0, y0, x1, y1)` (inclusive) of a mask's set pixels, `None` if empty.
-pub fn mask_bbox(mask: &Mask) -> Option<(usize, usize, usize, usize)> {
-    let mut bb: Option<(usize, usize, usize, usize)> = None;
-    for y in 0..mask.height() {
-        let row = mask.row(y);
-        if let (Some(first), Some(last)) = (row.iter().position(|&b| b), row.iter().rposition(|&b| b)) {
-            bb = Some(match bb {
-                None => (first, y, last, y),
-                Some((a, b, c, _)) => (a.min(first), b, c.max(last), y),
-            });
-        }
-    }
-    bb
 }
