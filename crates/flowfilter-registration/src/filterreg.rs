@@ -59,9 +59,10 @@ pub enum FilterRegEStep {
     Lattice,
     /// Exact sums over target points within 4 sigma (k-d tree).
     Exact,
-    /// The lattice while 4 sigma exceeds a tenth of the target's extent (many neighbours, where
-    /// the lattice's linear cost matters and its few-percent kernel error does not), exact sums
-    /// once sigma is small (few neighbours, where the final accuracy is decided).
+    /// The lattice while the 4-sigma support holds many target points (where the lattice's
+    /// linear cost matters and its few-percent kernel error does not), exact sums once it holds
+    /// fewer than about 48 (where the final accuracy is decided; neighbour lists are reused
+    /// across iterations while the points move less than their margin).
     Auto,
 }
 
@@ -174,22 +175,102 @@ fn lattice_sums(target: &[Point3], values: &[f64], vd: usize, queries: &[Point3]
     unpack(&out, vd)
 }
 
-fn exact_sums(index: &KnnIndex, values: &[f64], vd: usize, queries: &[Point3], sigma: f64) -> Sums {
-    let inv = -0.5 / (sigma * sigma);
-    let out: Vec<f64> = queries
-        .par_iter()
-        .flat_map_iter(|q| {
-            let mut acc = vec![0.0; vd];
-            for nb in index.within(q, 4.0 * sigma) {
-                let k = (nb.dist2 * inv).exp();
-                for c in 0..vd {
-                    acc[c] += k * values[nb.index * vd + c];
+/// [`FilterRegEStep::Auto`] switches to exact sums when the kernel support holds fewer target
+/// points than this (typically).
+const AUTO_NEIGHBOURS: usize = 48;
+
+/// Candidate target neighbours of every source point, gathered within `radius` of the source
+/// points moved by `pose`. While the points have moved less than `radius - r` since, every
+/// target point within `r` of a moved point is among its candidates, so the exact sums can be
+/// evaluated from the lists without new k-d tree searches (most of the exact E-step's time).
+struct NeighbourCache {
+    radius: f64,
+    pose: Pose,
+    offsets: Vec<usize>,
+    indices: Vec<u32>,
+}
+
+/// Candidate lists are gathered this much wider than the kernel's 4-sigma support.
+const CACHE_MARGIN: f64 = 1.25;
+/// Lists wider than this many times the current support are gathered again (sigma has shrunk).
+const CACHE_MAX_WIDTH: f64 = 1.6;
+
+impl NeighbourCache {
+    fn build(index: &KnnIndex, queries: &[Point3], pose: Pose, radius: f64) -> Self {
+        let lists: Vec<Vec<u32>> = queries
+            .par_iter()
+            .map(|q| {
+                // Ascending indices: the sums then walk the target arrays forwards.
+                let mut l: Vec<u32> = index.within(q, radius).iter().map(|n| n.index as u32).collect();
+                l.sort_unstable();
+                l
+            })
+            .collect();
+        let mut offsets = Vec::with_capacity(queries.len() + 1);
+        offsets.push(0);
+        let mut indices = Vec::with_capacity(lists.iter().map(Vec::len).sum());
+        for l in &lists {
+            indices.extend_from_slice(l);
+            offsets.push(indices.len());
+        }
+        Self { radius, pose, offsets, indices }
+    }
+
+    /// Whether the lists still cover radius `r` around every source point under `pose` without
+    /// being much wider than needed (each candidate costs a distance evaluation).
+    fn covers(&self, source: &[Point3], pose: &Pose, r: f64) -> bool {
+        let moved = pose * self.pose.inverse();
+        let slack = self.radius - r;
+        slack > 0.0
+            && self.radius <= CACHE_MAX_WIDTH * r
+            && source.iter().all(|s| {
+                let x = self.pose * s;
+                (moved * x - x).norm() < slack
+            })
+    }
+}
+
+/// The exact E-step: a k-d tree over the target and the current neighbour lists.
+struct ExactEStep {
+    index: KnnIndex,
+    cache: Option<NeighbourCache>,
+}
+
+impl ExactEStep {
+    /// Exact sums within 4 sigma of `queries` (the `source` points moved by `pose`).
+    fn sums(
+        &mut self,
+        source: &[Point3],
+        pose: &Pose,
+        queries: &[Point3],
+        values: &[f64],
+        vd: usize,
+        sigma: f64,
+    ) -> Sums {
+        let (index, cache) = (&self.index, &mut self.cache);
+        let r = 4.0 * sigma;
+        if !cache.as_ref().is_some_and(|c| c.covers(source, pose, r)) {
+            *cache = Some(NeighbourCache::build(index, queries, *pose, CACHE_MARGIN * r));
+        }
+        let cache = cache.as_ref().expect("built above");
+        let (inv, r2) = (-0.5 / (sigma * sigma), r * r);
+        let mut out = vec![0.0; queries.len() * vd];
+        out.par_chunks_mut(vd).enumerate().for_each(|(i, acc)| {
+            let q = &queries[i];
+            for &k in &cache.indices[cache.offsets[i]..cache.offsets[i + 1]] {
+                // values hold [1, y, |y|^2, ...]: the coordinates come from the same cache lines.
+                let v = &values[k as usize * vd..(k as usize + 1) * vd];
+                let d2 = (v[1] - q.x).powi(2) + (v[2] - q.y).powi(2) + (v[3] - q.z).powi(2);
+                if d2 <= r2 {
+                    let w = (d2 * inv).exp();
+                    for (a, vc) in acc.iter_mut().zip(v) {
+                        *a += w * vc;
+                    }
                 }
             }
-            acc
-        })
-        .collect();
-    unpack(&out, vd)
+        });
+        unpack(&out, vd)
+    }
 }
 
 impl FilterReg {
@@ -306,15 +387,21 @@ impl Registrar for FilterReg {
         let (source, target) = (&p.source.points, &p.target.points);
         let normals = if pt2pl { p.target.normals.as_deref() } else { None };
         let (vd, values) = target_values(target, normals);
-        let index = (cfg.e_step != FilterRegEStep::Lattice).then(|| KnnIndex::new(target));
-        let extent = {
-            let (lo, hi) = target
+        let mut exact =
+            (cfg.e_step != FilterRegEStep::Lattice).then(|| ExactEStep { index: KnnIndex::new(target), cache: None });
+        // The support radius below which exact sums are cheaper than the lattice: the median
+        // distance from (a strided sample of) target points to their AUTO_NEIGHBOURS-th neighbour.
+        let exact_below = exact.as_ref().map(|e| {
+            let step = (target.len() / 64).max(1);
+            let mut d: Vec<f64> = target
                 .iter()
-                .fold((Vector3::repeat(f64::INFINITY), Vector3::repeat(f64::NEG_INFINITY)), |(lo, hi), p| {
-                    (lo.inf(&p.coords), hi.sup(&p.coords))
-                });
-            (hi - lo).norm()
-        };
+                .step_by(step)
+                .filter_map(|y| e.index.k_nearest(y, AUTO_NEIGHBOURS).last().map(|n| n.dist2.sqrt()))
+                .collect();
+            d.sort_by(f64::total_cmp);
+            d.get(d.len() / 2).copied().unwrap_or(f64::INFINITY)
+        });
+        let mut exact_phase = false;
         let mut t = p.init;
         let mut x: Vec<Point3> = source.iter().map(|s| t * s).collect();
         let mut sigma2 = cfg.init_sigma2.unwrap_or_else(|| mean_pair_distance2(&x, target) / 3.0);
@@ -328,10 +415,14 @@ impl Registrar for FilterReg {
             let use_lattice = match cfg.e_step {
                 FilterRegEStep::Lattice => true,
                 FilterRegEStep::Exact => false,
-                FilterRegEStep::Auto => 4.0 * sigma > 0.1 * extent,
+                FilterRegEStep::Auto => {
+                    // Once exact, stay exact (sigma rarely grows back; no flip-flopping).
+                    exact_phase |= exact_below.is_some_and(|r| 4.0 * sigma < r);
+                    !exact_phase
+                }
             };
-            let sums = match (&index, use_lattice) {
-                (Some(idx), false) => exact_sums(idx, &values, vd, &x, sigma),
+            let sums = match (&mut exact, use_lattice) {
+                (Some(e), false) => e.sums(source, &t, &x, &values, vd, sigma),
                 _ => lattice_sums(target, &values, vd, &x, sigma),
             };
             // Outlier level relative to the unnormalised kernel sums (as FilterReg's reference

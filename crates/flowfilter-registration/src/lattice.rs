@@ -9,8 +9,7 @@
 //! divided by `sigma`, the result approximates `sum_k exp(-|q - p_k|^2 / (2 sigma^2)) v_k`
 //! up to a constant factor; [`Lattice::kernel_scale`] estimates that factor.
 
-use std::collections::hash_map::DefaultHasher;
-use std::hash::{Hash, Hasher};
+use rayon::prelude::*;
 
 /// Open-addressing hash table from lattice keys (`d` integers) to vertex indices.
 struct KeyTable {
@@ -20,6 +19,12 @@ struct KeyTable {
 }
 
 const EMPTY: u32 = u32::MAX;
+
+/// Key equality as a plain loop (short keys: cheaper than the `memcmp` call of `==`).
+#[inline]
+fn same_key(a: &[i32], b: &[i32]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x == y)
+}
 
 impl KeyTable {
     fn new(d: usize, capacity: usize) -> Self {
@@ -31,10 +36,14 @@ impl KeyTable {
         self.keys.len() / self.d
     }
 
+    /// A multiplicative (Fx-style) hash of the key: lattice keys are small integers, so a
+    /// keyed cryptographic hash buys nothing here and costs most of the splat and slice time.
     fn hash(key: &[i32]) -> usize {
-        let mut h = DefaultHasher::new();
-        key.hash(&mut h);
-        h.finish() as usize
+        let mut h: u64 = 0;
+        for &k in key {
+            h = (h.rotate_left(5) ^ (k as u32 as u64)).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
+        }
+        (h ^ (h >> 29)) as usize
     }
 
     fn key(&self, i: u32) -> &[i32] {
@@ -49,7 +58,7 @@ impl KeyTable {
             if i == EMPTY {
                 return None;
             }
-            if self.key(i) == key {
+            if same_key(self.key(i), key) {
                 return Some(i);
             }
             s = (s + 1) & mask;
@@ -70,7 +79,7 @@ impl KeyTable {
                 self.slots[s] = id;
                 return id;
             }
-            if self.key(i) == key {
+            if same_key(self.key(i), key) {
                 return i;
             }
             s = (s + 1) & mask;
@@ -90,10 +99,25 @@ impl KeyTable {
     }
 }
 
-/// The enclosing simplex of one point: `d + 1` vertex keys and barycentric weights.
-struct Simplex {
-    keys: Vec<i32>,
-    weights: Vec<f64>,
+/// `floor(x)` as an integer, without a libm call (lattice coordinates are far inside `i64`).
+#[inline]
+fn floor_i64(x: f64) -> i64 {
+    let t = x as i64;
+    t - ((t as f64) > x) as i64
+}
+
+/// Work space of one simplex computation (reused across points to avoid allocations).
+struct Scratch {
+    elevated: Vec<f64>,
+    rem0: Vec<f64>,
+    rank: Vec<i64>,
+    b: Vec<f64>,
+}
+
+impl Scratch {
+    fn new(d: usize) -> Self {
+        Self { elevated: vec![0.0; d + 1], rem0: vec![0.0; d + 1], rank: vec![0; d + 1], b: vec![0.0; d + 2] }
+    }
 }
 
 /// Embedding of positions into the lattice.
@@ -111,11 +135,13 @@ impl Embedding {
         Self { d, scale }
     }
 
-    fn simplex(&self, pos: &[f64]) -> Simplex {
+    /// The enclosing simplex of `pos`: writes its `d + 1` vertex keys (`d` integers each) to
+    /// `keys` and the barycentric weights to `weights`.
+    fn simplex(&self, pos: &[f64], w: &mut Scratch, keys: &mut [i32], weights: &mut [f64]) {
         let d = self.d;
         let dp1 = (d + 1) as f64;
+        let Scratch { elevated, rem0, rank, b } = w;
         // Elevate onto the hyperplane x . 1 = 0 of R^(d+1).
-        let mut elevated = vec![0.0; d + 1];
         let mut sm = 0.0;
         for i in (1..=d).rev() {
             let cf = pos[i - 1] * self.scale[i - 1];
@@ -124,15 +150,15 @@ impl Embedding {
         }
         elevated[0] = sm;
         // The nearest remainder-0 lattice point, and the ranks of the differences.
-        let mut rem0 = vec![0.0f64; d + 1];
         let mut sum = 0i64;
         for i in 0..=d {
-            let v = elevated[i] / dp1;
-            let (up, down) = (v.ceil() * dp1, v.floor() * dp1);
-            rem0[i] = if up - elevated[i] < elevated[i] - down { up } else { down };
-            sum += (rem0[i] / dp1).round() as i64;
+            let down_k = floor_i64(elevated[i] / dp1);
+            let (down, up) = (down_k as f64 * dp1, (down_k + 1) as f64 * dp1);
+            let take_up = up - elevated[i] < elevated[i] - down;
+            rem0[i] = if take_up { up } else { down };
+            sum += down_k + take_up as i64;
         }
-        let mut rank = vec![0i64; d + 1];
+        rank.fill(0);
         for i in 0..d {
             for j in i + 1..=d {
                 if elevated[i] - rem0[i] < elevated[j] - rem0[j] {
@@ -163,7 +189,7 @@ impl Embedding {
             }
         }
         // Barycentric coordinates.
-        let mut b = vec![0.0f64; d + 2];
+        b.fill(0.0);
         for i in 0..=d {
             let delta = (elevated[i] - rem0[i]) / dp1;
             b[d - rank[i] as usize] += delta;
@@ -171,15 +197,14 @@ impl Embedding {
         }
         b[0] += 1.0 + b[d + 1];
         // Vertex keys: remainder-k vertices of the canonical simplex, permuted by rank.
-        let mut keys = Vec::with_capacity((d + 1) * d);
         for k in 0..=d as i64 {
             for i in 0..d {
                 let r = rank[i];
                 let canonical = if r <= d1 - 1 - k { k } else { k - d1 };
-                keys.push(rem0[i] as i32 + canonical as i32);
+                keys[k as usize * d + i] = rem0[i] as i32 + canonical as i32;
             }
         }
-        Simplex { keys, weights: b[..=d].to_vec() }
+        weights.copy_from_slice(&b[..=d]);
     }
 }
 
@@ -199,17 +224,33 @@ impl Lattice {
         assert!(d >= 1 && positions.len().is_multiple_of(d) && values.len() == positions.len() / d * vd);
         let n = positions.len() / d;
         let embedding = Embedding::new(d);
+        // Simplices in parallel; the insertion (which numbers the vertices) stays sequential, in
+        // point order, so the result does not depend on the thread count.
+        let (mut keys, mut weights) = (vec![0i32; n * (d + 1) * d], vec![0.0f64; n * (d + 1)]);
+        const CHUNK: usize = 512;
+        keys.par_chunks_mut(CHUNK * (d + 1) * d)
+            .zip(weights.par_chunks_mut(CHUNK * (d + 1)))
+            .zip(positions.par_chunks(CHUNK * d))
+            .for_each(|((k, w), pos)| {
+                let mut scratch = Scratch::new(d);
+                for ((k, w), p) in
+                    k.chunks_exact_mut((d + 1) * d).zip(w.chunks_exact_mut(d + 1)).zip(pos.chunks_exact(d))
+                {
+                    embedding.simplex(p, &mut scratch, k, w);
+                }
+            });
         let mut table = KeyTable::new(d, n * (d + 1) / 2 + 16);
         let mut vals: Vec<f64> = Vec::new();
         for p in 0..n {
-            let s = embedding.simplex(&positions[p * d..(p + 1) * d]);
             for r in 0..=d {
-                let id = table.insert(&s.keys[r * d..(r + 1) * d]) as usize;
+                let at = (p * (d + 1) + r) * d;
+                let id = table.insert(&keys[at..at + d]) as usize;
                 if vals.len() < (id + 1) * vd {
                     vals.resize((id + 1) * vd, 0.0);
                 }
+                let wr = weights[p * (d + 1) + r];
                 for c in 0..vd {
-                    vals[id * vd + c] += s.weights[r] * values[p * vd + c];
+                    vals[id * vd + c] += wr * values[p * vd + c];
                 }
             }
         }
@@ -226,33 +267,38 @@ impl Lattice {
     fn blur(&mut self) {
         let (d, vd) = (self.d, self.vd);
         let n = self.table.len();
-        // Neighbour indices along each direction, computed once per direction.
-        let mut key = vec![0i32; d];
+        let table = &self.table;
+        // Along each of the d + 1 lattice directions: [1 2 1] / 4 over the two neighbours
+        // (missing vertices hold zero). Every vertex is independent within a pass.
         for j in 0..=d {
-            let mut next = self.values.clone();
-            for v in 0..n {
-                let base = self.table.key(v as u32).to_vec();
-                let mut neighbour = |sign: i32| -> Option<u32> {
-                    for i in 0..d {
-                        key[i] = base[i] - sign;
+            let values = &self.values;
+            let mut next = vec![0.0; n * vd];
+            next.par_chunks_mut(vd * 256).enumerate().for_each(|(chunk, out)| {
+                let mut key = vec![0i32; d];
+                for (o, v) in out.chunks_exact_mut(vd).zip(chunk * 256..) {
+                    let base = table.key(v as u32);
+                    let mut neighbour = |sign: i32| -> Option<u32> {
+                        for i in 0..d {
+                            key[i] = base[i] - sign;
+                        }
+                        if j < d {
+                            key[j] = base[j] + sign * d as i32;
+                        }
+                        table.find(&key)
+                    };
+                    let (a, b) = (neighbour(1), neighbour(-1));
+                    for c in 0..vd {
+                        let mut acc = 0.5 * values[v * vd + c];
+                        if let Some(a) = a {
+                            acc += 0.25 * values[a as usize * vd + c];
+                        }
+                        if let Some(b) = b {
+                            acc += 0.25 * values[b as usize * vd + c];
+                        }
+                        o[c] = acc;
                     }
-                    if j < d {
-                        key[j] = base[j] + sign * d as i32;
-                    }
-                    self.table.find(&key)
-                };
-                let (a, b) = (neighbour(1), neighbour(-1));
-                for c in 0..vd {
-                    let mut acc = 0.5 * self.values[v * vd + c];
-                    if let Some(a) = a {
-                        acc += 0.25 * self.values[a as usize * vd + c];
-                    }
-                    if let Some(b) = b {
-                        acc += 0.25 * self.values[b as usize * vd + c];
-                    }
-                    next[v * vd + c] = acc;
                 }
-            }
+            });
             self.values = next;
         }
     }
@@ -261,14 +307,16 @@ impl Lattice {
     pub fn slice(&self, queries: &[f64], out: &mut [f64]) {
         let (d, vd) = (self.d, self.vd);
         assert!(queries.len().is_multiple_of(d) && out.len() == queries.len() / d * vd);
+        let mut scratch = Scratch::new(d);
+        let (mut keys, mut weights) = (vec![0i32; (d + 1) * d], vec![0.0f64; d + 1]);
         for (q, o) in queries.chunks_exact(d).zip(out.chunks_exact_mut(vd)) {
             o.fill(0.0);
-            let s = self.embedding.simplex(q);
+            self.embedding.simplex(q, &mut scratch, &mut keys, &mut weights);
             for r in 0..=d {
-                if let Some(id) = self.table.find(&s.keys[r * d..(r + 1) * d]) {
+                if let Some(id) = self.table.find(&keys[r * d..(r + 1) * d]) {
                     let vals = &self.values[id as usize * vd..(id as usize + 1) * vd];
                     for (oc, v) in o.iter_mut().zip(vals) {
-                        *oc += s.weights[r] * v;
+                        *oc += weights[r] * v;
                     }
                 }
             }
@@ -325,12 +373,14 @@ mod tests {
     fn barycentric_weights_sum_to_one_and_reconstruct_the_point() {
         let e = Embedding::new(3);
         let mut seed = 1;
+        let mut scratch = Scratch::new(3);
+        let (mut keys, mut weights) = ([0i32; 12], [0.0f64; 4]);
         for _ in 0..100 {
             let p: Vec<f64> = (0..3).map(|_| lcg(&mut seed) * 10.0 - 5.0).collect();
-            let s = e.simplex(&p);
-            let sum: f64 = s.weights.iter().sum();
+            e.simplex(&p, &mut scratch, &mut keys, &mut weights);
+            let sum: f64 = weights.iter().sum();
             assert!((sum - 1.0).abs() < 1e-9, "{sum}");
-            assert!(s.weights.iter().all(|&w| w >= -1e-9), "{:?}", s.weights);
+            assert!(weights.iter().all(|&w| w >= -1e-9), "{weights:?}");
         }
     }
 
