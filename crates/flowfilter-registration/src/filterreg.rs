@@ -486,3 +486,57 @@ impl Registrar for FilterReg {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Translation3, UnitQuaternion};
+
+    fn cloud(n: usize, seed: u64) -> Vec<Point3> {
+        let mut s = seed;
+        let mut r = || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        };
+        (0..n).map(|_| Point3::new(r() * 0.1, r() * 0.1, r() * 0.02)).collect()
+    }
+
+    /// Sums from reused neighbour lists equal sums from a fresh k-d tree search, and lists are
+    /// gathered again once the points have moved beyond their margin or sigma has shrunk.
+    #[test]
+    fn reused_neighbour_lists_give_the_sums_of_a_fresh_search() {
+        let (source, target) = (cloud(800, 1), cloud(1200, 2));
+        let (vd, values) = target_values(&target, None);
+        let sigma = 0.004;
+        let fresh = |pose: &Pose, sigma: f64| {
+            let x: Vec<Point3> = source.iter().map(|s| pose * s).collect();
+            let mut e = ExactEStep { index: KnnIndex::new(&target), cache: None };
+            (e.sums(&source, pose, &x, &values, vd, sigma), x)
+        };
+        let mut e = ExactEStep { index: KnnIndex::new(&target), cache: None };
+        let p0 = Pose::identity();
+        let x0: Vec<Point3> = source.iter().map(|s| p0 * s).collect();
+        e.sums(&source, &p0, &x0, &values, vd, sigma);
+        let built = e.cache.as_ref().unwrap().pose;
+        // Small move (well inside the margin): the lists are reused.
+        let p1 = Pose::from_parts(
+            Translation3::new(0.0006, -0.0003, 0.0002),
+            UnitQuaternion::from_euler_angles(0.004, 0.0, 0.003),
+        );
+        let (want, x1) = fresh(&p1, sigma);
+        let got = e.sums(&source, &p1, &x1, &values, vd, sigma);
+        assert_eq!(e.cache.as_ref().unwrap().pose, built, "lists were gathered again for a small move");
+        for i in 0..source.len() {
+            assert!((got.m0[i] - want.m0[i]).abs() <= 1e-12 * want.m0[i].max(1.0), "m0[{i}]");
+            assert!((got.m1[i] - want.m1[i]).norm() <= 1e-12 * want.m0[i].max(1.0), "m1[{i}]");
+        }
+        // A move beyond the margin (4 mm: lists of 1.25 x 16 mm for a 16 mm support) and a halved sigma each trigger a new search.
+        let p2 = Pose::from_parts(Translation3::new(0.006, 0.0, 0.0), UnitQuaternion::identity());
+        let (want, x2) = fresh(&p2, sigma);
+        let got = e.sums(&source, &p2, &x2, &values, vd, sigma);
+        assert_eq!(e.cache.as_ref().unwrap().pose, p2);
+        assert!(got.m0.iter().zip(&want.m0).all(|(a, b)| (a - b).abs() <= 1e-12 * b.max(1.0)));
+        e.sums(&source, &p2, &x2, &values, vd, sigma / 2.0);
+        assert!(e.cache.as_ref().unwrap().radius < CACHE_MARGIN * 4.0 * sigma);
+    }
+}
