@@ -38,27 +38,53 @@ pub struct ScreenVertex {
     pub z: f32,
 }
 
+/// `x.floor()` without a libm call (not inlined on baseline x86-64): exact for |x| < 2^31,
+/// which covers every on-screen coordinate; larger values are clamped by the callers anyway.
+#[inline]
+fn floor(x: f32) -> f32 {
+    if x.abs() >= 2_147_483_648.0 || x.is_nan() {
+        return x.floor();
+    }
+    let t = x as i32 as f32;
+    if t > x { t - 1.0 } else { t }
+}
+
+/// `x.ceil()` without a libm call (see [`floor`]).
+#[inline]
+fn ceil(x: f32) -> f32 {
+    -floor(-x)
+}
+
 /// Rasterise `triangles` over `vertices` into a `width x height` G-buffer. Triangles with a
 /// vertex that is not drawable (`None`, behind the camera) are skipped.
 pub fn rasterize(width: usize, height: usize, vertices: &[Option<ScreenVertex>], triangles: &[[u32; 3]]) -> GBuffer {
     let bands = height.div_ceil(BAND);
-    // Bin triangles by the bands their bounding box touches.
+    // Bin triangles by the bands their bounding box touches: the band ranges in parallel, the
+    // (cheap) pushes in triangle order.
+    let ranges: Vec<Option<(u32, u32)>> = triangles
+        .par_iter()
+        .map(|tri| {
+            let (Some(a), Some(b), Some(c)) =
+                (vertices[tri[0] as usize], vertices[tri[1] as usize], vertices[tri[2] as usize])
+            else {
+                return None;
+            };
+            let y_min = ceil(a.y.min(b.y).min(c.y)).max(0.0);
+            let y_max = floor(a.y.max(b.y).max(c.y)).min(height as f32 - 1.0);
+            let x_min = a.x.min(b.x).min(c.x);
+            let x_max = a.x.max(b.x).max(c.x);
+            if y_min > y_max || x_max < 0.0 || x_min > width as f32 - 1.0 || !(y_min.is_finite() && y_max.is_finite()) {
+                return None;
+            }
+            Some(((y_min as usize / BAND) as u32, (y_max as usize / BAND) as u32))
+        })
+        .collect();
     let mut bins: Vec<Vec<u32>> = vec![Vec::new(); bands];
-    for (t, tri) in triangles.iter().enumerate() {
-        let Some([a, b, c]) =
-            tri.iter().map(|&i| vertices[i as usize]).collect::<Option<Vec<_>>>().map(|v| [v[0], v[1], v[2]])
-        else {
-            continue;
-        };
-        let y_min = a.y.min(b.y).min(c.y).ceil().max(0.0);
-        let y_max = a.y.max(b.y).max(c.y).floor().min(height as f32 - 1.0);
-        let x_min = a.x.min(b.x).min(c.x);
-        let x_max = a.x.max(b.x).max(c.x);
-        if y_min > y_max || x_max < 0.0 || x_min > width as f32 - 1.0 || !(y_min.is_finite() && y_max.is_finite()) {
-            continue;
-        }
-        for bin in &mut bins[(y_min as usize / BAND)..=(y_max as usize / BAND)] {
-            bin.push(t as u32);
+    for (t, r) in ranges.iter().enumerate() {
+        if let Some((lo, hi)) = *r {
+            for bin in &mut bins[lo as usize..=hi as usize] {
+                bin.push(t as u32);
+            }
         }
     }
     let mut g = GBuffer {
@@ -85,10 +111,10 @@ pub fn rasterize(width: usize, height: usize, vertices: &[Option<ScreenVertex>],
                     continue;
                 }
                 let inv_area = 1.0 / area;
-                let ys = (a.y.min(b.y).min(c.y).ceil().max(y0 as f32) as usize).max(y0);
-                let ye = (a.y.max(b.y).max(c.y).floor().min((y0 + rows - 1) as f32)) as isize;
-                let xs = a.x.min(b.x).min(c.x).ceil().max(0.0) as usize;
-                let xe = a.x.max(b.x).max(c.x).floor().min(width as f32 - 1.0) as isize;
+                let ys = (ceil(a.y.min(b.y).min(c.y)).max(y0 as f32) as usize).max(y0);
+                let ye = (floor(a.y.max(b.y).max(c.y)).min((y0 + rows - 1) as f32)) as isize;
+                let xs = ceil(a.x.min(b.x).min(c.x)).max(0.0) as usize;
+                let xe = floor(a.x.max(b.x).max(c.x)).min(width as f32 - 1.0) as isize;
                 if ye < ys as isize || xe < xs as isize {
                     continue;
                 }

@@ -12,7 +12,7 @@ fn main() {
     let f = render_frame(&scene, &rig, sensor, 30, Some(&NoiseProfile::carmine()), 1);
     let rgbd = rig.sensors[&sensor].rgbd;
     let stage = DepthStage::new(DepthConfig::default()).unwrap();
-    for _ in 0..5 {
+    for _ in 0..std::env::var("N").ok().and_then(|v| v.parse().ok()).unwrap_or(5) {
         let start = std::time::Instant::now();
         let out = stage.process(&f.raw_depth, &f.color, &f.mask, &rgbd).unwrap();
         let steps: Vec<String> = out.stats.timings_ms.iter().map(|(n, t)| format!("{n} {t:.2}")).collect();

@@ -128,12 +128,17 @@ pub fn mesh(
     let (dw, dh) = depth.dims();
     let z = depth.as_slice();
     let step = max_step_m as f32;
+    // Triangles whose projection misses the box entirely are dropped here (the crop holds
+    // depth pixels for a range of depths, most of which land outside the box).
+    let (fx0, fy0, fx1, fy1) = (x0 as f32 - 1.0, y0 as f32 - 1.0, x1 as f32 + 1.0, y1 as f32 + 1.0);
     let ok = |a: usize, b: usize, c: usize| {
         let (za, zb, zc) = (z[a], z[b], z[c]);
-        projected[a].is_some()
-            && projected[b].is_some()
-            && projected[c].is_some()
-            && za.max(zb).max(zc) - za.min(zb).min(zc) <= step
+        let (Some(pa), Some(pb), Some(pc)) = (projected[a], projected[b], projected[c]) else { return false };
+        za.max(zb).max(zc) - za.min(zb).min(zc) <= step
+            && pa.x.max(pb.x).max(pc.x) >= fx0
+            && pa.x.min(pb.x).min(pc.x) <= fx1
+            && pa.y.max(pb.y).max(pc.y) >= fy0
+            && pa.y.min(pb.y).min(pc.y) <= fy1
     };
     let triangles: Vec<[u32; 3]> = (0..dh.saturating_sub(1))
         .into_par_iter()

@@ -16,6 +16,9 @@ use std::sync::{Arc, Mutex};
 /// mask (metres): the working range of Carmine-class sensors.
 const ROI_NEAR_M: f64 = 0.25;
 const ROI_FAR_M: f64 = 5.0;
+/// Relative and absolute slack on the measured depth range when narrowing the crop.
+const ROI_Z_SLACK: f64 = 0.05;
+const ROI_Z_SLACK_M: f64 = 0.02;
 
 /// Counts of what each step did, for diagnostics.
 #[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
@@ -165,7 +168,22 @@ impl DepthStage {
         let (rx0, ry0, rx1, ry1) = if cfg.registration.restrict_to_mask {
             let bbox = mask_box;
             let margin = cfg.gaussian_filter.window.max(cfg.bigbird_filter.window).max(cfg.step_filter.window) + 2;
-            depth_roi(sensor, bbox, ROI_NEAR_M, ROI_FAR_M, margin)
+            let coarse = depth_roi(sensor, bbox, ROI_NEAR_M, ROI_FAR_M, margin);
+            // Narrow the depth range to the depths measured in that region (the parallax
+            // between the cameras makes the region grow with the range), with slack for the
+            // difference between depth- and colour-camera z.
+            let (lo, hi) = (coarse.1..=coarse.3)
+                .flat_map(|y| raw.row(y)[coarse.0..=coarse.2].iter().copied())
+                .filter(|&d| d > 0)
+                .fold((u16::MAX, 0u16), |(lo, hi), d| (lo.min(d), hi.max(d)));
+            if lo <= hi {
+                let (near, far) = (f64::from(lo) * sensor.metres_per_unit, f64::from(hi) * sensor.metres_per_unit);
+                let near = (near * (1.0 - ROI_Z_SLACK) - ROI_Z_SLACK_M).max(ROI_NEAR_M);
+                let far = (far * (1.0 + ROI_Z_SLACK) + ROI_Z_SLACK_M).clamp(near, ROI_FAR_M.max(near));
+                depth_roi(sensor, bbox, near, far, margin)
+            } else {
+                coarse
+            }
         } else {
             (0, 0, dw - 1, dh - 1)
         };

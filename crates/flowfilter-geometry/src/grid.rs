@@ -124,7 +124,8 @@ pub fn mask_bbox(mask: &Mask) -> Option<(usize, usize, usize, usize)> {
     let mut bb: Option<(usize, usize, usize, usize)> = None;
     for y in 0..mask.height() {
         let row = mask.row(y);
-        if let (Some(first), Some(last)) = (row.iter().position(|&b| b), row.iter().rposition(|&b| b)) {
+        if let Some(first) = first_set(row) {
+            let last = last_set(row).expect("a row with a first set pixel has a last one");
             bb = Some(match bb {
                 None => (first, y, last, y),
                 Some((a, b, c, _)) => (a.min(first), b, c.max(last), y),
@@ -134,9 +135,59 @@ pub fn mask_bbox(mask: &Mask) -> Option<(usize, usize, usize, usize)> {
     bb
 }
 
+/// Mask rows are scanned in blocks of this many pixels with a branch-free OR (vectorised),
+/// then the block that holds the answer is searched pixel by pixel.
+const SCAN_BLOCK: usize = 64;
+
+fn any_set(block: &[bool]) -> bool {
+    block.iter().fold(false, |a, &b| a | b)
+}
+
+/// Index of the first set pixel of a row.
+fn first_set(row: &[bool]) -> Option<usize> {
+    let block = row.chunks(SCAN_BLOCK).position(any_set)?;
+    let start = block * SCAN_BLOCK;
+    row[start..].iter().position(|&b| b).map(|i| start + i)
+}
+
+/// Index of the last set pixel of a row.
+fn last_set(row: &[bool]) -> Option<usize> {
+    let block = row.chunks(SCAN_BLOCK).rposition(any_set)?;
+    let start = block * SCAN_BLOCK;
+    let end = (start + SCAN_BLOCK).min(row.len());
+    row[start..end].iter().rposition(|&b| b).map(|i| start + i)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn mask_bbox_matches_a_pixel_by_pixel_scan() {
+        // Widths around the scan block size; set pixels in first, middle and partial last blocks.
+        let mut seed = 5u64;
+        for (w, h) in [(1, 1), (63, 3), (64, 2), (65, 4), (200, 7), (1280, 5)] {
+            for _ in 0..20 {
+                let mask = Grid::from_fn(w, h, |_, _| {
+                    seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                    (seed >> 33) % 97 == 0
+                });
+                let mut want: Option<(usize, usize, usize, usize)> = None;
+                for y in 0..h {
+                    for x in 0..w {
+                        if *mask.at(x, y) {
+                            want = Some(match want {
+                                None => (x, y, x, y),
+                                Some((a, b, c, d)) => (a.min(x), b.min(y), c.max(x), d.max(y)),
+                            });
+                        }
+                    }
+                }
+                assert_eq!(mask_bbox(&mask), want, "{w}x{h}");
+            }
+        }
+        assert_eq!(mask_bbox(&Grid::from_fn(130, 2, |x, y| x == 129 && y == 1)), Some((129, 1, 129, 1)));
+    }
 
     #[test]
     fn indexing_is_row_major() {
