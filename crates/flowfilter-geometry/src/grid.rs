@@ -170,7 +170,7 @@ mod tests {
             for _ in 0..20 {
                 let mask = Grid::from_fn(w, h, |_, _| {
                     seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-                    (seed >> 33) % 97 == 0
+                    (seed >> 33).is_multiple_of(97)
                 });
                 let mut want: Option<(usize, usize, usize, usize)> = None;
                 for y in 0..h {
