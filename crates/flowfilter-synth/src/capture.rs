@@ -51,7 +51,7 @@ fn project_all(scene: &Scene, cam: &CameraModel, h_cam_from_table: &Pose) -> Vec
         .collect()
 }
 
-fn render_gbuffer(scene: &Scene, cam: &CameraModel, h_cam_from_table: &Pose) -> GBuffer {
+pub(crate) fn render_gbuffer(scene: &Scene, cam: &CameraModel, h_cam_from_table: &Pose) -> GBuffer {
     let v = project_all(scene, cam, h_cam_from_table);
     rasterize(cam.size.width as usize, cam.size.height as usize, &v, &scene.triangles)
 }

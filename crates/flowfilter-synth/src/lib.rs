@@ -6,6 +6,7 @@
 //! - [`render_frame`]: z-buffer rasterisation with perspective-correct texturing and Lambertian
 //!   shading; depth from the IR camera; masks from the colour camera; optional structured-light
 //!   noise ([`NoiseProfile`]).
+//! - [`true_flow`]: exact optical flow between any two colour views, with occlusion.
 //! - [`write_capture`]: a whole capture in the BigBIRD layout through `flowfilter-bigbird`.
 
 mod capture;
@@ -16,6 +17,7 @@ mod procedural;
 mod rig;
 mod scene;
 mod texture;
+mod truth_flow;
 
 pub use capture::{CaptureOptions, RenderedFrame, contact_sheet, parse_angles, render_frame, write_capture};
 pub use error::SynthError;
@@ -24,3 +26,4 @@ pub use noise::{CARMINE_TOML, ColorNoise, DepthNoise, DepthNoiseTruth, NoiseProf
 pub use procedural::{PROCEDURAL_NAMES, procedural};
 pub use rig::{Rig, RigSensor, look_at, world_from_table};
 pub use scene::{Scene, TABLE_RADIUS};
+pub use truth_flow::{TrueFlow, true_flow};

@@ -6,6 +6,7 @@ use flowfilter_flow::dis::{Dis, DisParams};
 use flowfilter_flow::lk::to_gray;
 use flowfilter_flow::metrics::epe;
 use flowfilter_flow::{FlowEstimator, LucasKanade, flo, viz};
+use flowfilter_geometry::Mask;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
@@ -26,6 +27,10 @@ pub struct FlowArgs {
     /// Ground-truth flow (.flo): print the end-point error.
     #[arg(long)]
     pub gt: Option<PathBuf>,
+    /// Occlusion mask of the ground truth (PNG, non-zero = occluded): also print the EPE over
+    /// the non-occluded pixels.
+    #[arg(long, requires = "gt")]
+    pub occlusion: Option<PathBuf>,
     /// Write the estimate as .flo.
     #[arg(long)]
     pub out: Option<PathBuf>,
@@ -75,6 +80,24 @@ pub fn run(args: &FlowArgs) -> anyhow::Result<ExitCode> {
                 field.width(),
                 field.height()
             ),
+        }
+    }
+    if let (Some(gt), Some(occ)) = (&args.gt, &args.occlusion) {
+        let truth = flo::read(gt)?;
+        let occ = image::open(occ).with_context(|| format!("reading {}", occ.display()))?.to_luma8();
+        anyhow::ensure!(
+            (occ.width() as usize, occ.height() as usize) == (truth.width(), truth.height()),
+            "{}: occlusion mask is {}x{}, the ground truth {}x{}",
+            args.occlusion.as_ref().expect("set").display(),
+            occ.width(),
+            occ.height(),
+            truth.width(),
+            truth.height()
+        );
+        let visible = Mask::from_fn(truth.width(), truth.height(), |x, y| occ.get_pixel(x as u32, y as u32).0[0] == 0);
+        match epe(&field, &truth, Some(&visible)) {
+            Some((e, n)) => println!("EPE (non-occluded) {e:.4} px over {n} pixels"),
+            None => println!("EPE (non-occluded): no non-occluded pixel with ground truth"),
         }
     }
     if let Some(out) = &args.out {

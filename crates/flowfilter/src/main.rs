@@ -5,6 +5,7 @@ mod flow;
 mod inspect;
 mod register;
 mod synth;
+mod truth_flow;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -29,6 +30,8 @@ enum Command {
     Estimate(estimate::EstimateArgs),
     /// Optical flow between two images (EPE against a ground-truth .flo).
     Flow(flow::FlowArgs),
+    /// Render two views of a synthetic object and write their exact optical flow and occlusion.
+    TruthFlow(truth_flow::TruthFlowArgs),
 }
 
 fn main() -> ExitCode {
@@ -43,6 +46,7 @@ fn main() -> ExitCode {
         Command::Register(args) => register::run(&args),
         Command::Estimate(args) => estimate::run(&args),
         Command::Flow(args) => flow::run(&args),
+        Command::TruthFlow(args) => truth_flow::run(&args),
     };
     match result {
         Ok(code) => code,

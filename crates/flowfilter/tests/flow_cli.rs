@@ -89,3 +89,63 @@ fn onnx_networks_run_from_the_cli() {
     assert!(stdout.contains("onnx:tiny_warp.onnx: 64x48"), "{stdout}");
     assert_eq!(flo::read(&out).unwrap().width(), 64);
 }
+
+/// `truth-flow` writes a synthetic pair with its exact flow and occlusion; `flow --gt
+/// --occlusion` scores an estimator on it (the project's own flow benchmark domain).
+#[test]
+fn truth_flow_pair_scores_dense_flow() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("box");
+    let d = dir.to_str().unwrap();
+    let (ok, stdout, stderr) =
+        flowfilter(&["truth-flow", "--procedural", "box", "--camera", "NP3", "--from", "0", "--to", "3", "--out", d]);
+    assert!(ok, "{stderr}");
+    assert!(stdout.contains("object pixels"), "{stdout}");
+    let truth = flo::read(&dir.join("flow.flo")).unwrap();
+    assert_eq!((truth.width(), truth.height()), (1280, 1024));
+    let valid = truth.valid.as_slice().iter().filter(|&&v| v).count();
+    assert!(valid > 10_000, "{valid}");
+    // The box turns 3 degrees: its pixels move by a few pixels, not by zero and not by many.
+    let mean: f32 = truth
+        .flow
+        .as_slice()
+        .iter()
+        .zip(truth.valid.as_slice())
+        .filter(|(_, v)| **v)
+        .map(|(f, _)| f[0].hypot(f[1]))
+        .sum::<f32>()
+        / valid as f32;
+    assert!(mean > 0.5 && mean < 20.0, "mean flow {mean}");
+    let (ok, stdout, stderr) = flowfilter(&[
+        "flow",
+        "--from",
+        &format!("{d}/from.png"),
+        "--to",
+        &format!("{d}/to.png"),
+        "--method",
+        "dis",
+        "--gt",
+        &format!("{d}/flow.flo"),
+        "--occlusion",
+        &format!("{d}/occlusion.png"),
+    ]);
+    assert!(ok, "{stderr}");
+    let epe: f64 =
+        stdout.split("EPE (non-occluded) ").nth(1).unwrap().split_whitespace().next().unwrap().parse().unwrap();
+    assert!(epe < 1.0, "DIS EPE {epe} on a 3-degree turn\n{stdout}");
+    // A half turn hides most of what the first view saw.
+    let (ok, stdout, stderr) = flowfilter(&[
+        "truth-flow",
+        "--procedural",
+        "box",
+        "--from",
+        "0",
+        "--to",
+        "180",
+        "--out",
+        tmp.path().join("half").to_str().unwrap(),
+    ]);
+    assert!(ok, "{stderr}");
+    let occluded: f64 = stdout.split(", ").nth(1).unwrap().split('%').next().unwrap().parse().unwrap();
+    assert!(occluded > 60.0, "{stdout}");
+}
