@@ -1,0 +1,113 @@
+//! Flow accuracy on the task's own domain: synthesised turntable pairs (Carmine colour noise)
+//! with exact ground truth from `flowfilter_synth::true_flow`, for the procedural objects and,
+//! when `../shared/data/ycb` is present, the YCB scans. Scores non-occluded object pixels.
+//! `cargo run --release -p flowfilter-flow --example turntable_flow [-- STEPS] [CAMERAS]`
+//! (defaults `3,9,15` and `NP1,NP3,NP5`; base angle 0).
+
+use flowfilter_bigbird::{FrameId, SensorId};
+use flowfilter_flow::dis::{Dis, DisParams};
+use flowfilter_flow::lk::to_gray;
+use flowfilter_flow::metrics::{epe, epe_at_points};
+use flowfilter_flow::{FlowEstimator, FlowField, LucasKanade};
+use flowfilter_geometry::Mask;
+use flowfilter_synth::{NoiseProfile, Rig, Scene, TexturedMesh, procedural, render_frame, true_flow};
+use std::path::Path;
+use std::time::Instant;
+
+fn main() {
+    let arg = |i: usize, default: &str| std::env::args().nth(i).unwrap_or_else(|| default.to_string());
+    let steps: Vec<u32> = arg(1, "3,9,15").split(',').map(|s| s.parse().expect("step")).collect();
+    let cameras: Vec<SensorId> = arg(2, "NP1,NP3,NP5").split(',').map(|s| s.parse().expect("camera")).collect();
+    let mut objects: Vec<(String, TexturedMesh)> = ["box", "can", "bottle"]
+        .iter()
+        .map(|n| (format!("procedural {n}"), procedural(n, 1).expect("known")))
+        .collect();
+    let ycb = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/ycb");
+    match std::fs::read_dir(&ycb) {
+        Ok(dir) => {
+            let mut names: Vec<String> = dir
+                .flatten()
+                .filter(|e| e.path().join("textured.obj").is_file())
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .collect();
+            names.sort();
+            for n in names {
+                let mesh = TexturedMesh::load_obj(ycb.join(&n).join("textured.obj")).expect("YCB mesh");
+                objects.push((n, mesh));
+            }
+        }
+        Err(_) => eprintln!("{} is absent: procedural objects only", ycb.display()),
+    }
+    let rig = Rig::bigbird_like();
+    let noise = NoiseProfile::carmine();
+    let dis_fast = Dis::new(DisParams::fast()).expect("valid");
+    let dis_medium = Dis::new(DisParams::medium()).expect("valid");
+    let lk = LucasKanade::default();
+    println!("| object | pairs | occluded % | DIS-fast EPE | DIS-medium EPE | LK EPE (8-px grid) | DIS-medium ms |");
+    println!("| --- | --- | --- | --- | --- | --- | --- |");
+    let mut totals = [0.0f64; 4];
+    let mut count = 0usize;
+    for (name, mesh) in objects {
+        let scene = Scene::new(mesh.placed_on_table(0.01, -0.005), 1);
+        let mut sums = [0.0f64; 5];
+        let mut pairs = 0usize;
+        for &camera in &cameras {
+            for &step in &steps {
+                let (from, to) = (FrameId { sensor: camera, angle: 0 }, FrameId { sensor: camera, angle: step });
+                let truth = true_flow(&scene, &rig, from, to, 0.003);
+                let gt = FlowField { flow: truth.flow.clone(), valid: truth.visible.clone() };
+                let a = render_frame(&scene, &rig, camera, 0, Some(&noise), 1);
+                let b = render_frame(&scene, &rig, camera, step, Some(&noise), 1);
+                let (ga, gb) = (to_gray(&a.color), to_gray(&b.color));
+                let t = Instant::now();
+                let medium = dis_medium.dense(&ga, &gb, None).expect("flow");
+                let ms = t.elapsed().as_secs_f64() * 1e3;
+                let fast = dis_fast.dense(&ga, &gb, None).expect("flow");
+                let visible: &Mask = &truth.visible;
+                let grid: Vec<[usize; 2]> = (0..gt.height())
+                    .step_by(8)
+                    .flat_map(|y| (0..gt.width()).step_by(8).map(move |x| [x, y]))
+                    .filter(|&[x, y]| *visible.at(x, y))
+                    .collect();
+                let pts: Vec<[f32; 2]> = grid.iter().map(|&[x, y]| [x as f32, y as f32]).collect();
+                let tracked = lk.sparse(&ga, &gb, &pts, None).expect("lk");
+                let sparse: Vec<([usize; 2], Option<[f32; 2]>)> = grid.iter().copied().zip(tracked).collect();
+                let (Some(f), Some(m), Some(l)) =
+                    (epe(&fast, &gt, None), epe(&medium, &gt, None), epe_at_points(&sparse, &gt))
+                else {
+                    continue;
+                };
+                sums[0] += 100.0 * truth.occluded_fraction();
+                sums[1] += f.0;
+                sums[2] += m.0;
+                sums[3] += l.0;
+                sums[4] += ms;
+                pairs += 1;
+            }
+        }
+        if pairs == 0 {
+            continue;
+        }
+        let n = pairs as f64;
+        println!(
+            "| {name} | {pairs} | {:.1} | {:.3} | {:.3} | {:.3} | {:.0} |",
+            sums[0] / n,
+            sums[1] / n,
+            sums[2] / n,
+            sums[3] / n,
+            sums[4] / n
+        );
+        for i in 0..4 {
+            totals[i] += sums[i];
+        }
+        count += pairs;
+    }
+    let n = count.max(1) as f64;
+    println!(
+        "| **all** | {count} | {:.1} | {:.3} | {:.3} | {:.3} | |",
+        totals[0] / n,
+        totals[1] / n,
+        totals[2] / n,
+        totals[3] / n
+    );
+}
