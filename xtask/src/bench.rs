@@ -104,7 +104,8 @@ impl Protocol {
                     Some(p) => load(p)?,
                     None => base.clone(),
                 };
-                c.method = m.clone();
+                // "registrar@label" runs the registrar under its own label (and method_configs entry).
+                c.method = m.split('@').next().unwrap_or(m).to_string();
                 if let Some(v) = voxel {
                     c.cloud.voxel_m = v;
                 }

@@ -1,5 +1,6 @@
 //! EPE and time of the dense estimators on the Sintel pairs of `../shared/data/sintel`:
-//! `cargo run --release -p flowfilter-flow --example sintel_flow [-- REPEATS]`.
+//! `cargo run --release -p flowfilter-flow [--features onnx] --example sintel_flow [-- REPEATS]`
+//! (with `onnx`: also our network, fixtures/models/ffnet.onnx).
 
 use flowfilter_flow::dis::{Dis, DisParams};
 use flowfilter_flow::lk::to_gray;
@@ -19,6 +20,8 @@ fn main() {
         ("dis-fast", Box::new(Dis::new(DisParams::fast()).expect("valid"))),
         ("dis-medium", Box::new(Dis::new(DisParams::medium()).expect("valid"))),
         ("lk-dense", Box::new(LucasKanade::default())),
+        #[cfg(feature = "onnx")]
+        ("net (ffnet)", Box::new(flowfilter_flow::net::ffnet().expect("shipped network"))),
     ];
     println!("| pass | scene | method | EPE all | EPE non-occluded | median ms |");
     println!("| --- | --- | --- | --- | --- | --- |");

@@ -1,8 +1,9 @@
 //! Flow accuracy on the task's own domain: synthesised turntable pairs (Carmine colour noise)
 //! with exact ground truth from `flowfilter_synth::true_flow`, for the procedural objects and,
 //! when `../shared/data/ycb` is present, the YCB scans. Scores non-occluded object pixels.
-//! `cargo run --release -p flowfilter-flow --example turntable_flow [-- STEPS] [CAMERAS]`
-//! (defaults `3,9,15` and `NP1,NP3,NP5`; base angle 0).
+//! `cargo run --release -p flowfilter-flow [--features onnx] --example turntable_flow [-- STEPS] [CAMERAS] [OBJECTS]`
+//! (defaults `3,9,15`, `NP1,NP3,NP5` and every object; base angle 0). With the `onnx` feature the
+//! table has a column for our network (`net`, fixtures/models/ffnet.onnx).
 
 use flowfilter_bigbird::{FrameId, SensorId};
 use flowfilter_flow::dis::{Dis, DisParams};
@@ -18,8 +19,10 @@ fn main() {
     let arg = |i: usize, default: &str| std::env::args().nth(i).unwrap_or_else(|| default.to_string());
     let steps: Vec<u32> = arg(1, "3,9,15").split(',').map(|s| s.parse().expect("step")).collect();
     let cameras: Vec<SensorId> = arg(2, "NP1,NP3,NP5").split(',').map(|s| s.parse().expect("camera")).collect();
+    let only: Option<Vec<String>> = std::env::args().nth(3).map(|a| a.split(',').map(str::to_string).collect());
     let mut objects: Vec<(String, TexturedMesh)> = ["box", "can", "bottle"]
         .iter()
+        .filter(|n| only.as_ref().is_none_or(|o| o.iter().any(|x| x == *n)))
         .map(|n| (format!("procedural {n}"), procedural(n, 1).expect("known")))
         .collect();
     let ycb = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/ycb");
@@ -31,7 +34,7 @@ fn main() {
                 .map(|e| e.file_name().to_string_lossy().into_owned())
                 .collect();
             names.sort();
-            for n in names {
+            for n in names.into_iter().filter(|n| only.as_ref().is_none_or(|o| o.contains(n))) {
                 let mesh = TexturedMesh::load_obj(ycb.join(&n).join("textured.obj")).expect("YCB mesh");
                 objects.push((n, mesh));
             }
@@ -43,13 +46,17 @@ fn main() {
     let dis_fast = Dis::new(DisParams::fast()).expect("valid");
     let dis_medium = Dis::new(DisParams::medium()).expect("valid");
     let lk = LucasKanade::default();
-    println!("| object | pairs | occluded % | DIS-fast EPE | DIS-medium EPE | LK EPE (8-px grid) | DIS-medium ms |");
-    println!("| --- | --- | --- | --- | --- | --- | --- |");
-    let mut totals = [0.0f64; 4];
+    #[cfg(feature = "onnx")]
+    let net = flowfilter_flow::net::ffnet().expect("shipped network");
+    println!(
+        "| object | pairs | occluded % | DIS-fast EPE | DIS-medium EPE | LK EPE (8-px grid) | DIS-medium ms | net EPE | net ms |"
+    );
+    println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- |");
+    let mut totals = [0.0f64; 6];
     let mut count = 0usize;
     for (name, mesh) in objects {
         let scene = Scene::new(mesh.placed_on_table(0.01, -0.005), 1);
-        let mut sums = [0.0f64; 5];
+        let mut sums = [0.0f64; 7];
         let mut pairs = 0usize;
         for &camera in &cameras {
             for &step in &steps {
@@ -82,6 +89,13 @@ fn main() {
                 sums[2] += m.0;
                 sums[3] += l.0;
                 sums[4] += ms;
+                #[cfg(feature = "onnx")]
+                {
+                    let t = Instant::now();
+                    let f = net.dense(&ga, &gb, None).expect("net");
+                    sums[6] += t.elapsed().as_secs_f64() * 1e3;
+                    sums[5] += epe(&f, &gt, None).map_or(f64::NAN, |e| e.0);
+                }
                 pairs += 1;
             }
         }
@@ -89,22 +103,25 @@ fn main() {
             continue;
         }
         let n = pairs as f64;
+        let net_cols =
+            if cfg!(feature = "onnx") { format!("{:.3} | {:.0}", sums[5] / n, sums[6] / n) } else { "- | -".into() };
         println!(
-            "| {name} | {pairs} | {:.1} | {:.3} | {:.3} | {:.3} | {:.0} |",
+            "| {name} | {pairs} | {:.1} | {:.3} | {:.3} | {:.3} | {:.0} | {net_cols} |",
             sums[0] / n,
             sums[1] / n,
             sums[2] / n,
             sums[3] / n,
             sums[4] / n
         );
-        for i in 0..4 {
+        for i in [0, 1, 2, 3, 5] {
             totals[i] += sums[i];
         }
         count += pairs;
     }
     let n = count.max(1) as f64;
+    let net_all = if cfg!(feature = "onnx") { format!("{:.3}", totals[5] / n) } else { "-".into() };
     println!(
-        "| **all** | {count} | {:.1} | {:.3} | {:.3} | {:.3} | |",
+        "| **all** | {count} | {:.1} | {:.3} | {:.3} | {:.3} | | {net_all} | |",
         totals[0] / n,
         totals[1] / n,
         totals[2] / n,

@@ -15,6 +15,8 @@ pub mod flo;
 pub mod lk;
 pub mod metrics;
 #[cfg(feature = "onnx")]
+pub mod net;
+#[cfg(feature = "onnx")]
 pub mod onnx;
 pub mod sintel;
 pub mod viz;

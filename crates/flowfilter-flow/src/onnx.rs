@@ -94,7 +94,13 @@ impl OnnxContract {
     pub fn from_file(path: &Path) -> Result<Self, FlowError> {
         let err = |message: String| FlowError::Model { path: path.display().to_string(), message };
         let text = std::fs::read_to_string(path).map_err(|e| err(format!("cannot read the contract: {e}")))?;
-        let c: Self = toml::from_str(&text).map_err(|e| err(format!("contract: {}", e.message().trim())))?;
+        Self::from_toml(&text, &path.display().to_string())
+    }
+
+    /// Parse a contract from TOML text; `label` names it in errors.
+    pub fn from_toml(text: &str, label: &str) -> Result<Self, FlowError> {
+        let err = |message: String| FlowError::Model { path: label.to_string(), message };
+        let c: Self = toml::from_str(text).map_err(|e| err(format!("contract: {}", e.message().trim())))?;
         c.validate().map_err(err)?;
         Ok(c)
     }
@@ -158,6 +164,27 @@ impl OnnxFlow {
         let err = |message: String| FlowError::Model { path: model.display().to_string(), message };
         contract.validate().map_err(err)?;
         let proto = tract_onnx::onnx().model_for_path(model).map_err(|e| err(format!("cannot load: {e:#}")))?;
+        let name = format!("onnx:{}", model.file_name().map_or_else(String::new, |n| n.to_string_lossy().into_owned()));
+        Self::from_proto(model, proto, contract, name)
+    }
+
+    /// A network held in memory (`onnx` bytes) with its contract; `label` names it in errors
+    /// and is the estimator's name.
+    pub fn from_bytes(label: &str, onnx: &[u8], contract: OnnxContract) -> Result<Self, FlowError> {
+        let err = |message: String| FlowError::Model { path: label.to_string(), message };
+        contract.validate().map_err(err)?;
+        let proto =
+            tract_onnx::onnx().model_for_read(&mut &onnx[..]).map_err(|e| err(format!("cannot load: {e:#}")))?;
+        Self::from_proto(Path::new(label), proto, contract, label.to_string())
+    }
+
+    fn from_proto(
+        model: &Path,
+        proto: InferenceModel,
+        contract: OnnxContract,
+        name: String,
+    ) -> Result<Self, FlowError> {
+        let err = |message: String| FlowError::Model { path: model.display().to_string(), message };
         let inputs: Vec<String> = proto
             .input_outlets()
             .map_err(|e| err(e.to_string()))?
@@ -198,7 +225,6 @@ impl OnnxFlow {
                 outputs.join(", ")
             ))
         })?;
-        let name = format!("onnx:{}", model.file_name().map_or_else(String::new, |n| n.to_string_lossy().into_owned()));
         Ok(Self {
             path: model.to_path_buf(),
             contract,

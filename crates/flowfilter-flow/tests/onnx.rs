@@ -115,3 +115,51 @@ fn contracts_that_do_not_match_the_network_are_named_errors() {
     let net = OnnxFlow::load(&warp).unwrap();
     assert!(matches!(net.dense(&a, &Gray::filled(10, 10, 0.5), None), Err(FlowError::SizeMismatch { .. })));
 }
+
+/// The shipped network (`fixtures/models/ffnet.onnx`, embedded as `net`) on its fixture pair (a
+/// held-out object at the network's 640x512 working size, written by
+/// `tools/train-flow/reference.py`): tract reproduces onnxruntime's output, and the flow is as
+/// accurate against the exact flow as when the reference was recorded.
+#[test]
+fn shipped_network_matches_its_reference() {
+    let net = flowfilter_flow::net::ffnet().unwrap();
+    assert_eq!(net.name(), "net");
+    let open = |n: &str| {
+        let g = image::open(models().join(n)).unwrap().to_luma8();
+        Gray::from_fn(g.width() as usize, g.height() as usize, |x, y| {
+            f32::from(g.get_pixel(x as u32, y as u32).0[0]) / 255.0
+        })
+    };
+    let (a, b) = (open("ffnet_pair_a.png"), open("ffnet_pair_b.png"));
+    let out = net.network_output(&a, &b).unwrap();
+    assert_eq!(out.output_size, (640, 512));
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(models().join("ffnet_reference.json")).unwrap()).unwrap();
+    let (w, h) = out.output_size;
+    let points = r["points"].as_array().unwrap();
+    let mut worst = 0.0f32;
+    for (p, v) in points.iter().zip(r["network"].as_array().unwrap()) {
+        let (x, y) = (p[0].as_u64().unwrap() as usize, p[1].as_u64().unwrap() as usize);
+        for c in 0..2 {
+            worst = worst.max((out.values[c * w * h + y * w + x] - v[c].as_f64().unwrap() as f32).abs());
+        }
+    }
+    println!("{} points, max |tract - onnxruntime| = {worst:.2e} px", points.len());
+    assert!(worst < 1e-3, "{worst}");
+    // Accuracy through the estimator interface (dense field at the pair's size).
+    let f = net.dense(&a, &b, None).unwrap();
+    let (mut sum, mut n) = (0.0f64, 0usize);
+    for (p, t) in points.iter().zip(r["truth"].as_array().unwrap()) {
+        if t.is_null() {
+            continue;
+        }
+        let (x, y) = (p[0].as_u64().unwrap() as usize, p[1].as_u64().unwrap() as usize);
+        let e = f.at(x, y).unwrap();
+        sum += (f64::from(e[0]) - t[0].as_f64().unwrap()).hypot(f64::from(e[1]) - t[1].as_f64().unwrap());
+        n += 1;
+    }
+    let epe = sum / n as f64;
+    let recorded = r["epe_at_points"].as_f64().unwrap();
+    println!("EPE at {n} points with exact flow: {epe:.3} px (recorded {recorded:.3})");
+    assert!(n > 300 && (epe - recorded).abs() < 0.01, "{epe} vs {recorded}");
+}

@@ -163,11 +163,13 @@ pub fn flow_estimator_by_name(config: &FlowStageConfig) -> Result<Box<dyn FlowEs
         }
         "dis" => Ok(Box::new(Dis::new(config.dis.clone())?)),
         #[cfg(feature = "onnx")]
+        "net" => Ok(Box::new(flowfilter_flow::net::ffnet()?)),
+        #[cfg(feature = "onnx")]
         other if other.starts_with("onnx:") => {
             Ok(Box::new(flowfilter_flow::onnx::OnnxFlow::load(std::path::Path::new(&other["onnx:".len()..]))?))
         }
         other => Err(FlowError::Config(format!(
-            "unknown estimator '{other}' (available: {}, and onnx:MODEL.onnx in builds with the `onnx` feature)",
+            "unknown estimator '{other}' (available: {}, and net (our network) or onnx:MODEL.onnx in builds with the `onnx` feature)",
             FLOW_ESTIMATOR_NAMES.join(", ")
         ))),
     }

@@ -62,14 +62,40 @@ fn bad_values_are_named() {
 #[test]
 fn bench_protocols_name_known_methods_and_configs() {
     // The protocols of configs/bench/ are read by xtask; here: every method they name builds.
+    // A method may be "registrar@label" with its own entry in [method_configs].
     for entry in std::fs::read_dir(configs_dir().join("bench")).unwrap() {
         let path = entry.unwrap().path();
         let v: toml::Value = toml::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
         let pipeline = v["pipeline"].as_str().unwrap();
         let base = PipelineConfig::from_file(&configs_dir().join("..").join(pipeline)).unwrap();
         for m in v["methods"].as_array().unwrap() {
-            let c = PipelineConfig { method: m.as_str().unwrap().into(), ..base.clone() };
+            let label = m.as_str().unwrap();
+            let config = match v.get("method_configs").and_then(|t| t.get(label)) {
+                Some(p) => PipelineConfig::from_file(&configs_dir().join("..").join(p.as_str().unwrap())).unwrap(),
+                None => base.clone(),
+            };
+            let c = PipelineConfig { method: label.split('@').next().unwrap().into(), ..config };
+            if c.flow.estimator == "net" && !cfg!(feature = "onnx") {
+                // Checked by the `onnx` build (shipped_configs_need_the_onnx_feature below).
+                continue;
+            }
             flowfilter_pipeline::Pipeline::from_config(c).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        }
+    }
+}
+
+#[test]
+fn shipped_configs_need_the_onnx_feature() {
+    // configs/onnx/: pipelines with our network; they build exactly when the feature is on, and
+    // without it the error says how to get it.
+    for entry in std::fs::read_dir(configs_dir().join("onnx")).unwrap() {
+        let path = entry.unwrap().path();
+        let c = PipelineConfig::from_file(&path);
+        if cfg!(feature = "onnx") {
+            flowfilter_pipeline::Pipeline::from_config(c.unwrap()).unwrap();
+        } else {
+            let msg = c.map(|_| ()).unwrap_err().to_string();
+            assert!(msg.contains("net") && msg.contains("onnx"), "{}: {msg}", path.display());
         }
     }
 }

@@ -21,7 +21,8 @@ pub struct FlowArgs {
     #[arg(long)]
     pub to: PathBuf,
     /// lk (dense by grid + interpolation), dis (OpenCV "medium" preset), dis-fast, dis-ultrafast,
-    /// or onnx:MODEL.onnx (feature `onnx`; the contract MODEL.toml beside it).
+    /// net (our trained network, feature `onnx`) or onnx:MODEL.onnx (feature `onnx`; the
+    /// contract MODEL.toml beside it).
     #[arg(long, default_value = "dis")]
     pub method: String,
     /// Ground-truth flow (.flo): print the end-point error.
@@ -46,11 +47,13 @@ fn estimator(name: &str) -> anyhow::Result<Box<dyn FlowEstimator>> {
         "dis-fast" => Box::new(Dis::new(DisParams::fast())?),
         "dis-ultrafast" => Box::new(Dis::new(DisParams::ultrafast())?),
         #[cfg(feature = "onnx")]
+        "net" => Box::new(flowfilter_flow::net::ffnet()?),
+        #[cfg(feature = "onnx")]
         other if other.starts_with("onnx:") => {
             Box::new(flowfilter_flow::onnx::OnnxFlow::load(std::path::Path::new(&other["onnx:".len()..]))?)
         }
         #[cfg(not(feature = "onnx"))]
-        other if other.starts_with("onnx:") => {
+        other if other.starts_with("onnx:") || other == "net" => {
             bail!("--method {other}: ONNX networks need a build with the `onnx` feature (cargo build --features onnx)")
         }
         other => bail!("--method '{other}': expected lk, dis, dis-fast or dis-ultrafast"),

@@ -12,16 +12,44 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
 
-/// Arguments of `synth`.
+/// The object to render (shared by `synth` and `truth-flow`).
 #[derive(Args)]
 #[command(group(clap::ArgGroup::new("object").required(true).args(["mesh", "procedural"])))]
-pub struct SynthArgs {
+pub struct ObjectArgs {
     /// A textured, triangulated OBJ (with MTL and diffuse texture), in metres, z up.
     #[arg(long)]
     pub mesh: Option<PathBuf>,
     /// A procedural object: box, can or bottle.
     #[arg(long)]
     pub procedural: Option<String>,
+    /// Seed of all randomness (textures of procedural objects, noise).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Offset of the object from the turntable centre, metres, `dx,dy`.
+    #[arg(long, default_value = "0.01,-0.005", value_delimiter = ',', num_args = 2, allow_hyphen_values = true)]
+    pub offset: Vec<f32>,
+}
+
+impl ObjectArgs {
+    /// The object on the turntable.
+    pub fn scene(&self) -> anyhow::Result<Scene> {
+        let mesh = match (&self.mesh, &self.procedural) {
+            (Some(path), _) => TexturedMesh::load_obj(path)?,
+            (None, Some(name)) => procedural(name, self.seed)?,
+            (None, None) => unreachable!("clap requires one of --mesh and --procedural"),
+        };
+        let mesh = mesh.placed_on_table(self.offset[0], self.offset[1]);
+        tracing::info!(source = %mesh.source.display(), triangles = mesh.triangles.len(), "loaded object");
+        Ok(Scene::new(mesh, self.seed))
+    }
+}
+
+/// Arguments of `synth`.
+#[derive(Args)]
+pub struct SynthArgs {
+    /// The object.
+    #[command(flatten)]
+    pub object: ObjectArgs,
     /// Output object directory.
     #[arg(long)]
     pub out: PathBuf,
@@ -34,12 +62,6 @@ pub struct SynthArgs {
     /// Noise profile: `carmine` (built in), `none` (exact data), or a TOML profile file.
     #[arg(long, default_value = "carmine")]
     pub noise: String,
-    /// Seed of all randomness (textures of procedural objects, noise).
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
-    /// Offset of the object from the turntable centre, metres, `dx,dy`.
-    #[arg(long, default_value = "0.01,-0.005", value_delimiter = ',', num_args = 2, allow_hyphen_values = true)]
-    pub offset: Vec<f32>,
     /// Also write a contact sheet PNG (colour, mask, depth) of the first angle of every camera.
     #[arg(long)]
     pub contact_sheet: Option<PathBuf>,
@@ -54,17 +76,14 @@ pub fn run(args: &SynthArgs) -> anyhow::Result<ExitCode> {
         .collect::<Result<_, _>>()?;
     let angles = parse_angles(&args.angles)?;
     let noise = NoiseProfile::resolve(&args.noise)?;
-    let mesh = match (&args.mesh, &args.procedural) {
-        (Some(path), _) => TexturedMesh::load_obj(path)?,
-        (None, Some(name)) => procedural(name, args.seed)?,
-        (None, None) => unreachable!("clap requires one of --mesh and --procedural"),
-    };
-    let mesh = mesh.placed_on_table(args.offset[0], args.offset[1]);
-    tracing::info!(source = %mesh.source.display(), triangles = mesh.triangles.len(), "loaded object");
-    let scene = Scene::new(mesh, args.seed);
+    let scene = args.object.scene()?;
     let rig = Rig::bigbird_like();
-    let opts =
-        CaptureOptions { sensors: sensors.clone(), angles: angles.clone(), noise: noise.clone(), seed: args.seed };
+    let opts = CaptureOptions {
+        sensors: sensors.clone(),
+        angles: angles.clone(),
+        noise: noise.clone(),
+        seed: args.object.seed,
+    };
     let total = sensors.len() * angles.len();
     let bar = ProgressBar::new(total as u64);
     bar.set_style(
@@ -88,8 +107,10 @@ pub fn run(args: &SynthArgs) -> anyhow::Result<ExitCode> {
         noise.as_ref().map_or("none", |p| p.name.as_str())
     );
     if let Some(png) = &args.contact_sheet {
-        let frames: Vec<_> =
-            sensors.iter().map(|&s| render_frame(&scene, &rig, s, angles[0], noise.as_ref(), args.seed)).collect();
+        let frames: Vec<_> = sensors
+            .iter()
+            .map(|&s| render_frame(&scene, &rig, s, angles[0], noise.as_ref(), args.object.seed))
+            .collect();
         let unit = rig.sensors[&sensors[0]].rgbd.metres_per_unit;
         contact_sheet(&frames.iter().collect::<Vec<_>>(), unit)
             .save(png)

@@ -1,26 +1,23 @@
 //! `flowfilter truth-flow`: render two colour views of a synthetic turntable object and write
 //! their exact optical flow (`.flo`) with the occlusion mask.
 
+use crate::synth::ObjectArgs;
 use anyhow::Context;
 use clap::Args;
 use flowfilter_bigbird::{FrameId, SensorId};
 use flowfilter_flow::{FlowField, flo, viz};
 use flowfilter_geometry::Mask;
-use flowfilter_synth::{NoiseProfile, Rig, Scene, TexturedMesh, procedural, render_frame, true_flow};
+use flowfilter_synth::{NoiseProfile, Rig, render_frame, true_flow};
 use image::{GrayImage, Luma};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
 /// Arguments of `truth-flow`.
 #[derive(Args)]
-#[command(group(clap::ArgGroup::new("object").required(true).args(["mesh", "procedural"])))]
 pub struct TruthFlowArgs {
-    /// A textured, triangulated OBJ (with MTL and diffuse texture), in metres, z up.
-    #[arg(long)]
-    pub mesh: Option<PathBuf>,
-    /// A procedural object: box, can or bottle.
-    #[arg(long)]
-    pub procedural: Option<String>,
+    /// The object.
+    #[command(flatten)]
+    pub object: ObjectArgs,
     /// Camera of the first view.
     #[arg(long, default_value = "NP3")]
     pub camera: String,
@@ -36,12 +33,6 @@ pub struct TruthFlowArgs {
     /// Noise of the written colour images: `none` (default), `carmine`, or a TOML profile.
     #[arg(long, default_value = "none")]
     pub noise: String,
-    /// Seed (procedural textures, noise).
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
-    /// Offset of the object from the turntable centre, metres, `dx,dy`.
-    #[arg(long, default_value = "0.01,-0.005", value_delimiter = ',', num_args = 2, allow_hyphen_values = true)]
-    pub offset: Vec<f32>,
     /// Depth tolerance of the visibility test, metres.
     #[arg(long, default_value_t = 0.003)]
     pub tolerance: f64,
@@ -68,19 +59,14 @@ pub fn run(args: &TruthFlowArgs) -> anyhow::Result<ExitCode> {
         anyhow::ensure!(a < 360, "--from/--to: angle {a} is outside 0..360");
     }
     let noise = NoiseProfile::resolve(&args.noise)?;
-    let mesh = match (&args.mesh, &args.procedural) {
-        (Some(path), _) => TexturedMesh::load_obj(path)?,
-        (None, Some(name)) => procedural(name, args.seed)?,
-        (None, None) => unreachable!("clap requires one of --mesh and --procedural"),
-    };
-    let scene = Scene::new(mesh.placed_on_table(args.offset[0], args.offset[1]), args.seed);
+    let scene = args.object.scene()?;
     let rig = Rig::bigbird_like();
     let (from, to) = (FrameId { sensor: s_from, angle: args.from }, FrameId { sensor: s_to, angle: args.to });
     let truth = true_flow(&scene, &rig, from, to, args.tolerance);
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let path = |name: &str| args.out.join(name);
     for (id, name) in [(from, "from.png"), (to, "to.png")] {
-        let frame = render_frame(&scene, &rig, id.sensor, id.angle, noise.as_ref(), args.seed);
+        let frame = render_frame(&scene, &rig, id.sensor, id.angle, noise.as_ref(), args.object.seed);
         frame.color.save(path(name)).with_context(|| format!("writing {}", path(name).display()))?;
     }
     let object = Mask::from_vec(

@@ -149,3 +149,40 @@ fn truth_flow_pair_scores_dense_flow() {
     let occluded: f64 = stdout.split(", ").nth(1).unwrap().split('%').next().unwrap().parse().unwrap();
     assert!(occluded > 60.0, "{stdout}");
 }
+
+/// `--method net` runs our shipped network in `onnx` builds and is a clear error without it.
+#[test]
+fn method_net_runs_the_shipped_network_or_names_the_feature() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("box");
+    let d = dir.to_str().unwrap();
+    let (ok, _, stderr) =
+        flowfilter(&["truth-flow", "--procedural", "box", "--camera", "NP3", "--from", "0", "--to", "3", "--out", d]);
+    assert!(ok, "{stderr}");
+    let (ok, stdout, stderr) = flowfilter(&[
+        "flow",
+        "--from",
+        &format!("{d}/from.png"),
+        "--to",
+        &format!("{d}/to.png"),
+        "--method",
+        "net",
+        "--gt",
+        &format!("{d}/flow.flo"),
+        "--occlusion",
+        &format!("{d}/occlusion.png"),
+    ]);
+    if cfg!(feature = "onnx") {
+        assert!(ok, "{stderr}");
+        let epe: f64 =
+            stdout.split("EPE (non-occluded) ").nth(1).unwrap().split_whitespace().next().unwrap().parse().unwrap();
+        assert!(epe < NET_EPE_BOUND, "net EPE {epe} on a 3-degree turn\n{stdout}");
+    } else {
+        assert!(!ok);
+        assert!(stderr.contains("onnx") && stderr.contains("feature"), "{stderr}");
+    }
+}
+
+/// Bound on the network's EPE for the 3-degree box pair above (measured when the model was
+/// trained: see fixtures/models/MODEL_CARD.md).
+const NET_EPE_BOUND: f64 = 1.0;
