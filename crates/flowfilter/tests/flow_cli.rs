@@ -90,18 +90,47 @@ fn onnx_networks_run_from_the_cli() {
     assert_eq!(flo::read(&out).unwrap().width(), 64);
 }
 
+/// `truth-flow` of the procedural box, NP3, 0 -> 3 degrees, into `dir`.
+fn box_pair(dir: &std::path::Path) -> String {
+    let d = dir.to_str().unwrap().to_string();
+    let (ok, stdout, stderr) =
+        flowfilter(&["truth-flow", "--procedural", "box", "--camera", "NP3", "--from", "0", "--to", "3", "--out", &d]);
+    assert!(ok, "{stderr}");
+    assert!(stdout.contains("object pixels"), "{stdout}");
+    d
+}
+
+/// `flow --method METHOD` on a `truth-flow` directory with its exact flow and occlusion:
+/// success, stdout, stderr and the non-occluded EPE when printed.
+fn score(d: &str, method: &str) -> (bool, String, String, Option<f64>) {
+    let (ok, stdout, stderr) = flowfilter(&[
+        "flow",
+        "--from",
+        &format!("{d}/from.png"),
+        "--to",
+        &format!("{d}/to.png"),
+        "--method",
+        method,
+        "--gt",
+        &format!("{d}/flow.flo"),
+        "--occlusion",
+        &format!("{d}/occlusion.png"),
+    ]);
+    let epe = stdout
+        .split("EPE (non-occluded) ")
+        .nth(1)
+        .and_then(|r| r.split_whitespace().next())
+        .and_then(|v| v.parse().ok());
+    (ok, stdout, stderr, epe)
+}
+
 /// `truth-flow` writes a synthetic pair with its exact flow and occlusion; `flow --gt
 /// --occlusion` scores an estimator on it (the project's own flow benchmark domain).
 #[test]
 fn truth_flow_pair_scores_dense_flow() {
     let tmp = tempfile::tempdir().unwrap();
-    let dir = tmp.path().join("box");
-    let d = dir.to_str().unwrap();
-    let (ok, stdout, stderr) =
-        flowfilter(&["truth-flow", "--procedural", "box", "--camera", "NP3", "--from", "0", "--to", "3", "--out", d]);
-    assert!(ok, "{stderr}");
-    assert!(stdout.contains("object pixels"), "{stdout}");
-    let truth = flo::read(&dir.join("flow.flo")).unwrap();
+    let d = box_pair(&tmp.path().join("box"));
+    let truth = flo::read(&std::path::Path::new(&d).join("flow.flo")).unwrap();
     assert_eq!((truth.width(), truth.height()), (1280, 1024));
     let valid = truth.valid.as_slice().iter().filter(|&&v| v).count();
     assert!(valid > 10_000, "{valid}");
@@ -116,23 +145,9 @@ fn truth_flow_pair_scores_dense_flow() {
         .sum::<f32>()
         / valid as f32;
     assert!(mean > 0.5 && mean < 20.0, "mean flow {mean}");
-    let (ok, stdout, stderr) = flowfilter(&[
-        "flow",
-        "--from",
-        &format!("{d}/from.png"),
-        "--to",
-        &format!("{d}/to.png"),
-        "--method",
-        "dis",
-        "--gt",
-        &format!("{d}/flow.flo"),
-        "--occlusion",
-        &format!("{d}/occlusion.png"),
-    ]);
+    let (ok, stdout, stderr, epe) = score(&d, "dis");
     assert!(ok, "{stderr}");
-    let epe: f64 =
-        stdout.split("EPE (non-occluded) ").nth(1).unwrap().split_whitespace().next().unwrap().parse().unwrap();
-    assert!(epe < 1.0, "DIS EPE {epe} on a 3-degree turn\n{stdout}");
+    assert!(epe.is_some_and(|e| e < 1.0), "DIS on a 3-degree turn\n{stdout}");
     // A half turn hides most of what the first view saw.
     let (ok, stdout, stderr) = flowfilter(&[
         "truth-flow",
@@ -154,35 +169,17 @@ fn truth_flow_pair_scores_dense_flow() {
 #[test]
 fn method_net_runs_the_shipped_network_or_names_the_feature() {
     let tmp = tempfile::tempdir().unwrap();
-    let dir = tmp.path().join("box");
-    let d = dir.to_str().unwrap();
-    let (ok, _, stderr) =
-        flowfilter(&["truth-flow", "--procedural", "box", "--camera", "NP3", "--from", "0", "--to", "3", "--out", d]);
-    assert!(ok, "{stderr}");
-    let (ok, stdout, stderr) = flowfilter(&[
-        "flow",
-        "--from",
-        &format!("{d}/from.png"),
-        "--to",
-        &format!("{d}/to.png"),
-        "--method",
-        "net",
-        "--gt",
-        &format!("{d}/flow.flo"),
-        "--occlusion",
-        &format!("{d}/occlusion.png"),
-    ]);
+    let d = box_pair(&tmp.path().join("box"));
+    let (ok, stdout, stderr, epe) = score(&d, "net");
     if cfg!(feature = "onnx") {
         assert!(ok, "{stderr}");
-        let epe: f64 =
-            stdout.split("EPE (non-occluded) ").nth(1).unwrap().split_whitespace().next().unwrap().parse().unwrap();
-        assert!(epe < NET_EPE_BOUND, "net EPE {epe} on a 3-degree turn\n{stdout}");
+        assert!(epe.is_some_and(|e| e < NET_EPE_BOUND), "net on a 3-degree turn\n{stdout}");
     } else {
         assert!(!ok);
         assert!(stderr.contains("onnx") && stderr.contains("feature"), "{stderr}");
     }
 }
 
-/// Bound on the network's EPE for the 3-degree box pair above (measured when the model was
-/// trained: see fixtures/models/MODEL_CARD.md).
+/// Bound on the network's EPE for the 3-degree box pair above (0.45 px when the model was
+/// trained; DIS-medium: 0.24 px; see fixtures/models/MODEL_CARD.md).
 const NET_EPE_BOUND: f64 = 1.0;
