@@ -1,5 +1,5 @@
 //! Per-step timing of the depth stage on a synthesised Carmine-noise frame.
-//! Run: `cargo run --release -p flowfilter-depth --example depth_timing`.
+//! Run: `cargo run --release -p flowfilter-depth --example depth_timing` (`N=200` for more runs).
 
 use flowfilter_bigbird::SensorId;
 use flowfilter_depth::{DepthConfig, DepthStage};

@@ -163,3 +163,13 @@ fn shipped_network_matches_its_reference() {
     println!("EPE at {n} points with exact flow: {epe:.3} px (recorded {recorded:.3})");
     assert!(n > 300 && (epe - recorded).abs() < 0.01, "{epe} vs {recorded}");
 }
+
+#[test]
+fn networks_from_bytes_report_bad_bytes_and_contracts_by_label() {
+    let contract = OnnxContract::from_toml(flowfilter_flow::net::CONTRACT, "ffnet.toml").unwrap();
+    let e = OnnxFlow::from_bytes("broken-model", b"not an onnx graph", contract).unwrap_err();
+    assert!(matches!(e, FlowError::Model { .. }) && e.to_string().contains("broken-model"), "{e}");
+    let e = OnnxContract::from_toml("[input]\nnames = []\nchannels = 1\n[output]\nname = \"flow\"\n", "inline.toml")
+        .unwrap_err();
+    assert!(e.to_string().contains("inline.toml") && e.to_string().contains("input.names"), "{e}");
+}
