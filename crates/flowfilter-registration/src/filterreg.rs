@@ -391,7 +391,8 @@ impl Registrar for FilterReg {
             (cfg.e_step != FilterRegEStep::Lattice).then(|| ExactEStep { index: KnnIndex::new(target), cache: None });
         // The support radius below which exact sums are cheaper than the lattice: the median
         // distance from (a strided sample of) target points to their AUTO_NEIGHBOURS-th neighbour.
-        let exact_below = exact.as_ref().map(|e| {
+        // Only the Auto E-step switches; Exact and Lattice need no radius.
+        let exact_below = exact.as_ref().filter(|_| cfg.e_step == FilterRegEStep::Auto).map(|e| {
             let step = (target.len() / 64).max(1);
             let mut d: Vec<f64> = target
                 .iter()

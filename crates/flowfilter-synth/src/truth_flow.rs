@@ -27,9 +27,16 @@ pub struct TrueFlow {
 }
 
 impl TrueFlow {
+    /// The object pixels of the first view (visible or occluded in the second).
+    pub fn object(&self) -> Mask {
+        Mask::from_fn(self.visible.width(), self.visible.height(), |x, y| {
+            *self.visible.at(x, y) || *self.occluded.at(x, y)
+        })
+    }
+
     /// Number of object pixels of the first view.
     pub fn object_pixels(&self) -> usize {
-        self.visible.as_slice().iter().zip(self.occluded.as_slice()).filter(|(v, o)| **v || **o).count()
+        self.object().as_slice().iter().filter(|&&o| o).count()
     }
 
     /// Fraction of the object pixels that are occluded in the second view (0 when there are none).
@@ -71,7 +78,6 @@ pub fn true_flow(scene: &Scene, rig: &Rig, from: FrameId, to: FrameId, tolerance
     let (w, h) = (a.g.width, a.g.height);
     let (bw, bh) = (b.g.width, b.g.height);
     let n_obj = scene.object_triangles() as u32;
-    let b_from_a_table = b.h_cam_from_table;
     let traced: Vec<Option<([f32; 2], bool)>> = (0..w * h)
         .into_par_iter()
         .map(|k| {
@@ -79,7 +85,7 @@ pub fn true_flow(scene: &Scene, rig: &Rig, from: FrameId, to: FrameId, tolerance
                 return None;
             }
             let p = surface_point(scene, &a.g, k)?;
-            let q = b_from_a_table * p;
+            let q = b.h_cam_from_table * p;
             let flow = |px: f64, py: f64| [(px - (k % w) as f64) as f32, (py - (k / w) as f64) as f32];
             let Some(pix) = cam_b.project(&q) else { return Some(([f32::NAN; 2], false)) };
             let f = flow(pix.x, pix.y);

@@ -84,23 +84,23 @@ pub fn run(args: &FlowArgs) -> anyhow::Result<ExitCode> {
                 field.height()
             ),
         }
-    }
-    if let (Some(gt), Some(occ)) = (&args.gt, &args.occlusion) {
-        let truth = flo::read(gt)?;
-        let occ = image::open(occ).with_context(|| format!("reading {}", occ.display()))?.to_luma8();
-        anyhow::ensure!(
-            (occ.width() as usize, occ.height() as usize) == (truth.width(), truth.height()),
-            "{}: occlusion mask is {}x{}, the ground truth {}x{}",
-            args.occlusion.as_ref().expect("set").display(),
-            occ.width(),
-            occ.height(),
-            truth.width(),
-            truth.height()
-        );
-        let visible = Mask::from_fn(truth.width(), truth.height(), |x, y| occ.get_pixel(x as u32, y as u32).0[0] == 0);
-        match epe(&field, &truth, Some(&visible)) {
-            Some((e, n)) => println!("EPE (non-occluded) {e:.4} px over {n} pixels"),
-            None => println!("EPE (non-occluded): no non-occluded pixel with ground truth"),
+        if let Some(occ_path) = &args.occlusion {
+            let occ = image::open(occ_path).with_context(|| format!("reading {}", occ_path.display()))?.to_luma8();
+            anyhow::ensure!(
+                (occ.width() as usize, occ.height() as usize) == (truth.width(), truth.height()),
+                "{}: occlusion mask is {}x{}, the ground truth {}x{}",
+                occ_path.display(),
+                occ.width(),
+                occ.height(),
+                truth.width(),
+                truth.height()
+            );
+            let visible =
+                Mask::from_fn(truth.width(), truth.height(), |x, y| occ.get_pixel(x as u32, y as u32).0[0] == 0);
+            match epe(&field, &truth, Some(&visible)) {
+                Some((e, n)) => println!("EPE (non-occluded) {e:.4} px over {n} pixels"),
+                None => println!("EPE (non-occluded): no non-occluded pixel with ground truth"),
+            }
         }
     }
     if let Some(out) = &args.out {

@@ -69,11 +69,7 @@ pub fn run(args: &TruthFlowArgs) -> anyhow::Result<ExitCode> {
         let frame = render_frame(&scene, &rig, id.sensor, id.angle, noise.as_ref(), args.object.seed);
         frame.color.save(path(name)).with_context(|| format!("writing {}", path(name).display()))?;
     }
-    let object = Mask::from_vec(
-        truth.flow.width(),
-        truth.flow.height(),
-        truth.visible.as_slice().iter().zip(truth.occluded.as_slice()).map(|(v, o)| *v || *o).collect(),
-    )?;
+    let object = truth.object();
     let field = FlowField { flow: truth.flow.clone(), valid: object.clone() };
     flo::write(&field, &path("flow.flo"))?;
     for (mask, name) in [(&truth.occluded, "occlusion.png"), (&object, "object.png")] {
