@@ -55,38 +55,121 @@ fn ceil(x: f32) -> f32 {
     -floor(-x)
 }
 
-/// Rasterise `triangles` over `vertices` into a `width x height` G-buffer. Triangles with a
-/// vertex that is not drawable (`None`, behind the camera) are skipped.
-pub fn rasterize(width: usize, height: usize, vertices: &[Option<ScreenVertex>], triangles: &[[u32; 3]]) -> GBuffer {
-    let bands = height.div_ceil(BAND);
-    // Bin triangles by the bands their bounding box touches: the band ranges in parallel, the
-    // (cheap) pushes in triangle order.
-    let ranges: Vec<Option<(u32, u32)>> = triangles
-        .par_iter()
-        .map(|tri| {
-            let (Some(a), Some(b), Some(c)) =
-                (vertices[tri[0] as usize], vertices[tri[1] as usize], vertices[tri[2] as usize])
-            else {
-                return None;
-            };
-            let y_min = ceil(a.y.min(b.y).min(c.y)).max(0.0);
-            let y_max = floor(a.y.max(b.y).max(c.y)).min(height as f32 - 1.0);
-            let x_min = a.x.min(b.x).min(c.x);
-            let x_max = a.x.max(b.x).max(c.x);
-            if y_min > y_max || x_max < 0.0 || x_min > width as f32 - 1.0 || !(y_min.is_finite() && y_max.is_finite()) {
-                return None;
+/// Triangles binned by the bands of rows their bounding box touches, in triangle order within
+/// each band (compressed rows: band `b` holds `items[offsets[b]..offsets[b + 1]]`).
+struct Bins {
+    offsets: Vec<usize>,
+    items: Vec<u32>,
+}
+
+impl Bins {
+    fn new(width: usize, height: usize, vertices: &[Option<ScreenVertex>], triangles: &[[u32; 3]]) -> Self {
+        let bands = height.div_ceil(BAND);
+        // The band ranges in parallel, then a counting sort (two cheap serial passes).
+        let ranges: Vec<Option<(u32, u32)>> = triangles
+            .par_iter()
+            .map(|tri| {
+                let (Some(a), Some(b), Some(c)) =
+                    (vertices[tri[0] as usize], vertices[tri[1] as usize], vertices[tri[2] as usize])
+                else {
+                    return None;
+                };
+                let y_min = ceil(a.y.min(b.y).min(c.y)).max(0.0);
+                let y_max = floor(a.y.max(b.y).max(c.y)).min(height as f32 - 1.0);
+                let x_min = a.x.min(b.x).min(c.x);
+                let x_max = a.x.max(b.x).max(c.x);
+                if y_min > y_max
+                    || x_max < 0.0
+                    || x_min > width as f32 - 1.0
+                    || !(y_min.is_finite() && y_max.is_finite())
+                {
+                    return None;
+                }
+                Some(((y_min as usize / BAND) as u32, (y_max as usize / BAND) as u32))
+            })
+            .collect();
+        let mut offsets = vec![0usize; bands + 1];
+        for &(lo, hi) in ranges.iter().flatten() {
+            for count in &mut offsets[lo as usize + 1..=hi as usize + 1] {
+                *count += 1;
             }
-            Some(((y_min as usize / BAND) as u32, (y_max as usize / BAND) as u32))
-        })
-        .collect();
-    let mut bins: Vec<Vec<u32>> = vec![Vec::new(); bands];
-    for (t, r) in ranges.iter().enumerate() {
-        if let Some((lo, hi)) = *r {
-            for bin in &mut bins[lo as usize..=hi as usize] {
-                bin.push(t as u32);
+        }
+        for b in 0..bands {
+            offsets[b + 1] += offsets[b];
+        }
+        let mut next = offsets.clone();
+        let mut items = vec![0u32; offsets[bands]];
+        for (t, r) in ranges.iter().enumerate() {
+            if let Some((lo, hi)) = *r {
+                for slot in &mut next[lo as usize..=hi as usize] {
+                    items[*slot] = t as u32;
+                    *slot += 1;
+                }
+            }
+        }
+        Self { offsets, items }
+    }
+
+    fn band(&self, b: usize) -> &[u32] {
+        &self.items[self.offsets[b]..self.offsets[b + 1]]
+    }
+}
+
+/// Scan the triangles of one band (rows `y0..y0 + rows`), calling
+/// `visit(k, triangle, z, [b1, b2])` for every covered pixel, `k` relative to the band's first
+/// row. `visit` decides whether the fragment wins (the z-test); unused barycentrics are
+/// optimised away where `visit` ignores them.
+#[inline(always)]
+fn scan_band(
+    y0: usize,
+    rows: usize,
+    width: usize,
+    vertices: &[Option<ScreenVertex>],
+    triangles: &[[u32; 3]],
+    band: &[u32],
+    mut visit: impl FnMut(usize, u32, f32, [f32; 2]),
+) {
+    for &t in band {
+        let [i0, i1, i2] = triangles[t as usize];
+        let (Some(a), Some(b), Some(c)) = (vertices[i0 as usize], vertices[i1 as usize], vertices[i2 as usize]) else {
+            continue;
+        };
+        let area = (b.x - a.x) * (c.y - a.y) - (b.y - a.y) * (c.x - a.x);
+        if area.abs() < 1e-12 {
+            continue;
+        }
+        let inv_area = 1.0 / area;
+        let ys = (ceil(a.y.min(b.y).min(c.y)).max(y0 as f32) as usize).max(y0);
+        let ye = (floor(a.y.max(b.y).max(c.y)).min((y0 + rows - 1) as f32)) as isize;
+        let xs = ceil(a.x.min(b.x).min(c.x)).max(0.0) as usize;
+        let xe = floor(a.x.max(b.x).max(c.x)).min(width as f32 - 1.0) as isize;
+        if ye < ys as isize || xe < xs as isize {
+            continue;
+        }
+        let (iz0, iz1, iz2) = (1.0 / a.z, 1.0 / b.z, 1.0 / c.z);
+        for y in ys..=ye as usize {
+            let py = y as f32;
+            for x in xs..=xe as usize {
+                let px = x as f32;
+                // Screen-space barycentrics (edge functions), inclusive edges.
+                let l1 = ((px - a.x) * (c.y - a.y) - (py - a.y) * (c.x - a.x)) * inv_area;
+                let l2 = ((b.x - a.x) * (py - a.y) - (b.y - a.y) * (px - a.x)) * inv_area;
+                let l0 = 1.0 - l1 - l2;
+                if l0 < -1e-6 || l1 < -1e-6 || l2 < -1e-6 {
+                    continue;
+                }
+                let (w0, w1, w2) = (l0 * iz0, l1 * iz1, l2 * iz2);
+                let sum = w0 + w1 + w2;
+                visit((y - y0) * width + x, t, 1.0 / sum, [w1 / sum, w2 / sum]);
             }
         }
     }
+}
+
+/// Rasterise `triangles` over `vertices` into a `width x height` G-buffer. Triangles with a
+/// vertex that is not drawable (`None`, behind the camera) are skipped.
+pub fn rasterize(width: usize, height: usize, vertices: &[Option<ScreenVertex>], triangles: &[[u32; 3]]) -> GBuffer {
+    let bins = Bins::new(width, height, vertices, triangles);
     let mut g = GBuffer {
         width,
         height,
@@ -100,50 +183,37 @@ pub fn rasterize(width: usize, height: usize, vertices: &[Option<ScreenVertex>],
         .zip(g.bary.par_chunks_mut(BAND * width))
         .enumerate()
         .for_each(|(band, ((depth, tri_out), bary))| {
-            let y0 = band * BAND;
             let rows = depth.len() / width;
-            for &t in &bins[band] {
-                let [i0, i1, i2] = triangles[t as usize];
-                let (a, b, c) =
-                    (vertices[i0 as usize].unwrap(), vertices[i1 as usize].unwrap(), vertices[i2 as usize].unwrap());
-                let area = (b.x - a.x) * (c.y - a.y) - (b.y - a.y) * (c.x - a.x);
-                if area.abs() < 1e-12 {
-                    continue;
+            scan_band(band * BAND, rows, width, vertices, triangles, bins.band(band), |k, t, z, b| {
+                if z < depth[k] {
+                    depth[k] = z;
+                    tri_out[k] = t;
+                    bary[k] = b;
                 }
-                let inv_area = 1.0 / area;
-                let ys = (ceil(a.y.min(b.y).min(c.y)).max(y0 as f32) as usize).max(y0);
-                let ye = (floor(a.y.max(b.y).max(c.y)).min((y0 + rows - 1) as f32)) as isize;
-                let xs = ceil(a.x.min(b.x).min(c.x)).max(0.0) as usize;
-                let xe = floor(a.x.max(b.x).max(c.x)).min(width as f32 - 1.0) as isize;
-                if ye < ys as isize || xe < xs as isize {
-                    continue;
-                }
-                let (iz0, iz1, iz2) = (1.0 / a.z, 1.0 / b.z, 1.0 / c.z);
-                for y in ys..=ye as usize {
-                    let py = y as f32;
-                    for x in xs..=xe as usize {
-                        let px = x as f32;
-                        // Screen-space barycentrics (edge functions), inclusive edges.
-                        let l1 = ((px - a.x) * (c.y - a.y) - (py - a.y) * (c.x - a.x)) * inv_area;
-                        let l2 = ((b.x - a.x) * (py - a.y) - (b.y - a.y) * (px - a.x)) * inv_area;
-                        let l0 = 1.0 - l1 - l2;
-                        if l0 < -1e-6 || l1 < -1e-6 || l2 < -1e-6 {
-                            continue;
-                        }
-                        let (w0, w1, w2) = (l0 * iz0, l1 * iz1, l2 * iz2);
-                        let sum = w0 + w1 + w2;
-                        let z = 1.0 / sum;
-                        let k = (y - y0) * width + x;
-                        if z < depth[k] {
-                            depth[k] = z;
-                            tri_out[k] = t;
-                            bary[k] = [w1 / sum, w2 / sum];
-                        }
-                    }
-                }
-            }
+            });
         });
     g
+}
+
+/// Only the depth channel of [`rasterize`] (camera-frame z of the nearest surface,
+/// `f32::INFINITY` where nothing is hit), without the triangle and barycentric buffers.
+pub fn rasterize_depth(
+    width: usize,
+    height: usize,
+    vertices: &[Option<ScreenVertex>],
+    triangles: &[[u32; 3]],
+) -> Vec<f32> {
+    let bins = Bins::new(width, height, vertices, triangles);
+    let mut depth = vec![f32::INFINITY; width * height];
+    depth.par_chunks_mut(BAND * width).enumerate().for_each(|(band, depth)| {
+        let rows = depth.len() / width;
+        scan_band(band * BAND, rows, width, vertices, triangles, bins.band(band), |k, _, z, _| {
+            if z < depth[k] {
+                depth[k] = z;
+            }
+        });
+    });
+    depth
 }
 
 #[cfg(test)]
@@ -174,5 +244,25 @@ mod tests {
         let g = rasterize(64, 64, &slanted, &[[0, 1, 2]]);
         assert!((g.depth[k(20, 0)] - 1.5).abs() < 1e-5, "{}", g.depth[k(20, 0)]);
         assert_eq!(g.triangle[k(39, 39)], NO_TRIANGLE);
+    }
+
+    #[test]
+    fn depth_only_raster_equals_the_gbuffer_depth() {
+        // Overlapping triangles across band boundaries, one behind the camera (skipped).
+        let v = |x: f32, y: f32, z: f32| Some(ScreenVertex { x, y, z });
+        let vertices = vec![
+            v(-5.0, 3.0, 2.0),
+            v(70.0, 10.0, 1.5),
+            v(20.0, 60.0, 3.0),
+            v(10.0, 5.0, 1.0),
+            v(60.0, 50.0, 4.0),
+            v(5.0, 40.0, 1.2),
+            None,
+        ];
+        let triangles = [[0, 1, 2], [3, 4, 5], [0, 4, 6], [2, 3, 1]];
+        let g = rasterize(64, 50, &vertices, &triangles);
+        let d = rasterize_depth(64, 50, &vertices, &triangles);
+        assert_eq!(g.depth, d);
+        assert!(d.iter().filter(|z| z.is_finite()).count() > 1000);
     }
 }

@@ -16,46 +16,62 @@ pub fn organized_cloud(
     color: Option<&RgbImage>,
     mask: Option<&Mask>,
 ) -> (PointCloud, Vec<u32>) {
-    let w = depth.width();
-    let (x0, y0, x1, y1) = match mask {
-        Some(m) => match crate::register::mask_bbox(m) {
-            Some(b) => b,
-            None => {
-                return (
-                    PointCloud { colors: color.map(|_| vec![]), pixels: Some(vec![]), ..Default::default() },
-                    vec![u32::MAX; depth.as_slice().len()],
-                );
-            }
-        },
-        None => (0, 0, w - 1, depth.height() - 1),
+    let region = match mask {
+        Some(m) => crate::register::mask_bbox(m),
+        None => Some((0, 0, depth.width() - 1, depth.height() - 1)),
     };
-    // Rows in parallel, concatenated in row order: the same cloud as a sequential scan.
-    let rows: Vec<Vec<(usize, Point3, [u8; 3])>> = (y0..=y1)
-        .into_par_iter()
-        .map(|y| {
-            let mut row = Vec::new();
-            for x in x0..=x1 {
-                let k = y * w + x;
-                let z = depth.as_slice()[k];
-                if z <= 0.0 || mask.is_some_and(|m| !m.as_slice()[k]) {
-                    continue;
-                }
-                if let Some(p) = rays.backproject(x, y, f64::from(z)) {
-                    row.push((k, p, color.map_or([0; 3], |c| c.get_pixel(x as u32, y as u32).0)));
-                }
-            }
-            row
-        })
-        .collect();
-    let n: usize = rows.iter().map(Vec::len).sum();
-    let (mut points, mut pixels, mut colors) = (Vec::with_capacity(n), Vec::with_capacity(n), Vec::with_capacity(n));
-    let mut index = vec![u32::MAX; depth.as_slice().len()];
-    for (k, p, c) in rows.into_iter().flatten() {
-        index[k] = points.len() as u32;
-        points.push(p);
-        pixels.push([(k % w) as f32, (k / w) as f32]);
-        colors.push(c);
+    organized_cloud_in(depth, rays, color, mask, region)
+}
+
+/// [`organized_cloud`] over the pixels of `region` (inclusive box; `None` = no pixel), which
+/// must hold every pixel of `mask`.
+pub(crate) fn organized_cloud_in(
+    depth: &DepthMap,
+    rays: &RayTable,
+    color: Option<&RgbImage>,
+    mask: Option<&Mask>,
+    region: Option<(usize, usize, usize, usize)>,
+) -> (PointCloud, Vec<u32>) {
+    let w = depth.width();
+    let n_pixels = depth.as_slice().len();
+    let mut index: Vec<u32> = (0..n_pixels).into_par_iter().map(|_| u32::MAX).collect();
+    let Some((x0, y0, x1, y1)) = region else {
+        return (PointCloud { colors: color.map(|_| vec![]), pixels: Some(vec![]), ..Default::default() }, index);
+    };
+    // Pixels whose ray lies outside the camera model's domain have no point.
+    let keep = |x: usize, y: usize| {
+        let k = y * w + x;
+        depth.as_slice()[k] > 0.0 && mask.is_none_or(|m| m.as_slice()[k]) && rays.ray(x, y).is_some()
+    };
+    // Two passes over the box's rows, both parallel: count each row's points, then write them
+    // at their row's offset (the same order as a sequential scan).
+    let counts: Vec<usize> = (y0..=y1).into_par_iter().map(|y| (x0..=x1).filter(|&x| keep(x, y)).count()).collect();
+    let n: usize = counts.iter().sum();
+    let mut points = vec![Point3::origin(); n];
+    let mut pixels = vec![[0.0f32; 2]; n];
+    let mut colors = vec![[0u8; 3]; if color.is_some() { n } else { 0 }];
+    // Per-row output slices.
+    let mut rows = Vec::with_capacity(counts.len());
+    let (mut pts, mut pxs, mut cols, mut first) = (&mut points[..], &mut pixels[..], &mut colors[..], 0usize);
+    let mut index_rows = index[y0 * w..(y1 + 1) * w].chunks_mut(w);
+    for (i, &c) in counts.iter().enumerate() {
+        let (p, rest_p) = pts.split_at_mut(c);
+        let (q, rest_q) = pxs.split_at_mut(c);
+        let (k, rest_c) = cols.split_at_mut(if color.is_some() { c } else { 0 });
+        rows.push((y0 + i, first, p, q, k, index_rows.next().expect("one index row per box row")));
+        (pts, pxs, cols, first) = (rest_p, rest_q, rest_c, first + c);
     }
+    rows.into_par_iter().for_each(|(y, first, p, q, k, index_row)| {
+        for (i, x) in (x0..=x1).filter(|&x| keep(x, y)).enumerate() {
+            let z = f64::from(depth.as_slice()[y * w + x]);
+            p[i] = rays.backproject(x, y, z).expect("kept pixels have a ray");
+            q[i] = [x as f32, y as f32];
+            index_row[x] = (first + i) as u32;
+            if let (Some(img), Some(c)) = (color, k.get_mut(i)) {
+                *c = img.get_pixel(x as u32, y as u32).0;
+            }
+        }
+    });
     let cloud = PointCloud { points, normals: None, colors: color.map(|_| colors), pixels: Some(pixels) };
     (cloud, index)
 }

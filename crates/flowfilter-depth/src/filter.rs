@@ -12,23 +12,23 @@ pub fn metric_depth(raw: &RawDepth, metres_per_unit: f64) -> DepthMap {
     raw.map(|&d| if d == 0 { 0.0 } else { (f64::from(d) * metres_per_unit) as f32 })
 }
 
-/// Separable sliding min and max over valid pixels in a `window x window` square.
+/// Separable sliding min and max over valid pixels in a `window x window` square (`+inf` /
+/// `-inf` where the window holds none).
 fn window_min_max(depth: &DepthMap, window: usize) -> (Vec<f32>, Vec<f32>) {
     let (w, h) = depth.dims();
     let r = window / 2;
     let src = depth.as_slice();
+    // Invalid pixels as the identities of min and max: the passes are then branch-free.
     let mut row_min = vec![f32::INFINITY; w * h];
     let mut row_max = vec![f32::NEG_INFINITY; w * h];
     row_min.par_chunks_mut(w).zip(row_max.par_chunks_mut(w)).enumerate().for_each(|(y, (mn, mx))| {
         let row = &src[y * w..(y + 1) * w];
+        let lo: Vec<f32> = row.iter().map(|&z| if z > 0.0 { z } else { f32::INFINITY }).collect();
+        let hi: Vec<f32> = row.iter().map(|&z| if z > 0.0 { z } else { f32::NEG_INFINITY }).collect();
         for x in 0..w {
-            let (lo, hi) = (x.saturating_sub(r), (x + r).min(w - 1));
-            for &z in &row[lo..=hi] {
-                if z > 0.0 {
-                    mn[x] = mn[x].min(z);
-                    mx[x] = mx[x].max(z);
-                }
-            }
+            let (a, b) = (x.saturating_sub(r), (x + r).min(w - 1));
+            mn[x] = lo[a..=b].iter().fold(f32::INFINITY, |m, &v| m.min(v));
+            mx[x] = hi[a..=b].iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v));
         }
     });
     let mut out_min = vec![f32::INFINITY; w * h];
@@ -36,9 +36,10 @@ fn window_min_max(depth: &DepthMap, window: usize) -> (Vec<f32>, Vec<f32>) {
     out_min.par_chunks_mut(w).zip(out_max.par_chunks_mut(w)).enumerate().for_each(|(y, (mn, mx))| {
         let (lo, hi) = (y.saturating_sub(r), (y + r).min(h - 1));
         for yy in lo..=hi {
+            let (rmn, rmx) = (&row_min[yy * w..(yy + 1) * w], &row_max[yy * w..(yy + 1) * w]);
             for x in 0..w {
-                mn[x] = mn[x].min(row_min[yy * w + x]);
-                mx[x] = mx[x].max(row_max[yy * w + x]);
+                mn[x] = mn[x].min(rmn[x]);
+                mx[x] = mx[x].max(rmx[x]);
             }
         }
     });
@@ -66,6 +67,40 @@ pub fn bigbird_discontinuity(depth: &DepthMap, window: usize, threshold_m: f64) 
         })
         .collect();
     (DepthMap::from_vec(depth.width(), depth.height(), out).expect("same size"), rejected)
+}
+
+/// The median (element `n / 2` in order) of positive values and their median absolute
+/// deviation from it (element `n / 2` of the deviations), with one sort: the deviations below
+/// and above the median are already ordered, so the MAD is found by merging the two runs.
+fn median_and_mad(bits: &mut Vec<u32>, vals: &[f32]) -> (f32, f32) {
+    // Positive f32 values order like their bit patterns: sort integers.
+    bits.clear();
+    bits.extend(vals.iter().map(|v| v.to_bits()));
+    bits.sort_unstable();
+    let mid = bits.len() / 2;
+    let med = f32::from_bits(bits[mid]);
+    let (mut below, mut above) = (mid, mid); // next candidates: bits[below - 1], bits[above]
+    let mut mad = 0.0;
+    for _ in 0..=mid {
+        let lo = (below > 0).then(|| med - f32::from_bits(bits[below - 1]));
+        let hi = (above < bits.len()).then(|| f32::from_bits(bits[above]) - med);
+        mad = match (lo, hi) {
+            (Some(l), Some(h)) if l < h => {
+                below -= 1;
+                l
+            }
+            (_, Some(h)) => {
+                above += 1;
+                h
+            }
+            (Some(l), None) => {
+                below -= 1;
+                l
+            }
+            (None, None) => unreachable!("mid + 1 <= len deviations"),
+        };
+    }
+    (med, mad)
 }
 
 /// The paper's Gaussian window filter (eqs. 9-11): fit `N(mu, sigma^2)` to the valid depths of
@@ -133,14 +168,7 @@ pub fn gaussian_window(depth: &DepthMap, cfg: &GaussianFilterConfig) -> (DepthMa
                     for yy in y0..=y1 {
                         vals.extend(src[yy * w + x0..=yy * w + x1].iter().filter(|&&v| v > 0.0));
                     }
-                    // Positive f32 values order like their bit patterns: select on integers.
-                    bits.clear();
-                    bits.extend(vals.iter().map(|v| v.to_bits()));
-                    let mid = bits.len() / 2;
-                    let med = f32::from_bits(*bits.select_nth_unstable(mid).1);
-                    bits.clear();
-                    bits.extend(vals.iter().map(|&v| (v - med).abs().to_bits()));
-                    let mad = f32::from_bits(*bits.select_nth_unstable(mid).1);
+                    let (med, mad) = median_and_mad(&mut bits, &vals);
                     (f64::from(med), 1.4826 * f64::from(mad))
                 }
                 _ => (mean, std),
@@ -189,6 +217,26 @@ mod tests {
         let paper = GaussianFilterConfig { estimator: WindowEstimator::MeanStd, ..cfg };
         let (f, _) = gaussian_window(&step_edge_with_flyer(), &paper);
         assert_eq!(*f.at(10, 10), 0.75);
+    }
+
+    #[test]
+    fn median_and_mad_equal_selection() {
+        let mut bits = Vec::new();
+        let mut state = 7u32;
+        for n in 1..=25 {
+            let vals: Vec<f32> = (0..n)
+                .map(|_| {
+                    state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                    0.5 + (state >> 24) as f32 * 0.01
+                })
+                .collect();
+            let mut sorted = vals.clone();
+            sorted.sort_by(f32::total_cmp);
+            let med = sorted[n / 2];
+            let mut dev: Vec<f32> = vals.iter().map(|v| (v - med).abs()).collect();
+            dev.sort_by(f32::total_cmp);
+            assert_eq!(median_and_mad(&mut bits, &vals), (med, dev[n / 2]), "n = {n}");
+        }
     }
 
     #[test]

@@ -42,7 +42,17 @@ pub fn fill_holes_in_place(depth: &mut DepthMap, mask: &Mask, cfg: &Interpolatio
     if cfg.method == InterpolationMethod::None {
         return 0;
     }
-    let Some((x0, y0, x1, y1)) = crate::register::mask_bbox(mask) else { return 0 };
+    fill_holes_in(depth, mask, crate::register::mask_bbox(mask), cfg)
+}
+
+/// [`fill_holes_in_place`] given the mask's bounding box (`None` for an empty mask).
+pub(crate) fn fill_holes_in(
+    depth: &mut DepthMap,
+    mask: &Mask,
+    mask_box: Option<(usize, usize, usize, usize)>,
+    cfg: &InterpolationConfig,
+) -> usize {
+    let Some((x0, y0, x1, y1)) = mask_box.filter(|_| cfg.method != InterpolationMethod::None) else { return 0 };
     let (w, h) = depth.dims();
     let src = depth.as_slice();
     let m = mask.as_slice();

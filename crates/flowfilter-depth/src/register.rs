@@ -1,7 +1,7 @@
 //! Depth-to-colour registration: depth pixels seen by the depth camera, moved into the colour
 //! camera and written onto the colour grid (colour-camera z, metres, 0 = no depth).
 
-use flowfilter_camera::raster::{ScreenVertex, rasterize};
+use flowfilter_camera::raster::{ScreenVertex, rasterize_depth};
 use flowfilter_camera::{RayTable, RgbdSensor};
 use flowfilter_geometry::{DepthMap, Mask};
 use rayon::prelude::*;
@@ -18,6 +18,8 @@ pub fn project_depth_grid(
     depth_rays: &RayTable,
 ) -> Vec<Option<ScreenVertex>> {
     let w = depth.width();
+    // The rigid motion as a matrix: cheaper per point than the quaternion.
+    let (r, t) = (sensor.color_from_depth.rotation.to_rotation_matrix(), sensor.color_from_depth.translation.vector);
     depth
         .as_slice()
         .par_iter()
@@ -26,8 +28,7 @@ pub fn project_depth_grid(
             if z <= 0.0 {
                 return None;
             }
-            let p =
-                sensor.color_from_depth * depth_rays.backproject(origin.0 + k % w, origin.1 + k / w, f64::from(z))?;
+            let p = r * depth_rays.backproject(origin.0 + k % w, origin.1 + k / w, f64::from(z))? + t;
             let q = sensor.color.project(&p)?;
             Some(ScreenVertex { x: q.x as f32, y: q.y as f32, z: p.z as f32 })
         })
@@ -118,13 +119,25 @@ pub fn mesh(
     max_step_m: f64,
     mask: Option<&Mask>,
 ) -> DepthMap {
-    let (x0, y0, x1, y1) = match mask {
-        Some(m) => match mask_bbox(m) {
-            Some(b) => b,
-            None => return DepthMap::filled(width, height, 0.0),
-        },
-        None => (0, 0, width - 1, height - 1),
+    let region = match mask {
+        Some(m) => mask_bbox(m),
+        None => Some((0, 0, width - 1, height - 1)),
     };
+    mesh_in(depth, projected, width, height, max_step_m, mask, region)
+}
+
+/// [`mesh`] rasterising only `region` (inclusive box that holds every pixel of `mask`;
+/// `None` = nothing to draw).
+pub(crate) fn mesh_in(
+    depth: &DepthMap,
+    projected: &[Option<ScreenVertex>],
+    width: usize,
+    height: usize,
+    max_step_m: f64,
+    mask: Option<&Mask>,
+    region: Option<(usize, usize, usize, usize)>,
+) -> DepthMap {
+    let Some((x0, y0, x1, y1)) = region else { return DepthMap::filled(width, height, 0.0) };
     let (dw, dh) = depth.dims();
     let z = depth.as_slice();
     let step = max_step_m as f32;
@@ -162,7 +175,7 @@ pub fn mesh(
         .par_iter()
         .map(|v| v.map(|v| ScreenVertex { x: v.x - x0 as f32, y: v.y - y0 as f32, z: v.z }))
         .collect();
-    let g = rasterize(bw, bh, &shifted, &triangles);
+    let g = rasterize_depth(bw, bh, &shifted, &triangles);
     let dots = splat(&shifted, bw, bh, None);
     let mut out = DepthMap::filled(width, height, 0.0);
     out.as_mut_slice()[y0 * width..(y1 + 1) * width].par_chunks_mut(width).enumerate().for_each(|(by, row)| {
@@ -171,7 +184,7 @@ pub fn mesh(
             if mask.is_some_and(|m| !m.as_slice()[k]) {
                 continue;
             }
-            row[x0 + bx] = if g.depth[kb].is_finite() { g.depth[kb] } else { dots.as_slice()[kb] };
+            row[x0 + bx] = if g[kb].is_finite() { g[kb] } else { dots.as_slice()[kb] };
         }
     });
     out

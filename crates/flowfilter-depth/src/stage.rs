@@ -1,12 +1,12 @@
 //! The whole depth stage: raw depth + colour + mask -> filtered depth on the colour grid and an
 //! organised object cloud.
 
-use crate::cloud::{knn_normals, organized_cloud, organized_normals};
+use crate::cloud::{knn_normals, organized_cloud_in, organized_normals};
 use crate::config::{DepthConfig, NormalMethod, RegistrationMethod};
 use crate::error::DepthError;
 use crate::filter::{bigbird_discontinuity, gaussian_window};
-use crate::interpolate::fill_holes_in_place;
-use crate::register::{depth_roi, mask_bbox, mesh, project_depth_grid, splat};
+use crate::interpolate::fill_holes_in;
+use crate::register::{depth_roi, mask_bbox, mesh_in, project_depth_grid, splat};
 use flowfilter_camera::{CameraModel, RayTable, RgbdSensor};
 use flowfilter_geometry::{DepthMap, Mask, Point3, PointCloud, RawDepth};
 use image::RgbImage;
@@ -210,7 +210,10 @@ impl DepthStage {
         let restrict = cfg.registration.restrict_to_mask.then_some(mask);
         let registered = match cfg.registration.method {
             RegistrationMethod::Splat => splat(&projected, cw, ch, restrict),
-            RegistrationMethod::Mesh => mesh(&depth, &projected, cw, ch, cfg.registration.max_step_m, restrict),
+            RegistrationMethod::Mesh => {
+                let region = if restrict.is_some() { mask_box } else { (0, 0, cw - 1, ch - 1) };
+                mesh_in(&depth, &projected, cw, ch, cfg.registration.max_step_m, restrict, Some(region))
+            }
         };
         lap(&mut stats, "project+register");
         // Registration only writes inside the mask (or anywhere when unrestricted).
@@ -219,10 +222,10 @@ impl DepthStage {
             .filter(|&k| registered.as_slice()[k] > 0.0 && mask.as_slice()[k])
             .count();
         let mut dense = registered;
-        stats.interpolated = fill_holes_in_place(&mut dense, mask, &cfg.interpolation);
+        stats.interpolated = fill_holes_in(&mut dense, mask, Some(mask_box), &cfg.interpolation);
         lap(&mut stats, "interpolate");
         let color_rays = self.rays(&sensor.color);
-        let (mut cloud, point_index) = organized_cloud(&dense, &color_rays, Some(color), Some(mask));
+        let (mut cloud, point_index) = organized_cloud_in(&dense, &color_rays, Some(color), Some(mask), Some(mask_box));
         cloud.normals = match cfg.cloud.normals {
             NormalMethod::None => None,
             NormalMethod::Organized => Some(organized_normals(
