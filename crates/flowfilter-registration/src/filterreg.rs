@@ -11,6 +11,7 @@
 //! follows the EM update or an annealing schedule. Optional weighted correspondences add
 //! `lambda * sum_j w_j |T a_j - b_j|^2` to the objective (used by Flow Filter).
 
+use crate::anderson::Anderson;
 use crate::error::RegistrationError;
 use crate::evaluate::{evaluate, point_to_plane_step};
 use crate::gmm::mean_pair_distance2;
@@ -19,6 +20,7 @@ use crate::problem::{
     Correspondences, IterationRecord, Registrar, Registration, RegistrationProblem, validate_problem,
 };
 use flowfilter_geometry::{KnnIndex, Point3, Pose, Vector3, weighted_kabsch};
+use nalgebra::{DVector, Translation3, UnitQuaternion};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::sync::OnceLock;
@@ -90,6 +92,11 @@ pub struct FilterRegConfig {
     pub correspondence_weight: f64,
     /// Inlier distance for the reported fitness / RMSE, metres.
     pub evaluation_distance: f64,
+    /// Anderson acceleration of the EM iteration (pose and, with [`SigmaSchedule::Update`],
+    /// sigma^2) mixing the last this many steps; 0 runs plain EM. A mixed step that makes the
+    /// fixed-point residual grow is replaced by the plain EM step. Same fixed points, several
+    /// times fewer iterations where EM crawls (points sliding along a smooth surface).
+    pub anderson_depth: usize,
 }
 
 impl Default for FilterRegConfig {
@@ -105,6 +112,7 @@ impl Default for FilterRegConfig {
             gauss_newton_steps: 1,
             correspondence_weight: 0.0,
             evaluation_distance: 0.01,
+            anderson_depth: 5,
         }
     }
 }
@@ -372,6 +380,43 @@ fn m_step(
     }
 }
 
+/// Coordinates of the EM state for Anderson mixing: the rotation vector of `pose` relative to
+/// `reference`, the displacement of the source centroid relative to where `reference` puts it
+/// (in units of the cloud's radius, so both parts weigh alike) and, when sigma is an EM variable,
+/// `ln sigma^2`.
+struct EmCoordinates {
+    reference: Pose,
+    centre: Point3,
+    radius: f64,
+    with_sigma: bool,
+}
+
+/// Mixing starts once an EM step changes sigma^2 by less than this fraction.
+const MIXING_SIGMA_CHANGE: f64 = 0.05;
+
+/// Mixed poses rotating more than this (rad) from the reference start a new history.
+const MAX_MIXING_ANGLE: f64 = 1.0;
+
+impl EmCoordinates {
+    fn encode(&self, pose: &Pose, sigma2: f64) -> DVector<f64> {
+        let w = (pose.rotation * self.reference.rotation.inverse()).scaled_axis();
+        let p = (pose * self.centre - self.reference * self.centre) / self.radius;
+        let mut z = vec![w.x, w.y, w.z, p.x, p.y, p.z];
+        if self.with_sigma {
+            z.push(sigma2.ln());
+        }
+        DVector::from_vec(z)
+    }
+
+    /// The pose and (when mixed) sigma^2 of `z`.
+    fn decode(&self, z: &DVector<f64>) -> (Pose, Option<f64>) {
+        let r = UnitQuaternion::from_scaled_axis(Vector3::new(z[0], z[1], z[2])) * self.reference.rotation;
+        let c = self.reference * self.centre + Vector3::new(z[3], z[4], z[5]) * self.radius;
+        let pose = Pose::from_parts(Translation3::from(c - r * self.centre), r);
+        (pose, self.with_sigma.then(|| z[6].exp()))
+    }
+}
+
 impl Registrar for FilterReg {
     fn name(&self) -> &str {
         match self.config.variant {
@@ -411,6 +456,19 @@ impl Registrar for FilterReg {
         };
         let (mut history, mut converged, mut iterations, mut warnings) = (vec![], false, 0, vec![]);
         let corr = p.correspondences.as_ref().filter(|c| !c.is_empty());
+        // Anderson mixing of the EM map (pose, sigma^2) -> (pose', sigma'^2).
+        let mut mixing = (cfg.anderson_depth > 0).then(|| {
+            let n = source.len() as f64;
+            let centre = Point3::from(source.iter().fold(Vector3::zeros(), |a, s| a + s.coords) / n);
+            let radius = (source.iter().map(|s| (s - centre).norm_squared()).sum::<f64>() / n).sqrt().max(1e-9);
+            let with_sigma = matches!(cfg.sigma, SigmaSchedule::Update { .. });
+            (Anderson::new(cfg.anderson_depth), EmCoordinates { reference: t, centre, radius, with_sigma })
+        });
+        // The last plain EM step (pose, sigma^2) and its residual; whether the current iterate
+        // is a mixed one.
+        let mut plain: Option<(Pose, f64, f64)> = None;
+        let (mut mixed, mut started) = (false, false);
+        let mut result = t;
         for it in 0..cfg.max_iterations {
             let sigma = sigma2.sqrt();
             let use_lattice = match cfg.e_step {
@@ -433,8 +491,9 @@ impl Registrar for FilterReg {
                 warnings.push(format!("no source point is near the target at sigma = {sigma:.4} m: FilterReg stopped"));
                 break;
             };
-            t = delta * t;
-            x = source.iter().map(|s| t * s).collect();
+            let g = delta * t;
+            x = source.iter().map(|s| g * s).collect();
+            result = g;
             iterations = it + 1;
             // sigma^2: the EM update with the new pose and this E-step's posteriors.
             let (num, den) = (0..x.len())
@@ -451,15 +510,55 @@ impl Registrar for FilterReg {
                 SigmaSchedule::Update { .. } => (num / (3.0 * den)).max(0.5 * sigma2).max(min_sigma * min_sigma),
                 SigmaSchedule::Anneal { factor, .. } => (sigma2 * factor * factor).max(min_sigma * min_sigma),
             };
-            history.push(IterationRecord { iteration: it, transform: t, objective: new_sigma2 });
+            history.push(IterationRecord { iteration: it, transform: g, objective: new_sigma2 });
             let small = delta.rotation.angle() < cfg.tolerance && delta.translation.vector.norm() < cfg.tolerance;
             let sigma_settled = (new_sigma2 - sigma2).abs() <= 1e-3 * sigma2;
-            sigma2 = new_sigma2;
             if small && sigma_settled {
+                sigma2 = new_sigma2;
                 converged = true;
                 break;
             }
+            // Mixing starts once sigma has (nearly) settled: while it shrinks fast the EM map
+            // changes from step to step and extrapolating it can leave the basin.
+            started |= (new_sigma2 - sigma2).abs() <= MIXING_SIGMA_CHANGE * sigma2;
+            let Some((anderson, coords)) = mixing.as_mut().filter(|_| started) else {
+                (t, sigma2) = (g, new_sigma2);
+                continue;
+            };
+            if plain.is_none() {
+                coords.reference = t;
+            }
+            let z = coords.encode(&t, sigma2);
+            let gz = coords.encode(&g, new_sigma2);
+            let residual = (&gz - &z).norm();
+            // Safeguard: when a mixed iterate's residual grew, its plain step is taken instead
+            // and the history restarts there.
+            if let Some((_, _, previous)) = plain
+                && mixed
+                && residual > previous
+            {
+                anderson.reset();
+                coords.reference = g;
+                plain = None;
+                (t, sigma2, mixed) = (g, new_sigma2, false);
+                continue;
+            }
+            plain = Some((g, new_sigma2, residual));
+            let next = anderson.step(&z, gz);
+            let (pose, s2) = coords.decode(&next);
+            // Sigma^2 keeps the plain step's bounds (at most halved, floored).
+            let s2 = s2.map_or(new_sigma2, |v| v.clamp((0.5 * sigma2).max(min_sigma * min_sigma), 2.0 * sigma2));
+            mixed = pose != g || s2 != new_sigma2;
+            (t, sigma2) = (pose, s2);
+            if mixed {
+                x = source.iter().map(|s| t * s).collect();
+            }
+            if (t.rotation * coords.reference.rotation.inverse()).angle() > MAX_MIXING_ANGLE {
+                anderson.reset();
+                coords.reference = t;
+            }
         }
+        let t = result;
         if !t.to_homogeneous().iter().all(|v| v.is_finite()) {
             return Ok(Registration {
                 transform: p.init,

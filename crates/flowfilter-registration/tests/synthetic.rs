@@ -129,3 +129,36 @@ fn lattice_and_exact_e_steps_agree() {
     assert!(da.0 < 0.5, "lattice E-step: {} deg", da.0);
     assert!(errors(&a.transform, &b.transform).0 < 0.3);
 }
+
+#[test]
+fn anderson_mixing_reaches_the_plain_em_pose_in_fewer_iterations() {
+    let source = bumpy_shape(3000, 6);
+    let mut rng = ChaCha8Rng::seed_from_u64(21);
+    let (mut plain_iterations, mut mixed_iterations) = (0, 0);
+    for case in 0..3 {
+        let truth = random_transform(&mut rng, 30.0, 0.05);
+        let target = corrupted(&source, &truth, 0.001, 0.0, 30 + case);
+        let run = |anderson_depth| {
+            FilterReg::new(FilterRegConfig { w: 0.2, anderson_depth, ..Default::default() })
+                .unwrap()
+                .register(&RegistrationProblem::new(source.clone(), target.clone()))
+                .unwrap()
+        };
+        let (plain, mixed) = (run(0), run(5));
+        let (dp, dm) = (errors(&plain.transform, &truth), errors(&mixed.transform, &truth));
+        println!(
+            "case {case}: plain EM {} iterations, {:.4} deg; Anderson {} iterations, {:.4} deg",
+            plain.iterations, dp.0, mixed.iterations, dm.0
+        );
+        assert!(plain.converged && mixed.converged, "case {case}");
+        // The same fixed point (to the tolerance's effect on the last digits).
+        assert!(errors(&plain.transform, &mixed.transform).0 < 0.01, "case {case}");
+        assert!(dm.0 <= dp.0 + 0.005, "case {case}: {} vs {} deg", dm.0, dp.0);
+        plain_iterations += plain.iterations;
+        mixed_iterations += mixed.iterations;
+    }
+    assert!(
+        (mixed_iterations as f64) < 0.8 * plain_iterations as f64,
+        "Anderson {mixed_iterations} vs plain {plain_iterations} iterations"
+    );
+}
