@@ -5,6 +5,7 @@
 //! filled linearly in image space. Triangles of the scenes rendered here span a few pixels, where
 //! the curvature of lens distortion inside one triangle is far below a pixel.
 
+use flowfilter_geometry::fastmath::{ceil_f32 as ceil, floor_f32 as floor};
 use rayon::prelude::*;
 
 /// What each pixel sees: the nearest triangle, its perspective-correct barycentrics and the
@@ -36,23 +37,6 @@ pub struct ScreenVertex {
     pub y: f32,
     /// Camera-frame z (metres); vertices with `z <= 0` are not drawable.
     pub z: f32,
-}
-
-/// `x.floor()` without a libm call (not inlined on baseline x86-64): exact for |x| < 2^31,
-/// which covers every on-screen coordinate; larger values are clamped by the callers anyway.
-#[inline]
-fn floor(x: f32) -> f32 {
-    if x.abs() >= 2_147_483_648.0 || x.is_nan() {
-        return x.floor();
-    }
-    let t = x as i32 as f32;
-    if t > x { t - 1.0 } else { t }
-}
-
-/// `x.ceil()` without a libm call (see [`floor`]).
-#[inline]
-fn ceil(x: f32) -> f32 {
-    -floor(-x)
 }
 
 /// Triangles binned by the bands of rows their bounding box touches, in triangle order within

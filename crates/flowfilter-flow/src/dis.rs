@@ -19,7 +19,8 @@
 
 use crate::FlowField;
 use crate::estimator::{FlowError, FlowEstimator, check_pair};
-use crate::lk::{Gray, bilinear};
+use crate::lk::{BilinearTap, Gray, bilinear};
+use flowfilter_geometry::fastmath::floor_f32;
 use flowfilter_geometry::{Grid, Mask};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -137,12 +138,23 @@ impl Dis {
 type Img = Grid<f32>;
 
 /// Half resolution by 2x2 box averaging (OpenCV's area interpolation for exact halves).
+/// An image from a per-pixel function, rows in parallel.
+fn par_image(w: usize, h: usize, f: impl Fn(usize, usize) -> f32 + Sync) -> Img {
+    let mut data = vec![0.0f32; w * h];
+    data.par_chunks_mut(w.max(1)).enumerate().with_min_len(ROWS_PER_TASK).for_each(|(y, row)| {
+        for (x, v) in row.iter_mut().enumerate() {
+            *v = f(x, y);
+        }
+    });
+    Img::from_vec(w, h, data).expect("sizes")
+}
+
 fn halve(img: &Img) -> Img {
     let (w, h) = img.dims();
     let (nw, nh) = ((w / 2).max(1), (h / 2).max(1));
     let d = img.as_slice();
     let at = |x: usize, y: usize| d[y.min(h - 1) * w + x.min(w - 1)];
-    Img::from_fn(nw, nh, |x, y| {
+    par_image(nw, nh, |x, y| {
         0.25 * (at(2 * x, 2 * y) + at(2 * x + 1, 2 * y) + at(2 * x, 2 * y + 1) + at(2 * x + 1, 2 * y + 1))
     })
 }
@@ -151,22 +163,43 @@ fn halve(img: &Img) -> Img {
 fn gradients(img: &Img) -> (Img, Img) {
     let (w, h) = img.dims();
     let d = img.as_slice();
-    let gx = Img::from_fn(w, h, |x, y| {
+    let gx = par_image(w, h, |x, y| {
         let (l, r) = (x.saturating_sub(1), (x + 1).min(w - 1));
         (d[y * w + r] - d[y * w + l]) / (r - l).max(1) as f32
     });
-    let gy = Img::from_fn(w, h, |x, y| {
+    let gy = par_image(w, h, |x, y| {
         let (u, b) = (y.saturating_sub(1), (y + 1).min(h - 1));
         (d[b * w + x] - d[u * w + x]) / (b - u).max(1) as f32
     });
     (gx, gy)
 }
 
+/// Resample a flow component to `(w, h)` (pixel centres aligned, bilinear) and multiply it by
+/// `s`; the taps of each column and row are computed once.
+fn resample(f: &Img, w: usize, h: usize, s: f32) -> Img {
+    let (fw, fh) = f.dims();
+    let (sx, sy) = (w as f32 / fw as f32, h as f32 / fh as f32);
+    let columns: Vec<(usize, usize, f32)> = (0..w)
+        .map(|x| {
+            let t = BilinearTap::new(fw, 1, (x as f32 + 0.5) / sx - 0.5, 0.0);
+            let (k, fx) = t.column();
+            (k[0], k[1], fx)
+        })
+        .collect();
+    let d = f.as_slice();
+    par_image(w, h, |x, y| {
+        let t = BilinearTap::new(1, fh, 0.0, (y as f32 + 0.5) / sy - 0.5);
+        let (r, fy) = t.row();
+        let (x0, x1, fx) = columns[x];
+        let (a, b) = (d[r[0] * fw + x0], d[r[0] * fw + x1]);
+        let (c, e) = (d[r[1] * fw + x0], d[r[1] * fw + x1]);
+        s * ((a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + e * fx) * fy)
+    })
+}
+
 /// Double-resolution flow of size `(w, h)` from a coarser one (values scaled by 2).
 fn upsample(u: &Img, w: usize, h: usize) -> Img {
-    let (cw, ch) = u.dims();
-    let (sx, sy) = (cw as f32 / w as f32, ch as f32 / h as f32);
-    Img::from_fn(w, h, |x, y| 2.0 * bilinear(u, (x as f32 + 0.5) * sx - 0.5, (y as f32 + 0.5) * sy - 0.5))
+    resample(u, w, h, 2.0)
 }
 
 /// Patch origins along one axis: a regular stride, the last patch flush with the border.
@@ -237,7 +270,7 @@ impl Scale<'_> {
         let (w, h) = self.i1.dims();
         let ps = self.ps;
         let (x, y) = (ox as f32 + u, oy as f32 + v);
-        let (x0, y0) = (x.floor(), y.floor());
+        let (x0, y0) = (floor_f32(x), floor_f32(y));
         let inside = x0 >= 0.0 && y0 >= 0.0 && (x0 as usize + ps) < w && (y0 as usize + ps) < h;
         if !inside {
             for j in 0..ps {
@@ -430,7 +463,7 @@ fn densify(sc: &Scale<'_>, xs: &[usize], ys: &[usize], flows: &[[f32; 2]], shift
                 let k = j * nx + i;
                 let f = flows[k];
                 let (fx, fy) = (x0 as f32 + f[0], y as f32 + f[1]);
-                let (bx, by) = (fx.floor(), fy.floor());
+                let (bx, by) = (floor_f32(fx), floor_f32(fy));
                 let (ax, ay) = (fx - bx, fy - by);
                 let inside = bx >= 0.0 && by >= 0.0 && (bx as usize + ps) < w && (by as usize) + 1 < h;
                 for dx in 0..ps {
@@ -540,7 +573,8 @@ fn refine(i0: &Img, i1: &Img, u: &mut Img, v: &mut Img, p: &DisParams) {
             if !(fx >= 0.0 && fy >= 0.0 && fx <= (w - 1) as f32 && fy <= (h - 1) as f32) {
                 continue;
             }
-            let s = |img: &Img| bilinear(img, fx, fy);
+            let tap = BilinearTap::new(w, h, fx, fy);
+            let s = |img: &Img| tap.sample(img.as_slice());
             let (wx, wy) = (s(i1x), s(i1y));
             *d = DataTerm {
                 ix: 0.5 * (wx + i0x.as_slice()[k]),
@@ -693,10 +727,11 @@ impl Dis {
         let p = &self.params;
         let (w, h) = from.dims();
         let coarsest = self.coarsest(w, h);
-        let mut p0 = vec![from.map(|v| v * 255.0)];
-        let mut p1 = vec![to.map(|v| v * 255.0)];
+        let scaled = |g: &Gray| par_image(w, h, |x, y| g.as_slice()[y * w + x] * 255.0);
+        let mut p0 = vec![scaled(from)];
+        let mut p1 = vec![scaled(to)];
         for s in 1..=coarsest {
-            let (a, b) = (halve(&p0[s - 1]), halve(&p1[s - 1]));
+            let (a, b) = rayon::join(|| halve(&p0[s - 1]), || halve(&p1[s - 1]));
             p0.push(a);
             p1.push(b);
         }
@@ -728,10 +763,7 @@ impl Dis {
             let (nw, nh) = if fw * 2 > w || fh * 2 > h { (w, h) } else { (fw * 2, fh * 2) };
             let sx = nw as f32 / fw as f32;
             let sy = nh as f32 / fh as f32;
-            let up = |f: &Img, s: f32| {
-                Img::from_fn(nw, nh, |x, y| s * bilinear(f, (x as f32 + 0.5) / sx - 0.5, (y as f32 + 0.5) / sy - 0.5))
-            };
-            flow = (up(&flow.0, sx), up(&flow.1, sy));
+            flow = (resample(&flow.0, nw, nh, sx), resample(&flow.1, nw, nh, sy));
         }
         flow
     }
@@ -747,7 +779,7 @@ impl FlowEstimator for Dis {
         check_pair(from, to, mask)?;
         let (u, v) = self.compute(from, to);
         let (w, h) = from.dims();
-        let flow = Grid::from_vec(w, h, u.as_slice().iter().zip(v.as_slice()).map(|(a, b)| [*a, *b]).collect())
+        let flow = Grid::from_vec(w, h, u.as_slice().par_iter().zip(v.as_slice()).map(|(a, b)| [*a, *b]).collect())
             .expect("sizes");
         let valid = match mask {
             Some(m) => m.clone(),

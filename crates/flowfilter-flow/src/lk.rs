@@ -3,6 +3,7 @@
 //! brightness constancy with bilinear sampling; points whose spatial gradient matrix is
 //! ill-conditioned (small minimum eigenvalue) are rejected.
 
+use flowfilter_geometry::fastmath::floor_f32;
 use flowfilter_geometry::{Grid, Mask};
 use image::RgbImage;
 use rayon::prelude::*;
@@ -38,15 +39,48 @@ pub fn downsample(img: &Gray) -> Gray {
 
 /// Bilinear sample with clamped borders (shared by the estimators).
 pub(crate) fn bilinear(img: &Gray, x: f32, y: f32) -> f32 {
-    let (w, h) = (img.width() as f32, img.height() as f32);
-    let x = x.clamp(0.0, w - 1.0);
-    let y = y.clamp(0.0, h - 1.0);
-    let (x0, y0) = (x.floor(), y.floor());
-    let (fx, fy) = (x - x0, y - y0);
-    let (ix, iy) = (x0 as usize, y0 as usize);
-    let (ix1, iy1) = ((ix + 1).min(img.width() - 1), (iy + 1).min(img.height() - 1));
-    let (a, b, c, d) = (*img.at(ix, iy), *img.at(ix1, iy), *img.at(ix, iy1), *img.at(ix1, iy1));
-    (a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + d * fx) * fy
+    BilinearTap::new(img.width(), img.height(), x, y).sample(img.as_slice())
+}
+
+/// The four indices and weights of a bilinear sample at `(x, y)` (clamped to the image), to
+/// sample several images of the same size at one position with one set of weights.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct BilinearTap {
+    k: [usize; 4],
+    fx: f32,
+    fy: f32,
+}
+
+impl BilinearTap {
+    /// The tap at `(x, y)` in a `width x height` image.
+    #[inline]
+    pub(crate) fn new(width: usize, height: usize, x: f32, y: f32) -> Self {
+        let x = x.clamp(0.0, width as f32 - 1.0);
+        let y = y.clamp(0.0, height as f32 - 1.0);
+        let (x0, y0) = (floor_f32(x), floor_f32(y));
+        let (fx, fy) = (x - x0, y - y0);
+        let (ix, iy) = (x0 as usize, y0 as usize);
+        let (ix1, iy1) = ((ix + 1).min(width - 1), (iy + 1).min(height - 1));
+        Self { k: [iy * width + ix, iy * width + ix1, iy1 * width + ix, iy1 * width + ix1], fx, fy }
+    }
+
+    /// For a one-row image: the two columns and the weight of the second.
+    pub(crate) fn column(&self) -> ([usize; 2], f32) {
+        ([self.k[0], self.k[1]], self.fx)
+    }
+
+    /// For a one-column image: the two rows and the weight of the second.
+    pub(crate) fn row(&self) -> ([usize; 2], f32) {
+        ([self.k[0], self.k[2]], self.fy)
+    }
+
+    /// The sample of `img` (row-major, the tap's size).
+    #[inline]
+    pub(crate) fn sample(&self, img: &[f32]) -> f32 {
+        let (a, b, c, d) = (img[self.k[0]], img[self.k[1]], img[self.k[2]], img[self.k[3]]);
+        let (fx, fy) = (self.fx, self.fy);
+        (a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + d * fx) * fy
+    }
 }
 
 /// Parameters (defaults as OpenCV's `calcOpticalFlowPyrLK` with a 21x21 window and 3 levels).

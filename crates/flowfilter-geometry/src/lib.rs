@@ -7,6 +7,7 @@
 //! ([`se3`]) and the weighted Kabsch/Umeyama solver ([`kabsch`]).
 
 pub mod cloud;
+pub mod fastmath;
 pub mod grid;
 pub mod kabsch;
 pub mod knn;

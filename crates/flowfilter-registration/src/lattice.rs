@@ -9,6 +9,7 @@
 //! divided by `sigma`, the result approximates `sum_k exp(-|q - p_k|^2 / (2 sigma^2)) v_k`
 //! up to a constant factor; [`Lattice::kernel_scale`] estimates that factor.
 
+use flowfilter_geometry::fastmath::floor_i64;
 use rayon::prelude::*;
 
 /// Open-addressing hash table from lattice keys (`d` integers) to vertex indices.
@@ -97,13 +98,6 @@ impl KeyTable {
             self.slots[s] = id;
         }
     }
-}
-
-/// `floor(x)` as an integer, without a libm call (lattice coordinates are far inside `i64`).
-#[inline]
-fn floor_i64(x: f64) -> i64 {
-    let t = x as i64;
-    t - ((t as f64) > x) as i64
 }
 
 /// Work space of one simplex computation (reused across points to avoid allocations).
