@@ -515,13 +515,24 @@ struct DataTerm {
     iyy: f32,
     ixz: f32,
     iyz: f32,
+    /// `1 / (ix^2 + iy^2 + zeta^2)`, `1 / (ixx^2 + ixy^2 + zeta^2)`, `1 / (ixy^2 + iyy^2 + zeta^2)`:
+    /// the normalisations of the three constancy terms.
+    n1: f32,
+    n2: f32,
+    n3: f32,
 }
+
+/// Regularisation of the constancy terms' normalisation (`zeta^2`, OpenCV's value).
+const ZETA2: f32 = 0.01;
 
 /// Rows handed to one rayon task at least (small scales are not worth splitting finely).
 const ROWS_PER_TASK: usize = 24;
 
-/// Red-black index helpers: pixel `(x, y)` has colour `(x + y) % 2` and index `x / 2` in its
-/// row of that colour's array (rows of `(w + 1) / 2` entries).
+/// Red-black layout: pixel `(x, y)` has colour `(x + y) % 2` and index `x / 2` in its row of
+/// that colour's array. Unknowns are stored with one padding entry at both ends of every row and
+/// a padding row above and below (stride `hw + 2`), so the SOR reads its four neighbours
+/// without bounds checks (border weights are zero); coefficients are stored unpadded (stride
+/// `hw`).
 struct Checker {
     w: usize,
     h: usize,
@@ -529,26 +540,106 @@ struct Checker {
 }
 
 impl Checker {
+    /// Padded row stride of the unknowns.
+    fn stride(&self) -> usize {
+        self.hw + 2
+    }
+
+    /// Index of pixel `(x, y)` in its colour's padded array.
+    fn padded(&self, x: usize, y: usize) -> usize {
+        (y + 1) * self.stride() + x / 2 + 1
+    }
+
     fn split(&self, full: &[f32]) -> [Vec<f32>; 2] {
-        let mut out = [vec![0.0f32; self.hw * self.h], vec![0.0f32; self.hw * self.h]];
-        let [a, b] = &mut out;
-        a.par_chunks_mut(self.hw).zip(b.par_chunks_mut(self.hw)).enumerate().with_min_len(ROWS_PER_TASK).for_each(
-            |(y, (ra, rb))| {
-                for x in 0..self.w {
-                    let dst = if (x + y) % 2 == 0 { &mut *ra } else { &mut *rb };
-                    dst[x / 2] = full[y * self.w + x];
-                }
-            },
-        );
+        let len = self.stride() * (self.h + 2);
+        let mut out = [vec![0.0f32; len], vec![0.0f32; len]];
+        for (colour, part) in out.iter_mut().enumerate() {
+            part[self.stride()..(self.h + 1) * self.stride()]
+                .par_chunks_mut(self.stride())
+                .enumerate()
+                .with_min_len(ROWS_PER_TASK)
+                .for_each(|(y, row)| {
+                    for x in ((y + colour) % 2..self.w).step_by(2) {
+                        row[x / 2 + 1] = full[y * self.w + x];
+                    }
+                });
+        }
         out
     }
 
     fn merge(&self, parts: &[Vec<f32>; 2], full: &mut [f32]) {
         full.par_chunks_mut(self.w).enumerate().with_min_len(ROWS_PER_TASK).for_each(|(y, row)| {
             for (x, v) in row.iter_mut().enumerate() {
-                *v = parts[(x + y) % 2][y * self.hw + x / 2];
+                *v = parts[(x + y) % 2][self.padded(x, y)];
             }
         });
+    }
+}
+
+/// The SOR system of one colour, per pixel of that colour (unpadded red-black layout):
+/// `a12`, `1 / (a11 + sum w)`, `1 / (a22 + sum w)`, the right-hand sides `r1`, `r2` (with
+/// `r = -b + sum_q w_q (u_q - u_p)`) and the four neighbour weights.
+#[derive(Default)]
+struct ColourSystem {
+    a12: Vec<f32>,
+    inv11: Vec<f32>,
+    inv22: Vec<f32>,
+    r1: Vec<f32>,
+    r2: Vec<f32>,
+    wl: Vec<f32>,
+    wr: Vec<f32>,
+    wu: Vec<f32>,
+    wd: Vec<f32>,
+}
+
+impl ColourSystem {
+    fn zeros(n: usize) -> Self {
+        let z = || vec![0.0f32; n];
+        Self { a12: z(), inv11: z(), inv22: z(), r1: z(), r2: z(), wl: z(), wr: z(), wu: z(), wd: z() }
+    }
+}
+
+/// One SOR half-sweep over the pixels of one colour in row `y` (`n` of them, the first at
+/// column `start`): branch-free over contiguous arrays so that it vectorises.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn sor_row(
+    sys: &ColourSystem,
+    ck: &Checker,
+    y: usize,
+    start: usize,
+    other_u: &[f32],
+    other_v: &[f32],
+    ru: &mut [f32],
+    rv: &mut [f32],
+    omega: f32,
+) {
+    let (hw, stride) = (ck.hw, ck.stride());
+    let n = (ck.w - start).div_ceil(2);
+    let c = y * hw;
+    // Neighbours in the other colour's padded rows: left/right at i - 1 + start / i + start
+    // (in row y), up/down at i (rows y - 1, y + 1); padded indices are one further right.
+    let (row, up, down) = ((y + 1) * stride, y * stride, (y + 2) * stride);
+    let left_u = &other_u[row + start..row + start + n];
+    let right_u = &other_u[row + start + 1..row + start + 1 + n];
+    let up_u = &other_u[up + 1..up + 1 + n];
+    let down_u = &other_u[down + 1..down + 1 + n];
+    let left_v = &other_v[row + start..row + start + n];
+    let right_v = &other_v[row + start + 1..row + start + 1 + n];
+    let up_v = &other_v[up + 1..up + 1 + n];
+    let down_v = &other_v[down + 1..down + 1 + n];
+    let (a12, inv11, inv22) = (&sys.a12[c..c + n], &sys.inv11[c..c + n], &sys.inv22[c..c + n]);
+    let (r1, r2) = (&sys.r1[c..c + n], &sys.r2[c..c + n]);
+    let (wl, wr, wu, wd) = (&sys.wl[c..c + n], &sys.wr[c..c + n], &sys.wu[c..c + n], &sys.wd[c..c + n]);
+    let (ru, rv) = (&mut ru[1..1 + n], &mut rv[1..1 + n]);
+    for i in 0..n {
+        let nu = wl[i] * left_u[i] + wr[i] * right_u[i] + wu[i] * up_u[i] + wd[i] * down_u[i];
+        let nv = wl[i] * left_v[i] + wr[i] * right_v[i] + wu[i] * up_v[i] + wd[i] * down_v[i];
+        let new_u = (r1[i] + nu - a12[i] * rv[i]) * inv11[i];
+        let u = (1.0 - omega) * ru[i] + omega * new_u;
+        ru[i] = u;
+        let new_v = (r2[i] + nv - a12[i] * u) * inv22[i];
+        rv[i] = (1.0 - omega) * rv[i] + omega * new_v;
     }
 }
 
@@ -576,25 +667,29 @@ fn refine(i0: &Img, i1: &Img, u: &mut Img, v: &mut Img, p: &DisParams) {
             let tap = BilinearTap::new(w, h, fx, fy);
             let s = |img: &Img| tap.sample(img.as_slice());
             let (wx, wy) = (s(i1x), s(i1y));
+            let (ix, iy) = (0.5 * (wx + i0x.as_slice()[k]), 0.5 * (wy + i0y.as_slice()[k]));
+            let ixx = 0.5 * (s(i1xx) + i0xx.as_slice()[k]);
+            let ixy = 0.5 * (s(i1xy) + i0xy.as_slice()[k]);
+            let iyy = 0.5 * (s(i1yy) + i0yy.as_slice()[k]);
             *d = DataTerm {
-                ix: 0.5 * (wx + i0x.as_slice()[k]),
-                iy: 0.5 * (wy + i0y.as_slice()[k]),
+                ix,
+                iy,
                 iz: s(i1) - i0.as_slice()[k],
-                ixx: 0.5 * (s(i1xx) + i0xx.as_slice()[k]),
-                ixy: 0.5 * (s(i1xy) + i0xy.as_slice()[k]),
-                iyy: 0.5 * (s(i1yy) + i0yy.as_slice()[k]),
+                ixx,
+                ixy,
+                iyy,
                 ixz: wx - i0x.as_slice()[k],
                 iyz: wy - i0y.as_slice()[k],
+                n1: 1.0 / (ix * ix + iy * iy + ZETA2),
+                n2: 1.0 / (ixx * ixx + ixy * ixy + ZETA2),
+                n3: 1.0 / (ixy * ixy + iyy * iyy + ZETA2),
             };
         }
     });
-    let zeta2 = 0.01f32;
     let ck = Checker { w, h, hw: w.div_ceil(2) };
     let mut du = vec![0.0f32; n];
     let mut dv = vec![0.0f32; n];
-    // Per pixel and fixed-point iteration: [a12, 1/(a11 + sum w), 1/(a22 + sum w), r1, r2,
-    // w_left, w_right, w_up, w_down], with r = -b + sum_q w_q (u_q - u_p).
-    let mut sys = vec![[0.0f32; 9]; n];
+    let mut systems = [ColourSystem::zeros(ck.hw * h), ColourSystem::zeros(ck.hw * h)];
     for _ in 0..p.refinement_iterations {
         // Smoothness weights per pixel: alpha * Psi'(|grad (u + du)|^2 + |grad (v + dv)|^2).
         let smooth: Vec<f32> = (0..n)
@@ -612,52 +707,58 @@ fn refine(i0: &Img, i1: &Img, u: &mut Img, v: &mut Img, p: &DisParams) {
                 p.alpha * psi_prime(g)
             })
             .collect();
-        sys.par_chunks_mut(w).enumerate().with_min_len(ROWS_PER_TASK).for_each(|(y, row)| {
-            for (x, out) in row.iter_mut().enumerate() {
-                let k = y * w + x;
-                let d = &data[k];
-                let (a, b) = (du[k], dv[k]);
-                let r1 =
-                    p.delta * psi_prime((d.iz + d.ix * a + d.iy * b).powi(2)) / (d.ix * d.ix + d.iy * d.iy + zeta2);
-                let r2 = p.gamma * psi_prime((d.ixz + d.ixx * a + d.ixy * b).powi(2))
-                    / (d.ixx * d.ixx + d.ixy * d.ixy + zeta2);
-                let r3 = p.gamma * psi_prime((d.iyz + d.ixy * a + d.iyy * b).powi(2))
-                    / (d.ixy * d.ixy + d.iyy * d.iyy + zeta2);
-                let a11 = r1 * d.ix * d.ix + r2 * d.ixx * d.ixx + r3 * d.ixy * d.ixy;
-                let a12 = r1 * d.ix * d.iy + r2 * d.ixx * d.ixy + r3 * d.ixy * d.iyy;
-                let a22 = r1 * d.iy * d.iy + r2 * d.ixy * d.ixy + r3 * d.iyy * d.iyy;
-                let b1 = r1 * d.ix * d.iz + r2 * d.ixx * d.ixz + r3 * d.ixy * d.iyz;
-                let b2 = r1 * d.iy * d.iz + r2 * d.ixy * d.ixz + r3 * d.iyy * d.iyz;
-                let wt = |q: usize| 0.5 * (smooth[k] + smooth[q]);
-                let wl = if x > 0 { wt(k - 1) } else { 0.0 };
-                let wr = if x + 1 < w { wt(k + 1) } else { 0.0 };
-                let wu = if y > 0 { wt(k - w) } else { 0.0 };
-                let wd = if y + 1 < h { wt(k + w) } else { 0.0 };
-                let lap = |f: &[f32]| {
-                    let c = f[k];
-                    let at = |q: usize, wq: f32| if wq > 0.0 { wq * (f[q] - c) } else { 0.0 };
-                    at(k.wrapping_sub(1), wl) + at(k + 1, wr) + at(k.wrapping_sub(w), wu) + at(k + w, wd)
-                };
-                let sw = wl + wr + wu + wd;
-                *out = [
-                    a12,
-                    1.0 / (a11 + sw).max(1e-9),
-                    1.0 / (a22 + sw).max(1e-9),
-                    lap(us) - b1,
-                    lap(vs) - b2,
-                    wl,
-                    wr,
-                    wu,
-                    wd,
-                ];
-            }
-        });
+        for (colour, sys) in systems.iter_mut().enumerate() {
+            let ColourSystem { a12, inv11, inv22, r1, r2, wl, wr, wu, wd } = sys;
+            let hw = ck.hw;
+            a12.par_chunks_mut(hw)
+                .zip(inv11.par_chunks_mut(hw))
+                .zip(inv22.par_chunks_mut(hw))
+                .zip(r1.par_chunks_mut(hw))
+                .zip(r2.par_chunks_mut(hw))
+                .zip(wl.par_chunks_mut(hw))
+                .zip(wr.par_chunks_mut(hw))
+                .zip(wu.par_chunks_mut(hw))
+                .zip(wd.par_chunks_mut(hw))
+                .enumerate()
+                .with_min_len(ROWS_PER_TASK)
+                .for_each(|(y, ((((((((a12, inv11), inv22), r1), r2), wl), wr), wu), wd))| {
+                    for x in ((y + colour) % 2..w).step_by(2) {
+                        let (k, i) = (y * w + x, x / 2);
+                        let d = &data[k];
+                        let (a, b) = (du[k], dv[k]);
+                        let q1 = p.delta * psi_prime((d.iz + d.ix * a + d.iy * b).powi(2)) * d.n1;
+                        let q2 = p.gamma * psi_prime((d.ixz + d.ixx * a + d.ixy * b).powi(2)) * d.n2;
+                        let q3 = p.gamma * psi_prime((d.iyz + d.ixy * a + d.iyy * b).powi(2)) * d.n3;
+                        let a11 = q1 * d.ix * d.ix + q2 * d.ixx * d.ixx + q3 * d.ixy * d.ixy;
+                        let a22 = q1 * d.iy * d.iy + q2 * d.ixy * d.ixy + q3 * d.iyy * d.iyy;
+                        let b1 = q1 * d.ix * d.iz + q2 * d.ixx * d.ixz + q3 * d.ixy * d.iyz;
+                        let b2 = q1 * d.iy * d.iz + q2 * d.ixy * d.ixz + q3 * d.iyy * d.iyz;
+                        let wt = |q: usize| 0.5 * (smooth[k] + smooth[q]);
+                        let l = if x > 0 { wt(k - 1) } else { 0.0 };
+                        let r = if x + 1 < w { wt(k + 1) } else { 0.0 };
+                        let u = if y > 0 { wt(k - w) } else { 0.0 };
+                        let dn = if y + 1 < h { wt(k + w) } else { 0.0 };
+                        let lap = |f: &[f32]| {
+                            let c = f[k];
+                            let at = |q: usize, wq: f32| if wq > 0.0 { wq * (f[q] - c) } else { 0.0 };
+                            at(k.wrapping_sub(1), l) + at(k + 1, r) + at(k.wrapping_sub(w), u) + at(k + w, dn)
+                        };
+                        let sw = l + r + u + dn;
+                        a12[i] = q1 * d.ix * d.iy + q2 * d.ixx * d.ixy + q3 * d.ixy * d.iyy;
+                        inv11[i] = 1.0 / (a11 + sw).max(1e-9);
+                        inv22[i] = 1.0 / (a22 + sw).max(1e-9);
+                        r1[i] = lap(us) - b1;
+                        r2[i] = lap(vs) - b2;
+                        (wl[i], wr[i], wu[i], wd[i]) = (l, r, u, dn);
+                    }
+                });
+        }
         // Red-black SOR on split arrays: a colour's update reads only the other colour.
         let mut dus = ck.split(&du);
         let mut dvs = ck.split(&dv);
-        let hw = ck.hw;
+        let stride = ck.stride();
         for _ in 0..p.sor_iterations {
-            for colour in 0..2 {
+            for (colour, sys) in systems.iter().enumerate() {
                 let [red_u, black_u] = &mut dus;
                 let [red_v, black_v] = &mut dvs;
                 let (cur_u, other_u, cur_v, other_v) = if colour == 0 {
@@ -665,41 +766,13 @@ fn refine(i0: &Img, i1: &Img, u: &mut Img, v: &mut Img, p: &DisParams) {
                 } else {
                     (black_u, &*red_u, black_v, &*red_v)
                 };
-                cur_u
-                    .par_chunks_mut(hw)
-                    .zip(cur_v.par_chunks_mut(hw))
+                cur_u[stride..(h + 1) * stride]
+                    .par_chunks_mut(stride)
+                    .zip(cur_v[stride..(h + 1) * stride].par_chunks_mut(stride))
                     .enumerate()
                     .with_min_len(ROWS_PER_TASK)
                     .for_each(|(y, (ru, rv))| {
-                        let start = (y + colour) % 2;
-                        let row = y * hw;
-                        for x in (start..w).step_by(2) {
-                            let k = y * w + x;
-                            let c = &sys[k];
-                            let i = x / 2;
-                            let mut nu = 0.0f32;
-                            let mut nv = 0.0f32;
-                            if c[5] > 0.0 {
-                                nu += c[5] * other_u[row + (x - 1) / 2];
-                                nv += c[5] * other_v[row + (x - 1) / 2];
-                            }
-                            if c[6] > 0.0 {
-                                nu += c[6] * other_u[row + x.div_ceil(2)];
-                                nv += c[6] * other_v[row + x.div_ceil(2)];
-                            }
-                            if c[7] > 0.0 {
-                                nu += c[7] * other_u[row - hw + i];
-                                nv += c[7] * other_v[row - hw + i];
-                            }
-                            if c[8] > 0.0 {
-                                nu += c[8] * other_u[row + hw + i];
-                                nv += c[8] * other_v[row + hw + i];
-                            }
-                            let new_u = (c[3] + nu - c[0] * rv[i]) * c[1];
-                            ru[i] = (1.0 - p.omega) * ru[i] + p.omega * new_u;
-                            let new_v = (c[4] + nv - c[0] * ru[i]) * c[2];
-                            rv[i] = (1.0 - p.omega) * rv[i] + p.omega * new_v;
-                        }
+                        sor_row(sys, &ck, y, (y + colour) % 2, other_u, other_v, ru, rv, p.omega);
                     });
             }
         }
