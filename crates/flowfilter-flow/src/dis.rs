@@ -179,22 +179,19 @@ fn gradients(img: &Img) -> (Img, Img) {
 fn resample(f: &Img, w: usize, h: usize, s: f32) -> Img {
     let (fw, fh) = f.dims();
     let (sx, sy) = (w as f32 / fw as f32, h as f32 / fh as f32);
-    let columns: Vec<(usize, usize, f32)> = (0..w)
-        .map(|x| {
-            let t = BilinearTap::new(fw, 1, (x as f32 + 0.5) / sx - 0.5, 0.0);
-            let (k, fx) = t.column();
-            (k[0], k[1], fx)
-        })
-        .collect();
+    let columns: Vec<([usize; 2], f32)> =
+        (0..w).map(|x| BilinearTap::new(fw, 1, (x as f32 + 0.5) / sx - 0.5, 0.0).column()).collect();
     let d = f.as_slice();
-    par_image(w, h, |x, y| {
-        let t = BilinearTap::new(1, fh, 0.0, (y as f32 + 0.5) / sy - 0.5);
-        let (r, fy) = t.row();
-        let (x0, x1, fx) = columns[x];
-        let (a, b) = (d[r[0] * fw + x0], d[r[0] * fw + x1]);
-        let (c, e) = (d[r[1] * fw + x0], d[r[1] * fw + x1]);
-        s * ((a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + e * fx) * fy)
-    })
+    let mut out = vec![0.0f32; w * h];
+    out.par_chunks_mut(w).enumerate().with_min_len(ROWS_PER_TASK).for_each(|(y, row)| {
+        let (r, fy) = BilinearTap::new(1, fh, 0.0, (y as f32 + 0.5) / sy - 0.5).row();
+        let (top, bottom) = (&d[r[0] * fw..(r[0] + 1) * fw], &d[r[1] * fw..(r[1] + 1) * fw]);
+        for (v, &([x0, x1], fx)) in row.iter_mut().zip(&columns) {
+            let (a, b, c, e) = (top[x0], top[x1], bottom[x0], bottom[x1]);
+            *v = s * ((a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + e * fx) * fy);
+        }
+    });
+    Img::from_vec(w, h, out).expect("sizes")
 }
 
 /// Double-resolution flow of size `(w, h)` from a coarser one (values scaled by 2).
@@ -219,7 +216,6 @@ struct Template {
     values: Vec<f32>,
     gx: Vec<f32>,
     gy: Vec<f32>,
-    mean: f32,
     /// Inverse of the 2x2 Hessian `[[a, b], [b, c]]`, or `None` when singular (flat patch).
     inv_h: Option<[f32; 3]>,
 }
@@ -246,7 +242,6 @@ impl Scale<'_> {
             gy.extend_from_slice(&self.i0y.as_slice()[r..r + ps]);
         }
         let nf = n as f32;
-        let mean = values.iter().sum::<f32>() / nf;
         let (mut a, mut b, mut c) = (0.0f32, 0.0f32, 0.0f32);
         for k in 0..n {
             a += gx[k] * gx[k];
@@ -261,7 +256,7 @@ impl Scale<'_> {
         }
         let det = a * c - b * b;
         let inv_h = (det > 1e-6 * (a + c).powi(2).max(1e-12)).then(|| [c / det, -b / det, a / det]);
-        Template { values, gx, gy, mean, inv_h }
+        Template { values, gx, gy, inv_h }
     }
 
     /// Warp the second image's patch at `(ox + u, oy + v)` into `out`; the warp is a pure
@@ -294,12 +289,38 @@ impl Scale<'_> {
         }
     }
 
+    /// The warped patch minus the template into `diff`, and the mean-normalisation shift
+    /// (the mean of `diff`; 0 without normalisation).
+    fn difference(&self, t: &Template, ox: usize, oy: usize, f: [f32; 2], diff: &mut [f32]) -> f32 {
+        self.warp(ox, oy, f[0], f[1], diff);
+        let mut lanes = [0.0f32; LANES];
+        let chunks = diff.chunks_exact_mut(LANES).zip(t.values.chunks_exact(LANES));
+        for (d, v) in chunks {
+            for j in 0..LANES {
+                d[j] -= v[j];
+                lanes[j] += d[j];
+            }
+        }
+        let tail = diff.len() / LANES * LANES;
+        let mut sum = lanes.iter().sum::<f32>();
+        for (d, v) in diff[tail..].iter_mut().zip(&t.values[tail..]) {
+            *d -= v;
+            sum += *d;
+        }
+        if self.mean_norm { sum / diff.len() as f32 } else { 0.0 }
+    }
+
     /// Sum of squared (mean-normalised) differences between the template and the warped patch.
     fn ssd(&self, t: &Template, ox: usize, oy: usize, f: [f32; 2], buf: &mut [f32]) -> f32 {
-        self.warp(ox, oy, f[0], f[1], buf);
-        let n = buf.len() as f32;
-        let shift = if self.mean_norm { buf.iter().sum::<f32>() / n - t.mean } else { 0.0 };
-        buf.iter().zip(&t.values).map(|(a, b)| (a - b - shift).powi(2)).sum()
+        let shift = self.difference(t, ox, oy, f, buf);
+        let mut lanes = [0.0f32; LANES];
+        for d in buf.chunks_exact(LANES) {
+            for j in 0..LANES {
+                lanes[j] += (d[j] - shift) * (d[j] - shift);
+            }
+        }
+        let tail = buf.len() / LANES * LANES;
+        lanes.iter().sum::<f32>() + buf[tail..].iter().map(|d| (d - shift) * (d - shift)).sum::<f32>()
     }
 
     /// Inverse-compositional Gauss-Newton from `f`; returns the flow with the lowest SSD seen.
@@ -318,13 +339,23 @@ impl Scale<'_> {
         };
         let mut cur = f;
         let mut best = (f, f32::INFINITY);
-        let n = buf.len() as f32;
+        let tail = buf.len() / LANES * LANES;
         for _ in 0..iterations {
-            self.warp(ox, oy, cur[0], cur[1], buf);
-            let shift = if self.mean_norm { buf.iter().sum::<f32>() / n - t.mean } else { 0.0 };
-            let (mut bx, mut by, mut ssd) = (0.0f32, 0.0f32, 0.0f32);
-            for (((b, v), gx), gy) in buf.iter().zip(&t.values).zip(&t.gx).zip(&t.gy) {
-                let r = b - v - shift;
+            let shift = self.difference(t, ox, oy, cur, buf);
+            // Independent lanes: the reductions vectorise.
+            let (mut sx, mut sy, mut sq) = ([0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES]);
+            let chunks = buf.chunks_exact(LANES).zip(t.gx.chunks_exact(LANES)).zip(t.gy.chunks_exact(LANES));
+            for ((d, gx), gy) in chunks {
+                for j in 0..LANES {
+                    let r = d[j] - shift;
+                    sq[j] += r * r;
+                    sx[j] += gx[j] * r;
+                    sy[j] += gy[j] * r;
+                }
+            }
+            let (mut bx, mut by, mut ssd) = (sx.iter().sum::<f32>(), sy.iter().sum::<f32>(), sq.iter().sum::<f32>());
+            for ((d, gx), gy) in buf[tail..].iter().zip(&t.gx[tail..]).zip(&t.gy[tail..]) {
+                let r = d - shift;
                 ssd += r * r;
                 bx += gx * r;
                 by += gy * r;
@@ -347,6 +378,9 @@ impl Scale<'_> {
         best
     }
 }
+
+/// Accumulator lanes of the patch reductions (independent partial sums, so that they vectorise).
+const LANES: usize = 8;
 
 /// Rows of patches searched together (each band runs its propagation sequentially; bands run
 /// in parallel).
@@ -422,10 +456,7 @@ fn patch_flows(sc: &Scale<'_>, init: &(Img, Img), p: &DisParams) -> (Vec<usize>,
                 }
                 let (i, lj) = (k % nx, k / nx);
                 let (ox, oy) = (xs[i], ys[rows.start + lj]);
-                sc.warp(ox, oy, flows[k][0], flows[k][1], &mut buf);
-                let shift =
-                    if sc.mean_norm { buf.iter().sum::<f32>() / buf.len() as f32 - templates[k].mean } else { 0.0 };
-                shifts.push(shift);
+                shifts.push(sc.difference(&templates[k], ox, oy, flows[k], &mut buf));
             }
             (flows, shifts)
         })
