@@ -167,11 +167,17 @@ fn gradients(img: &Img) -> (Img, Img) {
         let (l, r) = (x.saturating_sub(1), (x + 1).min(w - 1));
         (d[y * w + r] - d[y * w + l]) / (r - l).max(1) as f32
     });
-    let gy = par_image(w, h, |x, y| {
+    (gx, gradient_y(img))
+}
+
+/// The y component of [`gradients`].
+fn gradient_y(img: &Img) -> Img {
+    let (w, h) = img.dims();
+    let d = img.as_slice();
+    par_image(w, h, |x, y| {
         let (u, b) = (y.saturating_sub(1), (y + 1).min(h - 1));
         (d[b * w + x] - d[u * w + x]) / (b - u).max(1) as f32
-    });
-    (gx, gy)
+    })
 }
 
 /// Resample a flow component to `(w, h)` (pixel centres aligned, bilinear) and multiply it by
@@ -530,11 +536,6 @@ fn psi_prime(s2: f32) -> f32 {
     0.5 / (s2 + 1e-6).sqrt()
 }
 
-/// Central-difference gradients of several images, in parallel.
-fn gradients_par(imgs: &[&Img]) -> Vec<(Img, Img)> {
-    imgs.par_iter().map(|i| gradients(i)).collect()
-}
-
 /// The linearised data term at one pixel.
 #[derive(Clone, Copy, Default)]
 struct DataTerm {
@@ -675,16 +676,21 @@ fn sor_row(
 }
 
 /// Variational refinement of `(u, v)` in place (see the module documentation).
-fn refine(i0: &Img, i1: &Img, u: &mut Img, v: &mut Img, p: &DisParams) {
+/// `i0x`, `i0y` are the first image's gradients (already computed for the patch search).
+fn refine(i0: &Img, i1: &Img, (i0x, i0y): (&Img, &Img), u: &mut Img, v: &mut Img, p: &DisParams) {
     if p.refinement_iterations == 0 {
         return;
     }
     let (w, h) = i0.dims();
     let n = w * h;
-    let g = gradients_par(&[i0, i1]);
-    let ((i0x, i0y), (i1x, i1y)) = (&g[0], &g[1]);
-    let g2 = gradients_par(&[i0x, i0y, i1x, i1y]);
-    let ((i0xx, i0xy), (_, i0yy), (i1xx, i1xy), (_, i1yy)) = (&g2[0], &g2[1], &g2[2], &g2[3]);
+    let (i1x, i1y) = gradients(i1);
+    let (i1x, i1y) = (&i1x, &i1y);
+    // Second derivatives: xx and xy from the x-gradients, yy from the y-gradients.
+    let (((i0xx, i0xy), i0yy), ((i1xx, i1xy), i1yy)) = rayon::join(
+        || rayon::join(|| gradients(i0x), || gradient_y(i0y)),
+        || rayon::join(|| gradients(i1x), || gradient_y(i1y)),
+    );
+    let (i0xx, i0xy, i0yy, i1xx, i1xy, i1yy) = (&i0xx, &i0xy, &i0yy, &i1xx, &i1xy, &i1yy);
     // Linearisation at the current flow: warped second image and the data terms.
     let (us, vs) = (u.as_slice(), v.as_slice());
     let mut data = vec![DataTerm::default(); n];
@@ -859,7 +865,7 @@ impl Dis {
             let sc = Scale { i0, i1, i0x: &i0x, i0y: &i0y, ps: p.patch_size, mean_norm: p.mean_normalization };
             let (xs, ys, flows, shifts) = patch_flows(&sc, &flow, p);
             flow = densify(&sc, &xs, &ys, &flows, &shifts);
-            refine(i0, i1, &mut flow.0, &mut flow.1, p);
+            refine(i0, i1, (&i0x, &i0y), &mut flow.0, &mut flow.1, p);
         }
         // Up to full resolution.
         while flow.0.dims() != (w, h) {
