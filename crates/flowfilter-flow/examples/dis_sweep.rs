@@ -28,6 +28,8 @@ fn main() {
         ("refine10", DisParams { refinement_iterations: 10, ..DisParams::medium() }),
         ("alpha10", DisParams { alpha: 10.0, ..DisParams::medium() }),
         ("stride2", DisParams { patch_stride: 2, ..DisParams::medium() }),
+        ("omega1.8", DisParams { omega: 1.8, ..DisParams::medium() }),
+        ("om1.9-st4-sor8", DisParams { omega: 1.9, patch_stride: 4, sor_iterations: 8, ..DisParams::medium() }),
     ];
     for (name, p) in variants {
         let d = Dis::new(p).expect("valid");
