@@ -187,13 +187,13 @@ fn lattice_sums(target: &[Point3], values: &[f64], vd: usize, queries: &[Point3]
 /// points than this (typically).
 const AUTO_NEIGHBOURS: usize = 48;
 
-/// Candidate target neighbours of every source point, gathered within `radius` of the source
-/// points moved by `pose`. While the points have moved less than `radius - r` since, every
-/// target point within `r` of a moved point is among its candidates, so the exact sums can be
+/// Candidate target neighbours of every (moved) source point, gathered within `radius` of where
+/// the points were (`built_at`). While the points have moved less than `radius - r` since, every
+/// target point within `r` of a point is among its candidates, so the exact sums can be
 /// evaluated from the lists without new k-d tree searches (most of the exact E-step's time).
 struct NeighbourCache {
     radius: f64,
-    pose: Pose,
+    built_at: Vec<Point3>,
     offsets: Vec<usize>,
     indices: Vec<u32>,
 }
@@ -204,7 +204,7 @@ const CACHE_MARGIN: f64 = 1.25;
 const CACHE_MAX_WIDTH: f64 = 1.6;
 
 impl NeighbourCache {
-    fn build(index: &KnnIndex, queries: &[Point3], pose: Pose, radius: f64) -> Self {
+    fn build(index: &KnnIndex, queries: &[Point3], radius: f64) -> Self {
         let lists: Vec<Vec<u32>> = queries
             .par_iter()
             .map(|q| {
@@ -221,20 +221,17 @@ impl NeighbourCache {
             indices.extend_from_slice(l);
             offsets.push(indices.len());
         }
-        Self { radius, pose, offsets, indices }
+        Self { radius, built_at: queries.to_vec(), offsets, indices }
     }
 
-    /// Whether the lists still cover radius `r` around every source point under `pose` without
-    /// being much wider than needed (each candidate costs a distance evaluation).
-    fn covers(&self, source: &[Point3], pose: &Pose, r: f64) -> bool {
-        let moved = pose * self.pose.inverse();
+    /// Whether the lists still cover radius `r` around every point of `queries` (the same points,
+    /// moved) without being much wider than needed (each candidate costs a distance evaluation).
+    fn covers(&self, queries: &[Point3], r: f64) -> bool {
         let slack = self.radius - r;
         slack > 0.0
             && self.radius <= CACHE_MAX_WIDTH * r
-            && source.iter().all(|s| {
-                let x = self.pose * s;
-                (moved * x - x).norm() < slack
-            })
+            && queries.len() == self.built_at.len()
+            && queries.iter().zip(&self.built_at).all(|(q, b)| (q - b).norm_squared() < slack * slack)
     }
 }
 
@@ -245,20 +242,12 @@ struct ExactEStep {
 }
 
 impl ExactEStep {
-    /// Exact sums within 4 sigma of `queries` (the `source` points moved by `pose`).
-    fn sums(
-        &mut self,
-        source: &[Point3],
-        pose: &Pose,
-        queries: &[Point3],
-        values: &[f64],
-        vd: usize,
-        sigma: f64,
-    ) -> Sums {
+    /// Exact sums within 4 sigma of `queries` (the moved source points).
+    fn sums(&mut self, queries: &[Point3], values: &[f64], vd: usize, sigma: f64) -> Sums {
         let (index, cache) = (&self.index, &mut self.cache);
         let r = 4.0 * sigma;
-        if !cache.as_ref().is_some_and(|c| c.covers(source, pose, r)) {
-            *cache = Some(NeighbourCache::build(index, queries, *pose, CACHE_MARGIN * r));
+        if !cache.as_ref().is_some_and(|c| c.covers(queries, r)) {
+            *cache = Some(NeighbourCache::build(index, queries, CACHE_MARGIN * r));
         }
         let cache = cache.as_ref().expect("built above");
         let (inv, r2) = (-0.5 / (sigma * sigma), r * r);
@@ -481,7 +470,7 @@ impl Registrar for FilterReg {
                 }
             };
             let sums = match (&mut exact, use_lattice) {
-                (Some(e), false) => e.sums(source, &t, &x, &values, vd, sigma),
+                (Some(e), false) => e.sums(&x, &values, vd, sigma),
                 _ => lattice_sums(target, &values, vd, &x, sigma),
             };
             // Outlier level relative to the unnormalised kernel sums (as FilterReg's reference
@@ -611,21 +600,20 @@ mod tests {
         let fresh = |pose: &Pose, sigma: f64| {
             let x: Vec<Point3> = source.iter().map(|s| pose * s).collect();
             let mut e = ExactEStep { index: KnnIndex::new(&target), cache: None };
-            (e.sums(&source, pose, &x, &values, vd, sigma), x)
+            (e.sums(&x, &values, vd, sigma), x)
         };
         let mut e = ExactEStep { index: KnnIndex::new(&target), cache: None };
         let p0 = Pose::identity();
         let x0: Vec<Point3> = source.iter().map(|s| p0 * s).collect();
-        e.sums(&source, &p0, &x0, &values, vd, sigma);
-        let built = e.cache.as_ref().unwrap().pose;
+        e.sums(&x0, &values, vd, sigma);
         // Small move (well inside the margin): the lists are reused.
         let p1 = Pose::from_parts(
             Translation3::new(0.0006, -0.0003, 0.0002),
             UnitQuaternion::from_euler_angles(0.004, 0.0, 0.003),
         );
         let (want, x1) = fresh(&p1, sigma);
-        let got = e.sums(&source, &p1, &x1, &values, vd, sigma);
-        assert_eq!(e.cache.as_ref().unwrap().pose, built, "lists were gathered again for a small move");
+        let got = e.sums(&x1, &values, vd, sigma);
+        assert_eq!(e.cache.as_ref().unwrap().built_at, x0, "lists were gathered again for a small move");
         for i in 0..source.len() {
             assert!((got.m0[i] - want.m0[i]).abs() <= 1e-12 * want.m0[i].max(1.0), "m0[{i}]");
             assert!((got.m1[i] - want.m1[i]).norm() <= 1e-12 * want.m0[i].max(1.0), "m1[{i}]");
@@ -633,10 +621,10 @@ mod tests {
         // A move beyond the margin (4 mm: lists of 1.25 x 16 mm for a 16 mm support) and a halved sigma each trigger a new search.
         let p2 = Pose::from_parts(Translation3::new(0.006, 0.0, 0.0), UnitQuaternion::identity());
         let (want, x2) = fresh(&p2, sigma);
-        let got = e.sums(&source, &p2, &x2, &values, vd, sigma);
-        assert_eq!(e.cache.as_ref().unwrap().pose, p2);
+        let got = e.sums(&x2, &values, vd, sigma);
+        assert_eq!(e.cache.as_ref().unwrap().built_at, x2);
         assert!(got.m0.iter().zip(&want.m0).all(|(a, b)| (a - b).abs() <= 1e-12 * b.max(1.0)));
-        e.sums(&source, &p2, &x2, &values, vd, sigma / 2.0);
+        e.sums(&x2, &values, vd, sigma / 2.0);
         assert!(e.cache.as_ref().unwrap().radius < CACHE_MARGIN * 4.0 * sigma);
     }
 }

@@ -2,11 +2,12 @@
 
 use anyhow::{Context, bail};
 use clap::Args;
-use flowfilter_flow::dis::{Dis, DisParams};
+use flowfilter_flow::dis::DisParams;
 use flowfilter_flow::lk::to_gray;
 use flowfilter_flow::metrics::epe;
-use flowfilter_flow::{FlowEstimator, LucasKanade, flo, viz};
+use flowfilter_flow::{FlowEstimator, flo, viz};
 use flowfilter_geometry::Mask;
+use flowfilter_pipeline::{FlowStageConfig, flow_estimator_by_name};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
@@ -40,24 +41,22 @@ pub struct FlowArgs {
     pub viz: Option<PathBuf>,
 }
 
+/// The estimator named on the command line: the pipeline's names (lk, dis, net, onnx:MODEL)
+/// plus the DIS presets, resolved by the pipeline's `flow_estimator_by_name`.
 fn estimator(name: &str) -> anyhow::Result<Box<dyn FlowEstimator>> {
-    Ok(match name {
-        "lk" => Box::new(LucasKanade::default()),
-        "dis" | "dis-medium" => Box::new(Dis::new(DisParams::medium())?),
-        "dis-fast" => Box::new(Dis::new(DisParams::fast())?),
-        "dis-ultrafast" => Box::new(Dis::new(DisParams::ultrafast())?),
-        #[cfg(feature = "onnx")]
-        "net" => Box::new(flowfilter_flow::net::ffnet()?),
-        #[cfg(feature = "onnx")]
-        other if other.starts_with("onnx:") => {
-            Box::new(flowfilter_flow::onnx::OnnxFlow::load(std::path::Path::new(&other["onnx:".len()..]))?)
-        }
-        #[cfg(not(feature = "onnx"))]
-        other if other.starts_with("onnx:") || other == "net" => {
-            bail!("--method {other}: ONNX networks need a build with the `onnx` feature (cargo build --features onnx)")
-        }
-        other => bail!("--method '{other}': expected lk, dis, dis-fast or dis-ultrafast"),
-    })
+    let (estimator, dis) = match name {
+        "dis-medium" => ("dis", DisParams::medium()),
+        "dis-fast" => ("dis", DisParams::fast()),
+        "dis-ultrafast" => ("dis", DisParams::ultrafast()),
+        other => (other, DisParams::medium()),
+    };
+    #[cfg(not(feature = "onnx"))]
+    if estimator.starts_with("onnx:") || estimator == "net" {
+        bail!("--method {estimator}: ONNX networks need a build with the `onnx` feature (cargo build --features onnx)")
+    }
+    let config = FlowStageConfig { estimator: estimator.into(), dis, ..FlowStageConfig::default() };
+    flow_estimator_by_name(&config)
+        .with_context(|| format!("--method {name} (also: dis-medium, dis-fast, dis-ultrafast)"))
 }
 
 /// Run `flow`.
