@@ -142,6 +142,7 @@ def main():
     ap.add_argument("--chairs-fraction", type=float, default=0.3)
     ap.add_argument("--lr", type=float, default=1e-3)
     ap.add_argument("--out", default="fixtures/models")
+    ap.add_argument("--init", help="start from these parameters (an ffnet_params.npz) instead of --seed's")
     a = ap.parse_args()
     rng = np.random.default_rng(a.seed)
     t0 = time.time()
@@ -150,6 +151,11 @@ def main():
     chairs_data = [np.stack(x) for x in zip(*ch)]
     print(f"data: {train[0].shape[0]} turntable pairs, {a.chairs} chairs pairs, {held[0].shape[0]} held out ({time.time() - t0:.0f} s)", flush=True)
     params = M.init_params(a.seed)
+    if a.init:
+        # Fine-tuning: the saved leaves, in the order of jax.tree_util.tree_leaves.
+        saved = np.load(a.init)
+        leaves = [jnp.asarray(saved[f"arr_{i}"]) for i in range(len(saved.files))]
+        params = jax.tree_util.tree_unflatten(jax.tree_util.tree_structure(params), leaves)
     m = jax.tree_util.tree_map(jnp.zeros_like, params)
     s = jax.tree_util.tree_map(jnp.zeros_like, params)
 
@@ -185,7 +191,7 @@ def main():
     diff = export(params, out, held[0][0], held[1][0])
     (out / "ffnet_training.json").write_text(json.dumps({
         "seed": a.seed, "steps": a.steps, "batch": a.batch, "chairs": a.chairs, "chairs_fraction": a.chairs_fraction,
-        "lr": a.lr, "seconds": round(time.time() - t0), "onnx_vs_jax_max_abs": diff, "log": log,
+        "lr": a.lr, "init": a.init, "seconds": round(time.time() - t0), "onnx_vs_jax_max_abs": diff, "log": log,
         "jax": jax.__version__}, indent=1) + "\n")
 
 
