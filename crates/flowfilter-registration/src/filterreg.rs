@@ -9,7 +9,8 @@
 //! minimises `sum_i M0_i / (M0_i + c) |T x_i - M1_i / M0_i|^2` (point-to-point, closed form)
 //! or its projection on the filtered normal (point-to-plane, Gauss-Newton on a twist); sigma^2
 //! follows the EM update or an annealing schedule. Optional weighted correspondences add
-//! `lambda * sum_j w_j |T a_j - b_j|^2` to the objective (used by Flow Filter).
+//! `lambda * sum_j w_j |T a_j - b_j|^2` to the objective (used by Flow Filter). Once sigma has
+//! settled, the EM iteration is Anderson-accelerated (see [`FilterRegConfig::anderson_depth`]).
 
 use crate::anderson::Anderson;
 use crate::error::RegistrationError;
