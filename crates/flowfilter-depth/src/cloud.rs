@@ -217,6 +217,45 @@ mod tests {
             .collect()
     }
 
+    /// The row-parallel organised cloud equals a sequential scan: same points in row order, same
+    /// pixels, colours and index.
+    #[test]
+    fn organized_cloud_matches_a_sequential_scan() {
+        use flowfilter_camera::{CameraModel, Distortion, ImageSize, Intrinsics};
+        let cam = CameraModel::new(
+            Intrinsics::new(120.0, 121.0, 39.5, 29.5).unwrap(),
+            Distortion { k1: 0.05, k2: -0.02, p1: 0.001, p2: 0.0, k3: 0.0 },
+            ImageSize::new(80, 60).unwrap(),
+        );
+        let rays = RayTable::new(&cam);
+        let depth =
+            DepthMap::from_fn(80, 60, |x, y| if (x * 7 + y * 3) % 5 == 0 { 0.0 } else { 0.5 + 0.001 * x as f32 });
+        let mask = Mask::from_fn(80, 60, |x, y| (10..70).contains(&x) && (5..50).contains(&y) && (x + y) % 11 != 0);
+        let color = RgbImage::from_fn(80, 60, |x, y| image::Rgb([x as u8, y as u8, (x + y) as u8]));
+        let (cloud, index) = organized_cloud(&depth, &rays, Some(&color), Some(&mask));
+        let mut want = Vec::new();
+        for y in 0..60 {
+            for x in 0..80 {
+                let k = y * 80 + x;
+                if depth.as_slice()[k] > 0.0 && mask.as_slice()[k] {
+                    if let Some(p) = rays.backproject(x, y, f64::from(depth.as_slice()[k])) {
+                        want.push((k, p, [x as f32, y as f32], color.get_pixel(x as u32, y as u32).0));
+                    }
+                }
+            }
+        }
+        assert!(want.len() > 1500);
+        assert_eq!(cloud.len(), want.len());
+        for (i, (k, p, px, c)) in want.iter().enumerate() {
+            assert_eq!(
+                (cloud.points[i], cloud.pixels.as_ref().unwrap()[i], cloud.colors.as_ref().unwrap()[i]),
+                (*p, *px, *c)
+            );
+            assert_eq!(index[*k], i as u32);
+        }
+        assert_eq!(index.iter().filter(|&&v| v != u32::MAX).count(), want.len());
+    }
+
     #[test]
     fn knn_normals_of_a_plane_face_the_camera() {
         let pts = plane();
