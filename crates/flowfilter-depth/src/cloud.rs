@@ -237,10 +237,11 @@ mod tests {
         for y in 0..60 {
             for x in 0..80 {
                 let k = y * 80 + x;
-                if depth.as_slice()[k] > 0.0 && mask.as_slice()[k] {
-                    if let Some(p) = rays.backproject(x, y, f64::from(depth.as_slice()[k])) {
-                        want.push((k, p, [x as f32, y as f32], color.get_pixel(x as u32, y as u32).0));
-                    }
+                if depth.as_slice()[k] > 0.0
+                    && mask.as_slice()[k]
+                    && let Some(p) = rays.backproject(x, y, f64::from(depth.as_slice()[k]))
+                {
+                    want.push((k, p, [x as f32, y as f32], color.get_pixel(x as u32, y as u32).0));
                 }
             }
         }
