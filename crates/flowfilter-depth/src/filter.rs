@@ -23,12 +23,11 @@ fn window_min_max(depth: &DepthMap, window: usize) -> (Vec<f32>, Vec<f32>) {
     let mut row_max = vec![f32::NEG_INFINITY; w * h];
     row_min.par_chunks_mut(w).zip(row_max.par_chunks_mut(w)).enumerate().for_each(|(y, (mn, mx))| {
         let row = &src[y * w..(y + 1) * w];
-        let lo: Vec<f32> = row.iter().map(|&z| if z > 0.0 { z } else { f32::INFINITY }).collect();
-        let hi: Vec<f32> = row.iter().map(|&z| if z > 0.0 { z } else { f32::NEG_INFINITY }).collect();
         for x in 0..w {
             let (a, b) = (x.saturating_sub(r), (x + r).min(w - 1));
-            mn[x] = lo[a..=b].iter().fold(f32::INFINITY, |m, &v| m.min(v));
-            mx[x] = hi[a..=b].iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v));
+            let window = &row[a..=b];
+            mn[x] = window.iter().fold(f32::INFINITY, |m, &v| m.min(if v > 0.0 { v } else { f32::INFINITY }));
+            mx[x] = window.iter().fold(f32::NEG_INFINITY, |m, &v| m.max(if v > 0.0 { v } else { f32::NEG_INFINITY }));
         }
     });
     let mut out_min = vec![f32::INFINITY; w * h];

@@ -454,9 +454,9 @@ impl Registrar for FilterReg {
             let with_sigma = matches!(cfg.sigma, SigmaSchedule::Update { .. });
             (Anderson::new(cfg.anderson_depth), EmCoordinates { reference: t, centre, radius, with_sigma })
         });
-        // The last plain EM step (pose, sigma^2) and its residual; whether the current iterate
-        // is a mixed one.
-        let mut plain: Option<(Pose, f64, f64)> = None;
+        // The fixed-point residual of the last recorded step (None: the history is empty);
+        // whether the current iterate is a mixed one.
+        let mut previous_residual: Option<f64> = None;
         let (mut mixed, mut started) = (false, false);
         let mut result = t;
         for it in 0..cfg.max_iterations {
@@ -515,7 +515,7 @@ impl Registrar for FilterReg {
                 (t, sigma2) = (g, new_sigma2);
                 continue;
             };
-            if plain.is_none() {
+            if previous_residual.is_none() {
                 coords.reference = t;
             }
             let z = coords.encode(&t, sigma2);
@@ -523,17 +523,17 @@ impl Registrar for FilterReg {
             let residual = (&gz - &z).norm();
             // Safeguard: when a mixed iterate's residual grew, its plain step is taken instead
             // and the history restarts there.
-            if let Some((_, _, previous)) = plain
+            if let Some(previous) = previous_residual
                 && mixed
                 && residual > previous
             {
                 anderson.reset();
                 coords.reference = g;
-                plain = None;
+                previous_residual = None;
                 (t, sigma2, mixed) = (g, new_sigma2, false);
                 continue;
             }
-            plain = Some((g, new_sigma2, residual));
+            previous_residual = Some(residual);
             let next = anderson.step(&z, gz);
             let (pose, s2) = coords.decode(&next);
             // Sigma^2 keeps the plain step's bounds (at most halved, floored).
