@@ -68,6 +68,41 @@ impl KnnIndex {
     }
 }
 
+/// Spread the low 10 bits of `v` to every third bit.
+fn spread3(v: u32) -> u32 {
+    let mut x = v & 0x3ff;
+    x = (x | (x << 16)) & 0x0300_00ff;
+    x = (x | (x << 8)) & 0x0300_f00f;
+    x = (x | (x << 4)) & 0x030c_30c3;
+    (x | (x << 2)) & 0x0924_9249
+}
+
+/// A spatially coherent visiting order of `points`: indices sorted by the Morton (Z-order) code of
+/// the points quantised to 1024 steps per axis of their bounding box. Queries issued in this order
+/// walk neighbouring branches of a k-d tree one after the other, which keeps them in cache;
+/// rigid motions preserve the coherence, so the order can be computed once per cloud.
+/// Non-finite points sort last.
+pub fn spatial_order(points: &[Point3]) -> Vec<u32> {
+    let (mut lo, mut hi) = (Point3::from([f64::INFINITY; 3]), Point3::from([f64::NEG_INFINITY; 3]));
+    for p in points.iter().filter(|p| p.coords.iter().all(|c| c.is_finite())) {
+        lo = lo.inf(p);
+        hi = hi.sup(p);
+    }
+    let code = |p: &Point3| -> u32 {
+        if !p.coords.iter().all(|c| c.is_finite()) {
+            return u32::MAX;
+        }
+        let q = |i: usize| {
+            let extent = hi[i] - lo[i];
+            if extent > 0.0 { ((p[i] - lo[i]) / extent * 1023.0) as u32 } else { 0 }
+        };
+        spread3(q(0)) | (spread3(q(1)) << 1) | (spread3(q(2)) << 2)
+    };
+    let mut keyed: Vec<(u32, u32)> = points.iter().enumerate().map(|(i, p)| (code(p), i as u32)).collect();
+    keyed.sort_unstable();
+    keyed.into_iter().map(|(_, i)| i).collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -92,6 +127,17 @@ mod tests {
             assert_eq!(w, expected);
         }
         assert!(KnnIndex::new(&[]).nearest(&Point3::origin()).is_none());
+        // The spatial order is a permutation; along a line it is the order along the line,
+        // and non-finite points come last.
+        let mut line: Vec<Point3> = (0..50).map(|i| Point3::new(((i * 37) % 50) as f64, 0.0, 0.0)).collect();
+        line.push(Point3::new(f64::NAN, 0.0, 0.0));
+        let order = spatial_order(&line);
+        let xs: Vec<f64> = order[..50].iter().map(|&i| line[i as usize].x).collect();
+        assert_eq!(xs, (0..50).map(f64::from).collect::<Vec<_>>());
+        assert_eq!(order[50], 50);
+        let mut sorted = spatial_order(&pts);
+        sorted.sort_unstable();
+        assert_eq!(sorted, (0..500).collect::<Vec<u32>>());
         assert_eq!(KnnIndex::new(&pts[..3]).k_nearest(&Point3::origin(), 10).len(), 3);
     }
 }

@@ -1,7 +1,8 @@
 //! Times our backends on the clouds written by `tools/peers/registration_peers.py --bench DIR`
 //! and prints them beside the peers' times and errors recorded in `DIR/peers.json`.
 //! Run: `cargo run --release -p flowfilter-registration --example bench_peers -- DIR`
-//! (set `RAYON_NUM_THREADS=1` or `2` for the thread count).
+//! `[METHODS]` (set `RAYON_NUM_THREADS=1` or `2` for the thread count; METHODS: a comma-separated
+//! subset of `cpd,filterreg-pt2pt,filterreg-pt2pl,icp-pt2pt,icp-pt2pl`).
 
 use flowfilter_depth::ply::read_ply;
 use flowfilter_registration::{RegistrationConfig, RegistrationProblem, registrar_by_name};
@@ -10,6 +11,10 @@ use std::path::PathBuf;
 
 fn main() {
     let dir = PathBuf::from(std::env::args().nth(1).expect("usage: bench_peers DIR"));
+    // Optional second argument: a comma-separated subset of the methods.
+    let methods = std::env::args()
+        .nth(2)
+        .unwrap_or_else(|| "cpd,filterreg-pt2pt,filterreg-pt2pl,icp-pt2pt,icp-pt2pl".to_string());
     let peers: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("peers.json")).unwrap()).unwrap();
     let mut config = RegistrationConfig::default();
@@ -17,9 +22,11 @@ fn main() {
     config.filterreg.w = 0.2;
     config.icp.max_correspondence_distance = 0.25;
     config.icp.max_iterations = 200;
+    // Open3D's stopping rule exactly (fitness and RMSE changes below 1e-6): the same iterations.
+    config.icp.min_update = 0.0;
     println!("threads: {}", rayon::current_num_threads());
-    println!("| points | method | ours (s) | peer (s) | speed-up | ours (deg) | peer (deg) |");
-    println!("| --- | --- | --- | --- | --- | --- | --- |");
+    println!("| points | method | ours (s) | peer (s) | speed-up | ours (deg) | peer (deg) | our iterations |");
+    println!("| --- | --- | --- | --- | --- | --- | --- | --- |");
     for row in peers.as_array().unwrap() {
         let n = row["n"].as_u64().unwrap();
         let source = read_ply(&dir.join(format!("n{n}_source.ply"))).unwrap();
@@ -27,7 +34,7 @@ fn main() {
         let t = &row["truth"];
         let truth =
             flowfilter_geometry::rigid_from_matrix(&Matrix4::from_fn(|r, c| t[r][c].as_f64().unwrap())).unwrap();
-        for method in ["cpd", "filterreg-pt2pt", "filterreg-pt2pl", "icp-pt2pt", "icp-pt2pl"] {
+        for method in methods.split(',') {
             let reg = registrar_by_name(method, &config).unwrap();
             let problem = RegistrationProblem::new(source.clone(), target.clone());
             let start = std::time::Instant::now();
@@ -37,9 +44,13 @@ fn main() {
             let peer = &row["peers"][method];
             match (peer["seconds"].as_f64(), peer["rotation_error_deg"].as_f64()) {
                 (Some(ps), Some(pd)) => {
-                    println!("| {n} | {method} | {secs:.3} | {ps:.3} | {:.1}x | {deg:.4} | {pd:.4} |", ps / secs)
+                    println!(
+                        "| {n} | {method} | {secs:.3} | {ps:.3} | {:.1}x | {deg:.4} | {pd:.4} | {} |",
+                        ps / secs,
+                        r.iterations
+                    )
                 }
-                _ => println!("| {n} | {method} | {secs:.3} | not run | - | {deg:.4} | - |"),
+                _ => println!("| {n} | {method} | {secs:.3} | not run | - | {deg:.4} | - | {} |", r.iterations),
             }
         }
     }

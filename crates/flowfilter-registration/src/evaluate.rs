@@ -113,20 +113,93 @@ impl RobustKernel {
 /// perturbation) minimising `sum w_i (n_i . (exp(xi) x_i - y_i))^2` to first order. `None` when
 /// the normal equations are singular (e.g. all normals parallel).
 pub fn point_to_plane_step(x: &[Point3], y: &[Point3], n: &[Vector3], w: &[f64]) -> Option<Pose> {
-    let indices: Vec<usize> = (0..x.len()).collect();
-    let (h, g) = indices
-        .par_chunks(DETERMINISTIC_CHUNK)
-        .map(|chunk| {
-            chunk.iter().fold((Matrix6::zeros(), Vector6::zeros()), |(h, g), &i| {
-                let r = n[i].dot(&(x[i] - y[i]));
-                let c = x[i].coords.cross(&n[i]);
-                let j = Vector6::new(n[i].x, n[i].y, n[i].z, c.x, c.y, c.z);
-                (h + w[i] * j * j.transpose(), g + w[i] * r * j)
-            })
+    gauss_newton_step(x.len(), |i, h, g| plane_term(&x[i], &y[i], &n[i], w[i], h, g))
+}
+
+/// Adds one weighted point-to-plane residual `n . (x - y)` to the normal equations.
+#[inline]
+fn plane_term(x: &Point3, y: &Point3, n: &Vector3, w: f64, h: &mut Matrix6<f64>, g: &mut Vector6<f64>) {
+    let r = n.dot(&(x - y));
+    let c = x.coords.cross(n);
+    let j = Vector6::new(n.x, n.y, n.z, c.x, c.y, c.z);
+    h.syger(w, &j, &j, 1.0);
+    g.axpy(w * r, &j, 1.0);
+}
+
+/// Solves the normal equations accumulated by `term(i, h, g)` over `0..len` (in fixed chunks
+/// summed in order: the same bits whatever the thread count) for the left twist.
+fn gauss_newton_step(len: usize, term: impl Fn(usize, &mut Matrix6<f64>, &mut Vector6<f64>) + Sync) -> Option<Pose> {
+    let chunks = len.div_ceil(DETERMINISTIC_CHUNK);
+    let (h, g) = (0..chunks)
+        .into_par_iter()
+        .map(|c| {
+            let (mut h, mut g) = (Matrix6::zeros(), Vector6::zeros());
+            for i in c * DETERMINISTIC_CHUNK..((c + 1) * DETERMINISTIC_CHUNK).min(len) {
+                term(i, &mut h, &mut g);
+            }
+            (h, g)
         })
         .collect::<Vec<_>>()
         .into_iter()
         .fold((Matrix6::zeros(), Vector6::zeros()), |a, b| (a.0 + b.0, a.1 + b.1));
+    // Only the lower triangle was accumulated.
+    let h = Matrix6::from_fn(|r, c| if r >= c { h[(r, c)] } else { h[(c, r)] });
     let xi = h.cholesky()?.solve(&(-g));
     xi.iter().all(|v| v.is_finite()).then(|| se3::exp(&xi))
+}
+
+/// [`point_to_plane_step`] where a pair without a normal (`None`) contributes its full
+/// point-to-point residual `|x - y|^2` (the sum of its point-to-plane residuals along the axes),
+/// and the source points are first moved by `pre` (the Gauss-Newton steps taken so far).
+pub fn plane_or_point_step(x: &[Point3], y: &[Point3], n: &[Option<Vector3>], w: &[f64], pre: &Pose) -> Option<Pose> {
+    gauss_newton_step(x.len(), |i, h, g| {
+        let xi = pre * x[i];
+        match &n[i] {
+            Some(n) => plane_term(&xi, &y[i], n, w[i], h, g),
+            None => {
+                for axis in [Vector3::x(), Vector3::y(), Vector3::z()] {
+                    plane_term(&xi, &y[i], &axis, w[i], h, g);
+                }
+            }
+        }
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Translation3, UnitQuaternion};
+
+    /// A pair without a normal weighs as its three axis-aligned point-to-plane residuals, and
+    /// `pre` moves the source first.
+    #[test]
+    fn plane_or_point_step_equals_the_expanded_point_to_plane_step() {
+        let x: Vec<Point3> =
+            (0..40).map(|i| Point3::new((i as f64 * 0.37).sin(), (i as f64 * 0.71).cos(), 0.1 * i as f64)).collect();
+        let pre = Pose::from_parts(
+            Translation3::new(0.01, -0.02, 0.005),
+            UnitQuaternion::from_euler_angles(0.02, -0.01, 0.03),
+        );
+        let y: Vec<Point3> =
+            x.iter().enumerate().map(|(i, p)| p + Vector3::new(0.01 * (i % 3) as f64, -0.004, 0.002)).collect();
+        let n: Vec<Option<Vector3>> =
+            (0..40).map(|i| (i % 4 != 0).then(|| Vector3::new(1.0, (i as f64).sin(), 0.5).normalize())).collect();
+        let w: Vec<f64> = (0..40).map(|i| 0.5 + (i % 5) as f64 * 0.1).collect();
+        let (mut ex, mut ey, mut en, mut ew) = (vec![], vec![], vec![], vec![]);
+        for i in 0..40 {
+            let axes = match n[i] {
+                Some(v) => vec![v],
+                None => vec![Vector3::x(), Vector3::y(), Vector3::z()],
+            };
+            for a in axes {
+                ex.push(pre * x[i]);
+                ey.push(y[i]);
+                en.push(a);
+                ew.push(w[i]);
+            }
+        }
+        let want = point_to_plane_step(&ex, &ey, &en, &ew).unwrap();
+        let got = plane_or_point_step(&x, &y, &n, &w, &pre).unwrap();
+        assert!((want.to_homogeneous() - got.to_homogeneous()).abs().max() < 1e-12);
+    }
 }

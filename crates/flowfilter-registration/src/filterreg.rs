@@ -12,15 +12,16 @@
 //! `lambda * sum_j w_j |T a_j - b_j|^2` to the objective (used by Flow Filter). Once sigma has
 //! settled, the EM iteration is Anderson-accelerated (see [`FilterRegConfig::anderson_depth`]).
 
+use crate::aggregate::Pyramid;
 use crate::anderson::Anderson;
 use crate::error::RegistrationError;
-use crate::evaluate::{evaluate, point_to_plane_step};
+use crate::evaluate::{evaluate, plane_or_point_step};
 use crate::gmm::mean_pair_distance2;
 use crate::lattice::Lattice;
 use crate::problem::{
     Correspondences, IterationRecord, Registrar, Registration, RegistrationProblem, validate_problem,
 };
-use flowfilter_geometry::{KnnIndex, Point3, Pose, Vector3, weighted_kabsch};
+use flowfilter_geometry::{KnnIndex, Point3, Pose, RadiusGrid, Vector3, spatial_order, weighted_kabsch};
 use nalgebra::{DVector, Translation3, UnitQuaternion};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -98,6 +99,13 @@ pub struct FilterRegConfig {
     /// fixed-point residual grow is replaced by the plain EM step. Same fixed points, several
     /// times fewer iterations where EM crawls (points sliding along a smooth surface).
     pub anderson_depth: usize,
+    /// With the [`FilterRegEStep::Auto`] E-step, the lattice iterations (wide kernel) merge
+    /// source and target points into voxels of edge up to this fraction of sigma (centroids
+    /// carrying their counts, spreads and summed values; the kernel sums change by about
+    /// `fraction^2 / 4`), so they visit hundreds of points instead of thousands. The exact
+    /// iterations that decide the final pose always use every point; the other E-steps never
+    /// merge (with the lattice alone, the last iterations decide the pose). 0 disables merging.
+    pub merge_fraction: f64,
 }
 
 impl Default for FilterRegConfig {
@@ -114,6 +122,7 @@ impl Default for FilterRegConfig {
             correspondence_weight: 0.0,
             evaluation_distance: 0.01,
             anderson_depth: 5,
+            merge_fraction: 0.5,
         }
     }
 }
@@ -188,6 +197,9 @@ fn lattice_sums(target: &[Point3], values: &[f64], vd: usize, queries: &[Point3]
 /// points than this (typically).
 const AUTO_NEIGHBOURS: usize = 48;
 
+/// Merging stops at levels with fewer points than this.
+const MERGED_MIN_POINTS: usize = 64;
+
 /// Candidate target neighbours of every (moved) source point, gathered within `radius` of where
 /// the points were (`built_at`). While the points have moved less than `radius - r` since, every
 /// target point within `r` of a point is among its candidates, so the exact sums can be
@@ -205,24 +217,26 @@ const CACHE_MARGIN: f64 = 1.25;
 const CACHE_MAX_WIDTH: f64 = 1.6;
 
 impl NeighbourCache {
-    fn build(index: &KnnIndex, queries: &[Point3], radius: f64) -> Self {
+    fn build(index: &KnnIndex, target: &[Point3], queries: &[Point3], radius: f64) -> Self {
+        // A uniform grid where the box allows one (the usual case), else the k-d tree.
+        let grid = RadiusGrid::new(target, radius);
         let lists: Vec<Vec<u32>> = queries
             .par_iter()
             .map(|q| {
+                let mut l: Vec<u32> = match &grid {
+                    Some(g) => {
+                        let mut l = Vec::new();
+                        g.within(q, &mut l);
+                        l
+                    }
+                    None => index.within(q, radius).iter().map(|n| n.index as u32).collect(),
+                };
                 // Ascending indices: the sums then walk the target arrays forwards.
-                let mut l: Vec<u32> = index.within(q, radius).iter().map(|n| n.index as u32).collect();
                 l.sort_unstable();
                 l
             })
             .collect();
-        let mut offsets = Vec::with_capacity(queries.len() + 1);
-        offsets.push(0);
-        let mut indices = Vec::with_capacity(lists.iter().map(Vec::len).sum());
-        for l in &lists {
-            indices.extend_from_slice(l);
-            offsets.push(indices.len());
-        }
-        Self { radius, built_at: queries.to_vec(), offsets, indices }
+        Self::from_lists(lists, radius, queries)
     }
 
     /// Whether the lists still cover radius `r` around every point of `queries` (the same points,
@@ -234,21 +248,64 @@ impl NeighbourCache {
             && queries.len() == self.built_at.len()
             && queries.iter().zip(&self.built_at).all(|(q, b)| (q - b).norm_squared() < slack * slack)
     }
+
+    /// Lists of radius `radius` around `queries` cut from these wider ones, when they still hold
+    /// every target point within `radius` of every query (the points moved less than the
+    /// difference of the radii since the lists were gathered). No k-d tree search: sigma shrinks
+    /// a few percent per iteration, and re-gathering was most of the exact E-step's time.
+    fn shrunk(&self, queries: &[Point3], values: &[f64], vd: usize, radius: f64) -> Option<Self> {
+        let slack = self.radius - radius;
+        let moved_ok = slack > 0.0
+            && queries.len() == self.built_at.len()
+            && queries.iter().zip(&self.built_at).all(|(q, b)| (q - b).norm_squared() < slack * slack);
+        if !moved_ok {
+            return None;
+        }
+        let r2 = radius * radius;
+        let lists: Vec<Vec<u32>> = queries
+            .par_iter()
+            .enumerate()
+            .map(|(i, q)| {
+                self.indices[self.offsets[i]..self.offsets[i + 1]]
+                    .iter()
+                    .copied()
+                    .filter(|&k| {
+                        let v = &values[k as usize * vd..];
+                        (v[1] - q.x).powi(2) + (v[2] - q.y).powi(2) + (v[3] - q.z).powi(2) <= r2
+                    })
+                    .collect()
+            })
+            .collect();
+        Some(Self::from_lists(lists, radius, queries))
+    }
+
+    fn from_lists(lists: Vec<Vec<u32>>, radius: f64, queries: &[Point3]) -> Self {
+        let mut offsets = Vec::with_capacity(lists.len() + 1);
+        offsets.push(0);
+        let mut indices = Vec::with_capacity(lists.iter().map(Vec::len).sum());
+        for l in &lists {
+            indices.extend_from_slice(l);
+            offsets.push(indices.len());
+        }
+        Self { radius, built_at: queries.to_vec(), offsets, indices }
+    }
 }
 
 /// The exact E-step: a k-d tree over the target and the current neighbour lists.
-struct ExactEStep {
-    index: KnnIndex,
+struct ExactEStep<'a> {
+    index: &'a KnnIndex,
+    target: &'a [Point3],
     cache: Option<NeighbourCache>,
 }
 
-impl ExactEStep {
+impl ExactEStep<'_> {
     /// Exact sums within 4 sigma of `queries` (the moved source points).
     fn sums(&mut self, queries: &[Point3], values: &[f64], vd: usize, sigma: f64) -> Sums {
-        let (index, cache) = (&self.index, &mut self.cache);
+        let (index, target, cache) = (self.index, self.target, &mut self.cache);
         let r = 4.0 * sigma;
         if !cache.as_ref().is_some_and(|c| c.covers(queries, r)) {
-            *cache = Some(NeighbourCache::build(index, queries, CACHE_MARGIN * r));
+            let shrunk = cache.as_ref().and_then(|c| c.shrunk(queries, values, vd, CACHE_MARGIN * r));
+            *cache = Some(shrunk.unwrap_or_else(|| NeighbourCache::build(index, target, queries, CACHE_MARGIN * r)));
         }
         let cache = cache.as_ref().expect("built above");
         let (inv, r2) = (-0.5 / (sigma * sigma), r * r);
@@ -282,9 +339,10 @@ impl FilterReg {
             || config.max_iterations == 0
             || !ok_sigma
             || config.correspondence_weight < 0.0
+            || !(0.0..=1.0).contains(&config.merge_fraction)
         {
             return Err(RegistrationError::Config(
-                "filterreg needs 0 <= w < 1, max_iterations > 0, a valid sigma schedule and correspondence_weight >= 0"
+                "filterreg needs 0 <= w < 1, max_iterations > 0, a valid sigma schedule, correspondence_weight >= 0 and 0 <= merge_fraction <= 1"
                     .into(),
             ));
         }
@@ -294,10 +352,12 @@ impl FilterReg {
 
 /// One M-step: the update `delta` (applied on the left) from the filtered targets, plus the
 /// correspondence term. Point-to-point is solved in closed form by a weighted Kabsch over the
-/// union of both point sets (the correspondence term has the same form).
+/// union of both point sets (the correspondence term has the same form). `counts`: how many
+/// source points each of `x` stands for (merged points), `None` for one each.
 fn m_step(
     cfg: &FilterRegConfig,
     x: &[Point3],
+    counts: Option<&[f64]>,
     sums: &Sums,
     c: f64,
     corr: Option<(&Correspondences, &Pose)>,
@@ -313,7 +373,7 @@ fn m_step(
         }
         src.push(*xi);
         dst.push(Point3::from(sums.m1[i] / m0));
-        w.push(m0 / (m0 + c));
+        w.push(counts.map_or(1.0, |n| n[i]) * m0 / (m0 + c));
         // The filtered normal is only meaningful where the normals under the kernel agree
         // (|sum n| close to sum 1); elsewhere (large sigma, edges) use the full residual.
         let coherence = sums.mn[i].norm() / m0;
@@ -339,31 +399,11 @@ fn m_step(
     match cfg.variant {
         FilterRegVariant::PointToPoint => weighted_kabsch(&src, &dst, Some(&w)).ok(),
         FilterRegVariant::PointToPlane => {
-            // Correspondence pairs have no normal: their point-to-point error is the sum of
-            // three point-to-plane errors along the axes.
-            let (mut ps, mut pd, mut pn, mut pw) = (vec![], vec![], vec![], vec![]);
-            for i in 0..src.len() {
-                match nrm[i] {
-                    Some(n) => {
-                        ps.push(src[i]);
-                        pd.push(dst[i]);
-                        pn.push(n);
-                        pw.push(w[i]);
-                    }
-                    None => {
-                        for axis in [Vector3::x(), Vector3::y(), Vector3::z()] {
-                            ps.push(src[i]);
-                            pd.push(dst[i]);
-                            pn.push(axis);
-                            pw.push(w[i]);
-                        }
-                    }
-                }
-            }
+            // Pairs without a coherent normal (and correspondence pairs) contribute their
+            // point-to-point error, the sum of three point-to-plane errors along the axes.
             let mut delta = Pose::identity();
             for _ in 0..cfg.gauss_newton_steps.max(1) {
-                let moved: Vec<Point3> = ps.iter().map(|p| delta * p).collect();
-                delta = point_to_plane_step(&moved, &pd, &pn, &pw)? * delta;
+                delta = plane_or_point_step(&src, &dst, &nrm, &w, &delta)? * delta;
             }
             Some(delta)
         }
@@ -419,28 +459,51 @@ impl Registrar for FilterReg {
         let cfg = &self.config;
         let pt2pl = cfg.variant == FilterRegVariant::PointToPlane;
         validate_problem(p, pt2pl.then_some("filterreg-pt2pl"))?;
-        let (source, target) = (&p.source.points, &p.target.points);
-        let normals = if pt2pl { p.target.normals.as_deref() } else { None };
-        let (vd, values) = target_values(target, normals);
-        let mut exact =
-            (cfg.e_step != FilterRegEStep::Lattice).then(|| ExactEStep { index: KnnIndex::new(target), cache: None });
-        // The support radius below which exact sums are cheaper than the lattice: the median
-        // distance from (a strided sample of) target points to their AUTO_NEIGHBOURS-th neighbour.
-        // Only the Auto E-step switches; Exact and Lattice need no radius.
-        let exact_below = exact.as_ref().filter(|_| cfg.e_step == FilterRegEStep::Auto).map(|e| {
+        // Both clouds in a spatially coherent order: the neighbours of a point, and the points
+        // queried one after the other, then sit close together in memory.
+        let permuted = |v: &[Point3], order: &[u32]| -> Vec<Point3> { order.iter().map(|&i| v[i as usize]).collect() };
+        let source = &permuted(&p.source.points, &spatial_order(&p.source.points));
+        let target_order = spatial_order(&p.target.points);
+        let target = &permuted(&p.target.points, &target_order);
+        let normals: Option<Vec<Vector3>> = p
+            .target
+            .normals
+            .as_deref()
+            .filter(|_| pt2pl)
+            .map(|n| target_order.iter().map(|&i| n[i as usize]).collect());
+        let (vd, values) = target_values(target, normals.as_deref());
+        let index = KnnIndex::new(target);
+        // The median distance from (a strided sample of) target points to their
+        // AUTO_NEIGHBOURS-th neighbour: the support radius below which exact sums are cheaper
+        // than the lattice (Auto), and a quarter of it the point spacing (merging).
+        let merging = cfg.merge_fraction > 0.0 && cfg.e_step == FilterRegEStep::Auto;
+        let support = (cfg.e_step == FilterRegEStep::Auto || merging).then(|| {
             let step = (target.len() / 64).max(1);
             let mut d: Vec<f64> = target
                 .iter()
                 .step_by(step)
-                .filter_map(|y| e.index.k_nearest(y, AUTO_NEIGHBOURS).last().map(|n| n.dist2.sqrt()))
+                .filter_map(|y| index.k_nearest(y, AUTO_NEIGHBOURS).last().map(|n| n.dist2.sqrt()))
                 .collect();
             d.sort_by(f64::total_cmp);
             d.get(d.len() / 2).copied().unwrap_or(f64::INFINITY)
         });
+        let exact_below = support.filter(|_| cfg.e_step == FilterRegEStep::Auto);
+        // Merged source (no values) and target for the wide-kernel lattice iterations.
+        let pyramids = support.filter(|r| merging && r.is_finite() && *r > 0.0).map(|r| {
+            let finest = r / 4.0;
+            (
+                Pyramid::new(source, &[], 0, finest, MERGED_MIN_POINTS),
+                Pyramid::new(target, &values, vd, finest, MERGED_MIN_POINTS),
+            )
+        });
+        let mut exact =
+            (cfg.e_step != FilterRegEStep::Lattice).then(|| ExactEStep { index: &index, target, cache: None });
         let mut exact_phase = false;
         let mut t = p.init;
-        let mut x: Vec<Point3> = source.iter().map(|s| t * s).collect();
-        let mut sigma2 = cfg.init_sigma2.unwrap_or_else(|| mean_pair_distance2(&x, target) / 3.0);
+        let mut sigma2 = cfg.init_sigma2.unwrap_or_else(|| {
+            let x: Vec<Point3> = source.iter().map(|s| t * s).collect();
+            mean_pair_distance2(&x, target) / 3.0
+        });
         let min_sigma = match cfg.sigma {
             SigmaSchedule::Update { min_sigma } | SigmaSchedule::Anneal { min_sigma, .. } => min_sigma,
         };
@@ -470,28 +533,44 @@ impl Registrar for FilterReg {
                     !exact_phase
                 }
             };
+            // Wide kernel: merged points (each level independently, voxels up to a fraction of sigma).
+            let levels = pyramids
+                .as_ref()
+                .filter(|_| use_lattice)
+                .map(|(ps, pt)| (ps.level_for(cfg.merge_fraction * sigma), pt.level_for(cfg.merge_fraction * sigma)));
+            let (src, counts, spreads) = match levels.and_then(|l| l.0) {
+                Some(l) => (&l.points[..], Some(&l.counts[..]), Some(&l.spreads[..])),
+                None => (&source[..], None, None),
+            };
+            let (tgt, tgt_values) = match levels.and_then(|l| l.1) {
+                Some(l) => (&l.points[..], &l.values[..]),
+                None => (&target[..], &values[..]),
+            };
+            let x: Vec<Point3> = src.iter().map(|s| t * s).collect();
             let sums = match (&mut exact, use_lattice) {
                 (Some(e), false) => e.sums(&x, &values, vd, sigma),
-                _ => lattice_sums(target, &values, vd, &x, sigma),
+                _ => lattice_sums(tgt, tgt_values, vd, &x, sigma),
             };
             // Outlier level relative to the unnormalised kernel sums (as FilterReg's reference
             // implementation does): c = w / (1 - w) * N / M, independent of sigma.
             let c = if cfg.w > 0.0 { cfg.w / (1.0 - cfg.w) * target.len() as f64 / source.len() as f64 } else { 0.0 };
-            let Some(delta) = m_step(cfg, &x, &sums, c, corr.map(|k| (k, &t))) else {
+            let Some(delta) = m_step(cfg, &x, counts, &sums, c, corr.map(|k| (k, &t))) else {
                 warnings.push(format!("no source point is near the target at sigma = {sigma:.4} m: FilterReg stopped"));
                 break;
             };
             let g = delta * t;
-            x = source.iter().map(|s| g * s).collect();
             result = g;
             iterations = it + 1;
-            // sigma^2: the EM update with the new pose and this E-step's posteriors.
-            let (num, den) = (0..x.len())
+            // sigma^2: the EM update with the new pose and this E-step's posteriors. A merged
+            // point stands for `n` points spread by `s` around it: sum_j |x_j|^2 = n |x|^2 + s.
+            let (num, den) = (0..src.len())
                 .filter(|&i| sums.m0[i] > 1e-12)
                 .map(|i| {
-                    let m0 = sums.m0[i];
-                    let q = m0 * x[i].coords.norm_squared() - 2.0 * x[i].coords.dot(&sums.m1[i]) + sums.m2[i];
-                    (q / (m0 + c), m0 / (m0 + c))
+                    let (m0, xg) = (sums.m0[i], g * src[i]);
+                    let (n, s) = (counts.map_or(1.0, |n| n[i]), spreads.map_or(0.0, |s| s[i]));
+                    let q =
+                        m0 * (n * xg.coords.norm_squared() + s) - 2.0 * n * xg.coords.dot(&sums.m1[i]) + n * sums.m2[i];
+                    (q / (m0 + c), n * m0 / (m0 + c))
                 })
                 .fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
             let new_sigma2 = match cfg.sigma {
@@ -540,9 +619,6 @@ impl Registrar for FilterReg {
             let s2 = s2.map_or(new_sigma2, |v| v.clamp((0.5 * sigma2).max(min_sigma * min_sigma), 2.0 * sigma2));
             mixed = pose != g || s2 != new_sigma2;
             (t, sigma2) = (pose, s2);
-            if mixed {
-                x = source.iter().map(|s| t * s).collect();
-            }
             if (t.rotation * coords.reference.rotation.inverse()).angle() > MAX_MIXING_ANGLE {
                 anderson.reset();
                 coords.reference = t;
@@ -562,7 +638,7 @@ impl Registrar for FilterReg {
                 warnings: vec!["FilterReg diverged to a non-finite pose; returning the initial pose".into()],
             });
         }
-        let (fitness, inlier_rmse) = evaluate(source, &KnnIndex::new(target), &t, cfg.evaluation_distance);
+        let (fitness, inlier_rmse) = evaluate(source, &index, &t, cfg.evaluation_distance);
         Ok(Registration {
             transform: t,
             iterations,
@@ -600,10 +676,12 @@ mod tests {
         let sigma = 0.004;
         let fresh = |pose: &Pose, sigma: f64| {
             let x: Vec<Point3> = source.iter().map(|s| pose * s).collect();
-            let mut e = ExactEStep { index: KnnIndex::new(&target), cache: None };
+            let index = KnnIndex::new(&target);
+            let mut e = ExactEStep { index: &index, target: &target, cache: None };
             (e.sums(&x, &values, vd, sigma), x)
         };
-        let mut e = ExactEStep { index: KnnIndex::new(&target), cache: None };
+        let index = KnnIndex::new(&target);
+        let mut e = ExactEStep { index: &index, target: &target, cache: None };
         let p0 = Pose::identity();
         let x0: Vec<Point3> = source.iter().map(|s| p0 * s).collect();
         e.sums(&x0, &values, vd, sigma);
@@ -625,7 +703,14 @@ mod tests {
         let got = e.sums(&x2, &values, vd, sigma);
         assert_eq!(e.cache.as_ref().unwrap().built_at, x2);
         assert!(got.m0.iter().zip(&want.m0).all(|(a, b)| (a - b).abs() <= 1e-12 * b.max(1.0)));
-        e.sums(&x2, &values, vd, sigma / 2.0);
+        // A halved sigma: the lists are cut from the wider ones (no new search) and give the
+        // sums of a fresh search.
+        let got = e.sums(&x2, &values, vd, sigma / 2.0);
         assert!(e.cache.as_ref().unwrap().radius < CACHE_MARGIN * 4.0 * sigma);
+        let (want, _) = fresh(&p2, sigma / 2.0);
+        for i in 0..source.len() {
+            assert!((got.m0[i] - want.m0[i]).abs() <= 1e-12 * want.m0[i].max(1.0), "shrunk m0[{i}]");
+            assert!((got.m1[i] - want.m1[i]).norm() <= 1e-12 * want.m0[i].max(1.0), "shrunk m1[{i}]");
+        }
     }
 }

@@ -4,7 +4,7 @@
 use crate::error::RegistrationError;
 use crate::evaluate::{RobustKernel, point_to_plane_step};
 use crate::problem::{IterationRecord, Registrar, Registration, RegistrationProblem, validate_problem};
-use flowfilter_geometry::{KnnIndex, Point3, weighted_kabsch};
+use flowfilter_geometry::{KnnIndex, Point3, spatial_order, weighted_kabsch};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -34,6 +34,11 @@ pub struct IcpConfig {
     pub relative_rmse: f64,
     /// IRLS kernel on residuals.
     pub kernel: RobustKernel,
+    /// Also require the last update's rotation (rad) and translation (m) to be below this
+    /// before stopping: on smooth or planar parts the pose can keep sliding while fitness and
+    /// RMSE no longer change (more iterations, a better pose). 0 stops on Open3D's two criteria
+    /// alone (its iterations and result).
+    pub min_update: f64,
 }
 
 impl Default for IcpConfig {
@@ -45,6 +50,7 @@ impl Default for IcpConfig {
             relative_fitness: 1e-6,
             relative_rmse: 1e-6,
             kernel: RobustKernel::None,
+            min_update: 1e-7,
         }
     }
 }
@@ -87,10 +93,12 @@ impl Registrar for Icp {
         let normals = p.target.normals.as_deref().unwrap_or(&[]);
         let max_d2 = cfg.max_correspondence_distance.powi(2);
         let mut t = p.init;
+        // Source points in a spatially coherent order: consecutive queries share tree branches.
+        let source: Vec<Point3> =
+            spatial_order(&p.source.points).iter().map(|&i| p.source.points[i as usize]).collect();
         // Correspondences of the current estimate: (moved source, target index, distance).
         let correspond = |t: &flowfilter_geometry::Pose| -> Vec<(Point3, usize, f64)> {
-            p.source
-                .points
+            source
                 .par_iter()
                 .filter_map(|s| {
                     let x = t * s;
@@ -143,7 +151,8 @@ impl Registrar for Icp {
             history.push(IterationRecord { iteration: it, transform: t, objective: r });
             // Open3D's criteria, plus a vanishing update: on planar parts the pose can keep
             // sliding while fitness and RMSE no longer change.
-            let still = delta.rotation.angle() < 1e-7 && delta.translation.vector.norm() < 1e-7;
+            let still = cfg.min_update <= 0.0
+                || (delta.rotation.angle() < cfg.min_update && delta.translation.vector.norm() < cfg.min_update);
             let done = (f - fitness).abs() < cfg.relative_fitness && (r - rmse).abs() < cfg.relative_rmse && still;
             fitness = f;
             rmse = r;

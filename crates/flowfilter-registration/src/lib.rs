@@ -2,6 +2,7 @@
 //! point-to-plane), rigid CPD and FilterReg (permutohedral-lattice E-step), each configured by a
 //! serde struct and selectable by name with [`registrar_by_name`].
 
+mod aggregate;
 mod anderson;
 mod cpd;
 mod error;

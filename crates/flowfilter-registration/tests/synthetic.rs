@@ -4,8 +4,8 @@ mod common;
 
 use common::{bumpy_shape, corrupted, errors, random_transform};
 use flowfilter_registration::{
-    FilterReg, FilterRegConfig, FilterRegEStep, METHOD_NAMES, Registrar, RegistrationConfig, RegistrationProblem,
-    registrar_by_name,
+    FilterReg, FilterRegConfig, FilterRegEStep, Icp, IcpVariant, METHOD_NAMES, Registrar, RegistrationConfig,
+    RegistrationProblem, registrar_by_name,
 };
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -106,6 +106,65 @@ fn point_to_plane_needs_fewer_iterations() {
     );
     assert!(icp[1] < icp[0]);
     assert!(fr[1] < fr[0]);
+}
+
+/// `min_update = 0` stops on Open3D's two criteria alone: never later than the default, which
+/// also waits for the update to vanish, and at a pose within the noise of the default's.
+#[test]
+fn icp_min_update_zero_stops_on_open3d_criteria() {
+    let source = bumpy_shape(2000, 8);
+    let mut rng = ChaCha8Rng::seed_from_u64(17);
+    let truth = random_transform(&mut rng, 25.0, 0.03);
+    let target = corrupted(&source, &truth, 0.001, 0.0, 8);
+    for variant in [IcpVariant::PointToPoint, IcpVariant::PointToPlane] {
+        let run = |min_update| {
+            let mut c = config().icp;
+            c.variant = variant;
+            c.min_update = min_update;
+            Icp::new(c).unwrap().register(&RegistrationProblem::new(source.clone(), target.clone())).unwrap()
+        };
+        let (open3d, strict) = (run(0.0), run(1e-7));
+        println!(
+            "{variant:?}: Open3D criteria {} iterations {:.4} deg; with min_update {} iterations {:.4} deg",
+            open3d.iterations,
+            errors(&open3d.transform, &truth).0,
+            strict.iterations,
+            errors(&strict.transform, &truth).0
+        );
+        assert!(open3d.converged && strict.converged);
+        assert!(open3d.iterations <= strict.iterations);
+        // Stopped because fitness and RMSE no longer changed.
+        let h = &open3d.history;
+        assert!((h[h.len() - 1].objective - h[h.len() - 2].objective).abs() < 1e-6);
+        assert!(errors(&open3d.transform, &truth).0 < 1.0);
+    }
+}
+
+/// Merging points in voxels for the wide-kernel iterations changes the route, not the result:
+/// the pose matches the unmerged run's, in no more iterations.
+#[test]
+fn merged_coarse_iterations_reach_the_unmerged_pose() {
+    let source = bumpy_shape(6000, 9);
+    let mut rng = ChaCha8Rng::seed_from_u64(23);
+    for case in 0..3 {
+        let truth = random_transform(&mut rng, 30.0, 0.05);
+        let target = corrupted(&source, &truth, 0.001, 0.1, 40 + case);
+        let run = |merge_fraction| {
+            FilterReg::new(FilterRegConfig { w: 0.2, merge_fraction, ..Default::default() })
+                .unwrap()
+                .register(&RegistrationProblem::new(source.clone(), target.clone()))
+                .unwrap()
+        };
+        let (plain, merged) = (run(0.0), run(0.5));
+        let (dp, dm) = (errors(&plain.transform, &truth).0, errors(&merged.transform, &truth).0);
+        println!(
+            "case {case}: unmerged {} iterations {dp:.4} deg; merged {} iterations {dm:.4} deg",
+            plain.iterations, merged.iterations
+        );
+        assert!(plain.converged && merged.converged, "case {case}");
+        assert!(errors(&plain.transform, &merged.transform).0 < 0.01, "case {case}");
+        assert!(dm <= dp + 0.005, "case {case}: {dm} vs {dp} deg");
+    }
 }
 
 #[test]
