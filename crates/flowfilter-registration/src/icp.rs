@@ -96,13 +96,23 @@ impl Registrar for Icp {
         // Source points in a spatially coherent order: consecutive queries share tree branches.
         let source: Vec<Point3> =
             spatial_order(&p.source.points).iter().map(|&i| p.source.points[i as usize]).collect();
-        // Correspondences of the current estimate: (moved source, target index, distance).
-        let correspond = |t: &flowfilter_geometry::Pose| -> Vec<(Point3, usize, f64)> {
+        // Correspondences of the current estimate: (moved source, target index, distance). The
+        // search is bounded by the correspondence gate and by the distance to the point's last
+        // partner (the nearest point is at most that far): the same answer, with less of the
+        // tree visited.
+        let mut partner = vec![u32::MAX; source.len()];
+        let mut correspond = |t: &flowfilter_geometry::Pose| -> Vec<(Point3, usize, f64)> {
             source
                 .par_iter()
-                .filter_map(|s| {
+                .zip(partner.par_iter_mut())
+                .filter_map(|(s, last)| {
                     let x = t * s;
-                    target.nearest(&x).filter(|n| n.dist2 <= max_d2).map(|n| (x, n.index, n.dist2.sqrt()))
+                    let n = match *last {
+                        u32::MAX => target.nearest(&x).filter(|n| n.dist2 <= max_d2),
+                        j => target.nearest_within(&x, (x - p.target.points[j as usize]).norm_squared().min(max_d2)),
+                    };
+                    *last = n.map_or(u32::MAX, |n| n.index as u32);
+                    n.map(|n| (x, n.index, n.dist2.sqrt()))
                 })
                 .collect()
         };
