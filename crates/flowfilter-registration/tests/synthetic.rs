@@ -162,6 +162,9 @@ fn merged_coarse_iterations_reach_the_unmerged_pose() {
             plain.iterations, merged.iterations
         );
         assert!(plain.converged && merged.converged, "case {case}");
+        // The routes differ (the first, wide-kernel steps ran on merged points)...
+        assert_ne!(plain.history[0].objective, merged.history[0].objective, "case {case}: nothing was merged");
+        // ...the destinations do not.
         assert!(errors(&plain.transform, &merged.transform).0 < 0.01, "case {case}");
         assert!(dm <= dp + 0.005, "case {case}: {dm} vs {dp} deg");
     }
