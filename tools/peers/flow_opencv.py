@@ -2,8 +2,9 @@
 """OpenCV optical-flow reference on the shared Sintel pairs.
 
 Runs DIS (presets fast and medium) and pyramidal LK (calcOpticalFlowPyrLK, 21x21 window, 3 levels,
-on a 16-px grid) with 2 threads, and records EPE (all pixels, non-occluded; LK at grid points)
-and median time into fixtures/peers/flow_opencv.json. The Rust tests compare against it.
+on a 16-px grid) with 2 threads, and records EPE (all pixels, non-occluded; LK at grid points, in
+all and per point) and median time into fixtures/peers/flow_opencv.json. The Rust tests compare
+against it.
 
     python3 tools/peers/flow_opencv.py [--sintel ../shared/data/sintel] [--out fixtures/peers/flow_opencv.json]
 """
@@ -68,8 +69,11 @@ def main():
             est = (nxt.reshape(-1, 2) - p)
             truth = gt[p[:, 1].astype(int), p[:, 0].astype(int)]
             err = np.linalg.norm(est - truth, axis=1)
+            # Per grid point (row-major): the endpoint error, or null where the tracker lost it;
+            # comparisons are then made over the points both trackers keep.
+            errors = [round(float(e), 4) if k else None for e, k in zip(err, ok)]
             case["lk"] = {"epe_points": float(err[ok].mean()), "tracked": int(ok.sum()), "points": int(len(ok)), "ms": ms,
-                          "grid": {"step": 16, "offset": 8}}
+                          "grid": {"step": 16, "offset": 8}, "errors": errors}
             cases.append(case)
             print(pas, scene, {k: v for k, v in case.items() if k not in ("pass", "scene")})
     out = {

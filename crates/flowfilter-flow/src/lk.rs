@@ -112,18 +112,6 @@ pub fn track(from: &Gray, to: &Gray, points: &[[f32; 2]], p: &LkParams) -> Vec<O
     track_masked(from, to, points, p, None)
 }
 
-/// Image derivatives at `(x, y)` by the Scharr operator (`[3 10 3] / 16` smoothing across,
-/// central difference along) on the bilinearly interpolated image: OpenCV's LK derivatives.
-fn scharr(img: &Gray, x: f32, y: f32) -> (f32, f32) {
-    let at = |dx: f32, dy: f32| bilinear(img, x + dx, y + dy);
-    let dx = |dy: f32| at(1.0, dy) - at(-1.0, dy);
-    let dy = |dx: f32| at(dx, 1.0) - at(dx, -1.0);
-    (
-        (3.0 * dx(-1.0) + 10.0 * dx(0.0) + 3.0 * dx(1.0)) / 32.0,
-        (3.0 * dy(-1.0) + 10.0 * dy(0.0) + 3.0 * dy(1.0)) / 32.0,
-    )
-}
-
 /// Half-resolution mask: a pixel is set when all four of its children are.
 fn downsample_mask(m: &Mask) -> Mask {
     let (w, h) = m.dims();
@@ -201,7 +189,8 @@ pub fn track_guided(
                             tmpl.push((0.0, 0.0, 0.0));
                             continue;
                         }
-                        let (ix, iy) = scharr(a, x, y);
+                        let ix = 0.5 * (bilinear(a, x + 1.0, y) - bilinear(a, x - 1.0, y));
+                        let iy = 0.5 * (bilinear(a, x, y + 1.0) - bilinear(a, x, y - 1.0));
                         tmpl.push((bilinear(a, x, y), ix, iy));
                         gxx += ix * ix;
                         gxy += ix * iy;
@@ -215,8 +204,7 @@ pub fn track_guided(
                 }
                 let det = gxx * gyy - gxy * gxy;
                 let mut d = [0.0f32; 2];
-                let mut previous = [0.0f32; 2];
-                for iteration in 0..p.max_iterations {
+                for _ in 0..p.max_iterations {
                     let (mut bx, mut by) = (0.0f32, 0.0f32);
                     let mut k = 0;
                     for dy in -r..=r {
@@ -232,19 +220,8 @@ pub fn track_guided(
                         }
                     }
                     let step = [(gyy * bx - gxy * by) / det, (gxx * by - gxy * bx) / det];
-                    // Oscillating between two positions (a step undoing the last): settle
-                    // half-way, as OpenCV does.
-                    if iteration > 0
-                        && (step[0] + previous[0]).abs() < p.epsilon
-                        && (step[1] + previous[1]).abs() < p.epsilon
-                    {
-                        d[0] += 0.5 * step[0];
-                        d[1] += 0.5 * step[1];
-                        break;
-                    }
                     d[0] += step[0];
                     d[1] += step[1];
-                    previous = step;
                     if step[0].abs() < p.epsilon && step[1].abs() < p.epsilon {
                         break;
                     }

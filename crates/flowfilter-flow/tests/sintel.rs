@@ -128,14 +128,36 @@ fn dense_and_sparse_flow_against_opencv() {
         let rows: Vec<([usize; 2], Option<[f32; 2]>)> = grid.iter().copied().zip(tracked).collect();
         let (lk_epe, lk_n) = epe_at_points(&rows, &pair.flow).unwrap();
         let cv_lk = case["lk"]["epe_points"].as_f64().unwrap();
+        // The same comparison over the grid points both trackers keep (each drops a few
+        // different, mostly hard, points, which biases means over their own sets).
+        let cv_errors: Vec<Option<f64>> =
+            case["lk"]["errors"].as_array().unwrap().iter().map(serde_json::Value::as_f64).collect();
+        assert_eq!(cv_errors.len(), rows.len());
+        let both: Vec<([usize; 2], Option<[f32; 2]>)> =
+            rows.iter().zip(&cv_errors).filter(|(r, e)| r.1.is_some() && e.is_some()).map(|(r, _)| *r).collect();
+        let (lk_common, n_common) = epe_at_points(&both, &pair.flow).unwrap();
+        let cv_common = rows
+            .iter()
+            .zip(&cv_errors)
+            .filter(|(r, _)| r.1.is_some() && pair.flow.at(r.0[0], r.0[1]).is_some())
+            .filter_map(|(_, e)| *e)
+            .sum::<f64>()
+            / n_common as f64;
         println!(
             "{pass}/{scene}: DIS-medium EPE {ours:.3} (non-occluded {ours_noc:.3}) vs OpenCV {cv:.3} ({cv_noc:.3}); \
-             LK EPE {lk_epe:.3} over {lk_n} points vs OpenCV {cv_lk:.3} over {}",
+             LK EPE {lk_epe:.3} over {lk_n} points vs OpenCV {cv_lk:.3} over {}; over the {n_common} points both \
+             track: {lk_common:.3} vs {cv_common:.3}",
             case["lk"]["tracked"]
         );
-        // Recorded gap: our DIS is within 10% of OpenCV's (better on three of the four pairs,
-        // 0.374 vs 0.341 on clean/easy); LK at least as accurate as OpenCV's tracker.
+        // Recorded gaps: our DIS is within 10% of OpenCV's (better on three of the four pairs,
+        // 0.374 vs 0.341 on clean/easy); LK is better on three pairs and within 0.05 px on the
+        // fourth (final/easy: 0.729 vs 0.719 on the common points), both over the points both
+        // trackers keep and over each one's own.
         assert!(ours <= cv * 1.10 + 0.01, "{pass}/{scene}: DIS EPE {ours} vs OpenCV {cv}");
+        assert!(
+            lk_common <= cv_common + 0.05,
+            "{pass}/{scene}: LK EPE {lk_common} vs OpenCV {cv_common} on common points"
+        );
         assert!(lk_epe <= cv_lk + 0.05, "{pass}/{scene}: LK EPE {lk_epe} vs OpenCV {cv_lk}");
     }
 }
