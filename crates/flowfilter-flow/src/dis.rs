@@ -150,12 +150,18 @@ fn par_image(w: usize, h: usize, f: impl Fn(usize, usize) -> f32 + Sync) -> Img 
 }
 
 fn halve(img: &Img) -> Img {
+    halve_scaled(img, 1.0)
+}
+
+/// [`halve`] with the values multiplied by `k`.
+fn halve_scaled(img: &Img, k: f32) -> Img {
     let (w, h) = img.dims();
     let (nw, nh) = ((w / 2).max(1), (h / 2).max(1));
     let d = img.as_slice();
     let at = |x: usize, y: usize| d[y.min(h - 1) * w + x.min(w - 1)];
+    let k = 0.25 * k;
     par_image(nw, nh, |x, y| {
-        0.25 * (at(2 * x, 2 * y) + at(2 * x + 1, 2 * y) + at(2 * x, 2 * y + 1) + at(2 * x + 1, 2 * y + 1))
+        k * (at(2 * x, 2 * y) + at(2 * x + 1, 2 * y) + at(2 * x, 2 * y + 1) + at(2 * x + 1, 2 * y + 1))
     })
 }
 
@@ -180,13 +186,19 @@ fn gradient_y(img: &Img) -> Img {
     })
 }
 
+/// Bilinear taps resampling `src` samples to `dst` (pixel centres aligned): per output index,
+/// the two source indices and the weight of the second.
+fn taps(src: usize, dst: usize) -> Vec<([usize; 2], f32)> {
+    let s = dst as f32 / src as f32;
+    (0..dst).map(|x| BilinearTap::new(src, 1, (x as f32 + 0.5) / s - 0.5, 0.0).column()).collect()
+}
+
 /// Resample a flow component to `(w, h)` (pixel centres aligned, bilinear) and multiply it by
 /// `s`; the taps of each column and row are computed once.
 fn resample(f: &Img, w: usize, h: usize, s: f32) -> Img {
     let (fw, fh) = f.dims();
-    let (sx, sy) = (w as f32 / fw as f32, h as f32 / fh as f32);
-    let columns: Vec<([usize; 2], f32)> =
-        (0..w).map(|x| BilinearTap::new(fw, 1, (x as f32 + 0.5) / sx - 0.5, 0.0).column()).collect();
+    let sy = h as f32 / fh as f32;
+    let columns = taps(fw, w);
     let d = f.as_slice();
     let mut out = vec![0.0f32; w * h];
     out.par_chunks_mut(w).enumerate().with_min_len(ROWS_PER_TASK).for_each(|(y, row)| {
@@ -198,6 +210,27 @@ fn resample(f: &Img, w: usize, h: usize, s: f32) -> Img {
         }
     });
     Img::from_vec(w, h, out).expect("sizes")
+}
+
+/// Both flow components resampled to `(w, h)` as in [`resample`], `u` multiplied by the
+/// horizontal and `v` by the vertical scale factor, written interleaved (the output layout).
+fn resample_flow(u: &Img, v: &Img, w: usize, h: usize) -> Vec<[f32; 2]> {
+    let (fw, fh) = u.dims();
+    let (sx, sy) = (w as f32 / fw as f32, h as f32 / fh as f32);
+    let (columns, rows) = (taps(fw, w), taps(fh, h));
+    let (du, dv) = (u.as_slice(), v.as_slice());
+    let mut out = vec![[0.0f32; 2]; w * h];
+    out.par_chunks_mut(w).zip(&rows).with_min_len(ROWS_PER_TASK).for_each(|(row, &([r0, r1], fy))| {
+        let blend = |d: &[f32], c: [usize; 2], fx: f32| {
+            let (top, bottom) = (&d[r0 * fw..(r0 + 1) * fw], &d[r1 * fw..(r1 + 1) * fw]);
+            (top[c[0]] * (1.0 - fx) + top[c[1]] * fx) * (1.0 - fy)
+                + (bottom[c[0]] * (1.0 - fx) + bottom[c[1]] * fx) * fy
+        };
+        for (o, &(c, fx)) in row.iter_mut().zip(&columns) {
+            *o = [sx * blend(du, c, fx), sy * blend(dv, c, fx)];
+        }
+    });
+    out
 }
 
 /// Double-resolution flow of size `(w, h)` from a coarser one (values scaled by 2).
@@ -273,10 +306,29 @@ impl Scale<'_> {
         let (x, y) = (ox as f32 + u, oy as f32 + v);
         let (x0, y0) = (floor_f32(x), floor_f32(y));
         let inside = x0 >= 0.0 && y0 >= 0.0 && (x0 as usize + ps) < w && (y0 as usize + ps) < h;
-        if !inside {
+        if !inside && ps > MAX_PATCH {
             for j in 0..ps {
                 for i in 0..ps {
                     out[j * ps + i] = bilinear(self.i1, x + i as f32, y + j as f32);
+                }
+            }
+            return;
+        }
+        if !inside {
+            // Near the border: clamped bilinear samples, which are separable, so the column and
+            // row taps are computed once per patch (the same values as per-pixel `bilinear`).
+            let d = self.i1.as_slice();
+            let mut columns = [([0usize; 2], 0.0f32); MAX_PATCH];
+            let mut rows = [([0usize; 2], 0.0f32); MAX_PATCH];
+            for i in 0..ps {
+                columns[i] = BilinearTap::new(w, 1, x + i as f32, 0.0).column();
+                rows[i] = BilinearTap::new(1, h, 0.0, y + i as f32).row();
+            }
+            for (j, &([r0, r1], fy)) in rows[..ps].iter().enumerate() {
+                let (top, bottom) = (&d[r0 * w..(r0 + 1) * w], &d[r1 * w..(r1 + 1) * w]);
+                for (o, &([c0, c1], fx)) in out[j * ps..(j + 1) * ps].iter_mut().zip(&columns[..ps]) {
+                    *o = (top[c0] * (1.0 - fx) + top[c1] * fx) * (1.0 - fy)
+                        + (bottom[c0] * (1.0 - fx) + bottom[c1] * fx) * fy;
                 }
             }
             return;
@@ -384,6 +436,10 @@ impl Scale<'_> {
         best
     }
 }
+
+/// Largest patch side with the border warp's fixed tap arrays (larger patches take the
+/// per-pixel path).
+const MAX_PATCH: usize = 32;
 
 /// Accumulator lanes of the patch reductions (independent partial sums, so that they vectorise).
 const LANES: usize = 8;
@@ -582,9 +638,15 @@ impl Checker {
         (y + 1) * self.stride() + x / 2 + 1
     }
 
-    fn split(&self, full: &[f32]) -> [Vec<f32>; 2] {
+    /// Zeroed padded arrays of both colours.
+    fn zeros(&self) -> [Vec<f32>; 2] {
         let len = self.stride() * (self.h + 2);
-        let mut out = [vec![0.0f32; len], vec![0.0f32; len]];
+        [vec![0.0f32; len], vec![0.0f32; len]]
+    }
+
+    /// Split `full` into the colours' padded arrays `out` (from [`Checker::zeros`]; the padding
+    /// stays zero).
+    fn split(&self, full: &[f32], out: &mut [Vec<f32>; 2]) {
         for (colour, part) in out.iter_mut().enumerate() {
             part[self.stride()..(self.h + 1) * self.stride()]
                 .par_chunks_mut(self.stride())
@@ -596,7 +658,6 @@ impl Checker {
                     }
                 });
         }
-        out
     }
 
     fn merge(&self, parts: &[Vec<f32>; 2], full: &mut [f32]) {
@@ -727,13 +788,14 @@ fn refine(i0: &Img, i1: &Img, (i0x, i0y): (&Img, &Img), u: &mut Img, v: &mut Img
     let mut du = vec![0.0f32; n];
     let mut dv = vec![0.0f32; n];
     let mut systems = [ColourSystem::zeros(ck.hw * h), ColourSystem::zeros(ck.hw * h)];
+    // Work arrays reused by every fixed-point iteration.
+    let mut smooth = vec![0.0f32; n];
+    let (mut dus, mut dvs) = (ck.zeros(), ck.zeros());
     for _ in 0..p.refinement_iterations {
         // Smoothness weights per pixel: alpha * Psi'(|grad (u + du)|^2 + |grad (v + dv)|^2).
-        let smooth: Vec<f32> = (0..n)
-            .into_par_iter()
-            .with_min_len(ROWS_PER_TASK * w)
-            .map(|k| {
-                let (x, y) = (k % w, k / w);
+        smooth.par_chunks_mut(w).enumerate().with_min_len(ROWS_PER_TASK).for_each(|(y, row)| {
+            for (x, out) in row.iter_mut().enumerate() {
+                let k = y * w + x;
                 let fu = |q: usize| us[q] + du[q];
                 let fv = |q: usize| vs[q] + dv[q];
                 let (r, b) = (if x + 1 < w { k + 1 } else { k }, if y + 1 < h { k + w } else { k });
@@ -741,9 +803,10 @@ fn refine(i0: &Img, i1: &Img, (i0x, i0y): (&Img, &Img), u: &mut Img, v: &mut Img
                     + (fu(b) - fu(k)).powi(2)
                     + (fv(r) - fv(k)).powi(2)
                     + (fv(b) - fv(k)).powi(2);
-                p.alpha * psi_prime(g)
-            })
-            .collect();
+                *out = p.alpha * psi_prime(g);
+            }
+        });
+        let smooth = &smooth;
         for (colour, sys) in systems.iter_mut().enumerate() {
             let ColourSystem { a12, inv11, inv22, r1, r2, wl, wr, wu, wd } = sys;
             let hw = ck.hw;
@@ -791,8 +854,8 @@ fn refine(i0: &Img, i1: &Img, (i0x, i0y): (&Img, &Img), u: &mut Img, v: &mut Img
                 });
         }
         // Red-black SOR on split arrays: a colour's update reads only the other colour.
-        let mut dus = ck.split(&du);
-        let mut dvs = ck.split(&dv);
+        ck.split(&du, &mut dus);
+        ck.split(&dv, &mut dvs);
         let stride = ck.stride();
         for _ in 0..p.sor_iterations {
             for (colour, sys) in systems.iter().enumerate() {
@@ -833,27 +896,32 @@ impl Dis {
     }
 
     /// Dense flow on the 0-255 scale images (no mask).
-    fn compute(&self, from: &Gray, to: &Gray) -> (Img, Img) {
+    fn compute(&self, from: &Gray, to: &Gray) -> Vec<[f32; 2]> {
         let p = &self.params;
         let (w, h) = from.dims();
         let coarsest = self.coarsest(w, h);
-        let scaled = |g: &Gray| par_image(w, h, |x, y| g.as_slice()[y * w + x] * 255.0);
-        let mut p0 = vec![scaled(from)];
-        let mut p1 = vec![scaled(to)];
-        for s in 1..=coarsest {
-            let (a, b) = rayon::join(|| halve(&p0[s - 1]), || halve(&p1[s - 1]));
+        // Pyramids on the 0-255 scale from scale `base` (the full resolution is only copied
+        // when it is searched); `p0[s - base]` is scale `s`.
+        let base = p.finest_scale.min(1);
+        let first = |g: &Gray| {
+            if base == 0 { par_image(w, h, |x, y| g.as_slice()[y * w + x] * 255.0) } else { halve_scaled(g, 255.0) }
+        };
+        let (a, b) = rayon::join(|| first(from), || first(to));
+        let (mut p0, mut p1) = (vec![a], vec![b]);
+        for _ in base + 1..=coarsest {
+            let (a, b) = rayon::join(|| halve(p0.last().expect("one level")), || halve(p1.last().expect("one level")));
             p0.push(a);
             p1.push(b);
         }
         // Scales too small for one patch are skipped.
         let coarsest = (p.finest_scale..=coarsest)
             .rev()
-            .find(|&s| p0[s].width() >= p.patch_size && p0[s].height() >= p.patch_size)
+            .find(|&s| p0[s - base].width() >= p.patch_size && p0[s - base].height() >= p.patch_size)
             .unwrap_or(p.finest_scale);
-        let (cw, ch) = p0[coarsest].dims();
+        let (cw, ch) = p0[coarsest - base].dims();
         let mut flow = (Img::filled(cw, ch, 0.0), Img::filled(cw, ch, 0.0));
         for s in (p.finest_scale..=coarsest).rev() {
-            let (i0, i1) = (&p0[s], &p1[s]);
+            let (i0, i1) = (&p0[s - base], &p1[s - base]);
             let (sw, sh) = i0.dims();
             if flow.0.dims() != (sw, sh) {
                 flow = (upsample(&flow.0, sw, sh), upsample(&flow.1, sw, sh));
@@ -867,15 +935,15 @@ impl Dis {
             flow = densify(&sc, &xs, &ys, &flows, &shifts);
             refine(i0, i1, (&i0x, &i0y), &mut flow.0, &mut flow.1, p);
         }
-        // Up to full resolution.
-        while flow.0.dims() != (w, h) {
+        // Up to full resolution by doublings, the last one written in the output layout.
+        loop {
             let (fw, fh) = flow.0.dims();
-            let (nw, nh) = if fw * 2 > w || fh * 2 > h { (w, h) } else { (fw * 2, fh * 2) };
-            let sx = nw as f32 / fw as f32;
-            let sy = nh as f32 / fh as f32;
-            flow = (resample(&flow.0, nw, nh, sx), resample(&flow.1, nw, nh, sy));
+            let (nw, nh) = if fw * 2 >= w || fh * 2 >= h { (w, h) } else { (fw * 2, fh * 2) };
+            if (nw, nh) == (w, h) {
+                return resample_flow(&flow.0, &flow.1, w, h);
+            }
+            flow = (resample(&flow.0, nw, nh, 2.0), resample(&flow.1, nw, nh, 2.0));
         }
-        flow
     }
 }
 
@@ -887,14 +955,53 @@ impl FlowEstimator for Dis {
     fn dense(&self, from: &Gray, to: &Gray, mask: Option<&Mask>) -> Result<FlowField, FlowError> {
         self.params.validate()?;
         check_pair(from, to, mask)?;
-        let (u, v) = self.compute(from, to);
         let (w, h) = from.dims();
-        let flow = Grid::from_vec(w, h, u.as_slice().par_iter().zip(v.as_slice()).map(|(a, b)| [*a, *b]).collect())
-            .expect("sizes");
+        let flow = Grid::from_vec(w, h, self.compute(from, to)).expect("sizes");
         let valid = match mask {
             Some(m) => m.clone(),
             None => Mask::filled(w, h, true),
         };
         Ok(FlowField { flow, valid })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Patches warped across the border (the separable clamped taps) and inside it (shared
+    /// weights) equal per-pixel clamped bilinear samples.
+    #[test]
+    fn warped_patches_equal_per_pixel_bilinear_samples() {
+        let (w, h) = (40, 30);
+        let i1 = Img::from_fn(w, h, |x, y| ((x * 7 + y * 13) % 17) as f32 + 0.1 * (x as f32 * 0.3).sin());
+        let zeros = Img::filled(w, h, 0.0);
+        let sc = Scale { i0: &zeros, i1: &i1, i0x: &zeros, i0y: &zeros, ps: 8, mean_norm: false };
+        let mut out = vec![0.0f32; 64];
+        for (ox, oy, u, v) in
+            [(0, 0, -2.3, -0.6), (32, 22, 0.4, 0.7), (32, 0, 3.9, -5.2), (10, 12, 1.25, -0.5), (5, 22, -7.5, 9.1)]
+        {
+            sc.warp(ox, oy, u, v, &mut out);
+            for j in 0..8 {
+                for i in 0..8 {
+                    let want = bilinear(&i1, (ox + i) as f32 + u, (oy + j) as f32 + v);
+                    let got = out[j * 8 + i];
+                    assert!((got - want).abs() <= 1e-5 * want.abs().max(1.0), "({ox}, {oy}) + ({u}, {v}) at {i}, {j}");
+                }
+            }
+        }
+    }
+
+    /// The fused final upsampling writes what resampling each component does.
+    #[test]
+    fn interleaved_resampling_equals_per_component_resampling() {
+        let u = Img::from_fn(13, 7, |x, y| (x as f32 * 0.7).sin() + y as f32);
+        let v = Img::from_fn(13, 7, |x, y| (y as f32 * 0.4).cos() - x as f32);
+        let (w, h) = (26, 15);
+        let both = resample_flow(&u, &v, w, h);
+        let (ru, rv) = (resample(&u, w, h, 2.0), resample(&v, w, h, 15.0 / 7.0));
+        for (k, f) in both.iter().enumerate() {
+            assert!((f[0] - ru.as_slice()[k]).abs() < 1e-5 && (f[1] - rv.as_slice()[k]).abs() < 1e-5, "pixel {k}");
+        }
     }
 }
