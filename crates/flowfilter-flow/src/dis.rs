@@ -956,7 +956,9 @@ impl FlowEstimator for Dis {
         self.params.validate()?;
         check_pair(from, to, mask)?;
         let (w, h) = from.dims();
-        let flow = Grid::from_vec(w, h, self.compute(from, to)).expect("sizes");
+        // Run on a pool thread: the many short parallel loops are then forked from inside the
+        // pool instead of each being injected into it (and the caller put to sleep) from outside.
+        let flow = Grid::from_vec(w, h, rayon::scope(|_| self.compute(from, to))).expect("sizes");
         let valid = match mask {
             Some(m) => m.clone(),
             None => Mask::filled(w, h, true),

@@ -5,7 +5,7 @@
 use crate::error::RegistrationError;
 use crate::evaluate::evaluate;
 use crate::gmm::{mean_pair_distance2, outlier_term};
-use crate::problem::{IterationRecord, Registrar, Registration, RegistrationProblem, validate_problem};
+use crate::problem::{IterationRecord, Registrar, Registration, RegistrationProblem, in_pool, validate_problem};
 use flowfilter_geometry::{KnnIndex, Point3, Pose, Vector3, nearest_rotation};
 use nalgebra::{Matrix3, Translation3, UnitQuaternion};
 use rayon::prelude::*;
@@ -157,6 +157,13 @@ impl Registrar for Cpd {
     }
 
     fn register(&self, p: &RegistrationProblem) -> Result<Registration, RegistrationError> {
+        in_pool(|| self.solve(p))
+    }
+}
+
+impl Cpd {
+    /// [`Registrar::register`]'s body, run on a pool thread.
+    fn solve(&self, p: &RegistrationProblem) -> Result<Registration, RegistrationError> {
         validate_problem(p, None)?;
         let cfg = &self.config;
         let y = &p.source.points;

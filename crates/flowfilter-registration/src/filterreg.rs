@@ -19,7 +19,7 @@ use crate::evaluate::{evaluate, plane_or_point_step};
 use crate::gmm::mean_pair_distance2;
 use crate::lattice::Lattice;
 use crate::problem::{
-    Correspondences, IterationRecord, Registrar, Registration, RegistrationProblem, validate_problem,
+    Correspondences, IterationRecord, Registrar, Registration, RegistrationProblem, in_pool, validate_problem,
 };
 use flowfilter_geometry::{KnnIndex, Point3, Pose, RadiusGrid, Vector3, spatial_order, weighted_kabsch};
 use nalgebra::{DVector, Translation3, UnitQuaternion};
@@ -456,6 +456,13 @@ impl Registrar for FilterReg {
     }
 
     fn register(&self, p: &RegistrationProblem) -> Result<Registration, RegistrationError> {
+        in_pool(|| self.solve(p))
+    }
+}
+
+impl FilterReg {
+    /// [`Registrar::register`]'s body, run on a pool thread.
+    fn solve(&self, p: &RegistrationProblem) -> Result<Registration, RegistrationError> {
         let cfg = &self.config;
         let pt2pl = cfg.variant == FilterRegVariant::PointToPlane;
         validate_problem(p, pt2pl.then_some("filterreg-pt2pl"))?;

@@ -10,7 +10,7 @@ use crate::error::RegistrationError;
 use crate::evaluate::visible_residual;
 use crate::filterreg::{FilterReg, FilterRegConfig};
 use crate::icp::{Icp, IcpConfig, IcpVariant};
-use crate::problem::{Correspondences, Registrar, Registration, RegistrationProblem, validate_problem};
+use crate::problem::{Correspondences, Registrar, Registration, RegistrationProblem, in_pool, validate_problem};
 use flowfilter_geometry::{KnnIndex, Point3, Pose, weighted_kabsch};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -170,6 +170,13 @@ impl Registrar for FlowFilter {
     }
 
     fn register(&self, p: &RegistrationProblem) -> Result<Registration, RegistrationError> {
+        in_pool(|| self.solve_and_polish(p))
+    }
+}
+
+impl FlowFilter {
+    /// [`Registrar::register`]'s body, run on a pool thread.
+    fn solve_and_polish(&self, p: &RegistrationProblem) -> Result<Registration, RegistrationError> {
         let (r, flow_used) = self.solve(p)?;
         // Without trusted flow the result is plain FilterReg, as documented: no polish.
         if flow_used { self.polish(p, r) } else { Ok(r) }

@@ -3,7 +3,7 @@
 
 use crate::error::RegistrationError;
 use crate::evaluate::{RobustKernel, point_to_plane_step};
-use crate::problem::{IterationRecord, Registrar, Registration, RegistrationProblem, validate_problem};
+use crate::problem::{IterationRecord, Registrar, Registration, RegistrationProblem, in_pool, validate_problem};
 use flowfilter_geometry::{KnnIndex, Point3, spatial_order, weighted_kabsch};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -86,6 +86,13 @@ impl Registrar for Icp {
     }
 
     fn register(&self, p: &RegistrationProblem) -> Result<Registration, RegistrationError> {
+        in_pool(|| self.solve(p))
+    }
+}
+
+impl Icp {
+    /// [`Registrar::register`]'s body, run on a pool thread.
+    fn solve(&self, p: &RegistrationProblem) -> Result<Registration, RegistrationError> {
         let cfg = &self.config;
         let pt2pl = cfg.variant == IcpVariant::PointToPlane;
         validate_problem(p, pt2pl.then_some("icp-pt2pl"))?;

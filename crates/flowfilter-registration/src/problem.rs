@@ -172,3 +172,11 @@ pub fn validate_problem(
     }
     Ok(())
 }
+
+/// Runs `f` on a thread of the rayon pool (inline when already on one). The backends' many short
+/// parallel loops are then forked from inside the pool; started from outside it, each loop would
+/// be injected into the pool with the caller put to sleep until it finishes, which costs more
+/// than the loop itself on small clouds.
+pub(crate) fn in_pool<R: Send>(f: impl FnOnce() -> R + Send) -> R {
+    rayon::scope(|_| f())
+}
