@@ -19,7 +19,7 @@
 
 use crate::FlowField;
 use crate::estimator::{FlowError, FlowEstimator, check_pair};
-use crate::lk::{BilinearTap, Gray, bilinear};
+use crate::lk::{BilinearTap, Gray, bilinear, par_image};
 use flowfilter_geometry::fastmath::floor_f32;
 use flowfilter_geometry::{Grid, Mask};
 use rayon::prelude::*;
@@ -138,17 +138,6 @@ impl Dis {
 type Img = Grid<f32>;
 
 /// Half resolution by 2x2 box averaging (OpenCV's area interpolation for exact halves).
-/// An image from a per-pixel function, rows in parallel.
-fn par_image(w: usize, h: usize, f: impl Fn(usize, usize) -> f32 + Sync) -> Img {
-    let mut data = vec![0.0f32; w * h];
-    data.par_chunks_mut(w.max(1)).enumerate().with_min_len(ROWS_PER_TASK).for_each(|(y, row)| {
-        for (x, v) in row.iter_mut().enumerate() {
-            *v = f(x, y);
-        }
-    });
-    Img::from_vec(w, h, data).expect("sizes")
-}
-
 fn halve(img: &Img) -> Img {
     halve_scaled(img, 1.0)
 }

@@ -19,13 +19,24 @@ pub fn to_gray(img: &RgbImage) -> Gray {
     })
 }
 
+/// An image from a per-pixel function, rows in parallel (at least 24 rows per task).
+pub(crate) fn par_image(w: usize, h: usize, f: impl Fn(usize, usize) -> f32 + Sync) -> Gray {
+    let mut data = vec![0.0f32; w * h];
+    data.par_chunks_mut(w.max(1)).enumerate().with_min_len(24).for_each(|(y, row)| {
+        for (x, v) in row.iter_mut().enumerate() {
+            *v = f(x, y);
+        }
+    });
+    Gray::from_vec(w, h, data).expect("sizes")
+}
+
 /// Half-resolution image: separable `[1 4 6 4 1] / 16` blur, then every other pixel.
 pub fn downsample(img: &Gray) -> Gray {
     let (w, h) = img.dims();
     let k = [1.0f32, 4.0, 6.0, 4.0, 1.0];
     let at = |x: isize, y: isize| *img.at(x.clamp(0, w as isize - 1) as usize, y.clamp(0, h as isize - 1) as usize);
     let (nw, nh) = (w.div_ceil(2), h.div_ceil(2));
-    Gray::from_fn(nw, nh, |x, y| {
+    par_image(nw, nh, |x, y| {
         let (cx, cy) = (2 * x as isize, 2 * y as isize);
         let mut acc = 0.0;
         for (j, kj) in k.iter().enumerate() {
@@ -112,6 +123,50 @@ pub fn track(from: &Gray, to: &Gray, points: &[[f32; 2]], p: &LkParams) -> Vec<O
     track_masked(from, to, points, p, None)
 }
 
+/// Central differences `(I(x+1) - I(x-1)) / 2` along x and y, with clamped indices.
+fn central_gradients(img: &Gray) -> (Gray, Gray) {
+    let (w, h) = img.dims();
+    let d = img.as_slice();
+    let gx = par_image(w, h, |x, y| 0.5 * (d[y * w + (x + 1).min(w - 1)] - d[y * w + x.saturating_sub(1)]));
+    let gy = par_image(w, h, |x, y| 0.5 * (d[(y + 1).min(h - 1) * w + x] - d[y.saturating_sub(1) * w + x]));
+    (gx, gy)
+}
+
+/// A `side x side` window whose top-left sample is at `(x0 + fx, y0 + fy)`, fully inside the
+/// image: every sample shares the fractional weights, so no per-pixel rounding or clamping.
+struct Window {
+    base: usize,
+    w: usize,
+    weights: [f32; 4],
+}
+
+impl Window {
+    /// The window at `(x, y)` if all its bilinear taps lie inside `img`.
+    #[inline]
+    fn inside(img: &Gray, x: f32, y: f32, side: usize) -> Option<Self> {
+        let (w, h) = img.dims();
+        let (x0, y0) = (floor_f32(x), floor_f32(y));
+        let ok = x0 >= 0.0 && y0 >= 0.0 && x0 as usize + side < w && y0 as usize + side < h;
+        ok.then(|| {
+            let (fx, fy) = (x - x0, y - y0);
+            Self {
+                base: y0 as usize * w + x0 as usize,
+                w,
+                weights: [(1.0 - fx) * (1.0 - fy), fx * (1.0 - fy), (1.0 - fx) * fy, fx * fy],
+            }
+        })
+    }
+
+    /// The sample at window pixel `(i, j)`.
+    #[inline]
+    fn sample(&self, img: &Gray, i: usize, j: usize) -> f32 {
+        let d = img.as_slice();
+        let k = self.base + j * self.w + i;
+        let [a, b, c, e] = self.weights;
+        a * d[k] + b * d[k + 1] + c * d[k + self.w] + e * d[k + self.w + 1]
+    }
+}
+
 /// Half-resolution mask: a pixel is set when all four of its children are.
 fn downsample_mask(m: &Mask) -> Mask {
     let (w, h) = m.dims();
@@ -149,13 +204,18 @@ pub fn track_guided(
     let mut pb = vec![to.clone()];
     let mut pm: Vec<Mask> = mask.map(|m| vec![m.clone()]).unwrap_or_default();
     for _ in 0..p.levels {
-        pa.push(downsample(pa.last().expect("non-empty")));
-        pb.push(downsample(pb.last().expect("non-empty")));
+        let (a, b) =
+            rayon::join(|| downsample(pa.last().expect("non-empty")), || downsample(pb.last().expect("non-empty")));
+        pa.push(a);
+        pb.push(b);
         if let Some(last) = pm.last() {
             let next = downsample_mask(last);
             pm.push(next);
         }
     }
+    // Central-difference gradients of the first image at every level: sampled with the value's
+    // bilinear weights, they equal central differences of bilinear samples (away from borders).
+    let grads: Vec<(Gray, Gray)> = pa.par_iter().map(central_gradients).collect();
     let r = (p.window / 2) as isize;
     let area = (p.window * p.window) as f32;
     // A prediction is trusted to within a few pixels: refine it on the two finest levels only
@@ -181,6 +241,7 @@ pub fn track_guided(
                         ix >= 0.0 && iy >= 0.0 && m.get(ix as usize, iy as usize).copied().unwrap_or(false)
                     })
                 };
+                let (gx, gy) = (&grads[level].0, &grads[level].1);
                 for dy in -r..=r {
                     for dx in -r..=r {
                         let (x, y) = (px + dx as f32, py + dy as f32);
@@ -189,9 +250,12 @@ pub fn track_guided(
                             tmpl.push((0.0, 0.0, 0.0));
                             continue;
                         }
-                        let ix = 0.5 * (bilinear(a, x + 1.0, y) - bilinear(a, x - 1.0, y));
-                        let iy = 0.5 * (bilinear(a, x, y + 1.0) - bilinear(a, x, y - 1.0));
-                        tmpl.push((bilinear(a, x, y), ix, iy));
+                        let tap = BilinearTap::new(a.width(), a.height(), x, y);
+                        // Beyond the border the clamped image is flat: no gradient there.
+                        let beyond = x < 0.0 || y < 0.0 || x > (a.width() - 1) as f32 || y > (a.height() - 1) as f32;
+                        let (ix, iy) =
+                            if beyond { (0.0, 0.0) } else { (tap.sample(gx.as_slice()), tap.sample(gy.as_slice())) };
+                        tmpl.push((tap.sample(a.as_slice()), ix, iy));
                         gxx += ix * ix;
                         gxy += ix * iy;
                         gyy += iy * iy;
@@ -204,19 +268,31 @@ pub fn track_guided(
                 }
                 let det = gxx * gyy - gxy * gxy;
                 let mut d = [0.0f32; 2];
+                let side = 2 * r as usize + 1;
                 for _ in 0..p.max_iterations {
                     let (mut bx, mut by) = (0.0f32, 0.0f32);
-                    let mut k = 0;
-                    for dy in -r..=r {
-                        for dx in -r..=r {
-                            let (t, ix, iy) = tmpl[k];
-                            k += 1;
-                            if ix == 0.0 && iy == 0.0 {
-                                continue;
+                    let (cx, cy) = (px + g[0] + d[0] - r as f32, py + g[1] + d[1] - r as f32);
+                    let mut add = |k: usize, sample: f32| {
+                        let (t, ix, iy) = tmpl[k];
+                        let diff = t - sample;
+                        bx += diff * ix;
+                        by += diff * iy;
+                    };
+                    match Window::inside(b, cx, cy, side) {
+                        // The whole window in the image: one set of bilinear weights.
+                        Some(win) => {
+                            for j in 0..side {
+                                for i in 0..side {
+                                    add(j * side + i, win.sample(b, i, j));
+                                }
                             }
-                            let diff = t - bilinear(b, px + g[0] + d[0] + dx as f32, py + g[1] + d[1] + dy as f32);
-                            bx += diff * ix;
-                            by += diff * iy;
+                        }
+                        None => {
+                            for j in 0..side {
+                                for i in 0..side {
+                                    add(j * side + i, bilinear(b, cx + i as f32, cy + j as f32));
+                                }
+                            }
                         }
                     }
                     let step = [(gyy * bx - gxy * by) / det, (gxx * by - gxy * bx) / det];
