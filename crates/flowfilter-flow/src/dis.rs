@@ -18,6 +18,7 @@
 //! "medium" preset. Rows of patches and of pixels run in parallel with rayon.
 
 use crate::FlowField;
+use crate::buffers::{recycle, zeroed};
 use crate::estimator::{FlowError, FlowEstimator, check_pair};
 use crate::lk::{BilinearTap, Gray, bilinear, par_image};
 use flowfilter_geometry::fastmath::floor_f32;
@@ -189,7 +190,7 @@ fn resample(f: &Img, w: usize, h: usize, s: f32) -> Img {
     let sy = h as f32 / fh as f32;
     let columns = taps(fw, w);
     let d = f.as_slice();
-    let mut out = vec![0.0f32; w * h];
+    let mut out = zeroed(w * h);
     out.par_chunks_mut(w).enumerate().with_min_len(ROWS_PER_TASK).for_each(|(y, row)| {
         let (r, fy) = BilinearTap::new(1, fh, 0.0, (y as f32 + 0.5) / sy - 0.5).row();
         let (top, bottom) = (&d[r[0] * fw..(r[0] + 1) * fw], &d[r[1] * fw..(r[1] + 1) * fw]);
@@ -220,6 +221,12 @@ fn resample_flow(u: &Img, v: &Img, w: usize, h: usize) -> Vec<[f32; 2]> {
         }
     });
     out
+}
+
+/// Hands both images of a pair back to the buffer pool.
+fn recycle_pair((a, b): (Img, Img)) {
+    recycle(a.into_vec());
+    recycle(b.into_vec());
 }
 
 /// Double-resolution flow of size `(w, h)` from a coarser one (values scaled by 2).
@@ -558,8 +565,8 @@ fn densify(sc: &Scale<'_>, xs: &[usize], ys: &[usize], flows: &[[f32; 2]], shift
     let nx = xs.len();
     let ps = sc.ps;
     let d1 = sc.i1.as_slice();
-    let mut u = vec![0.0f32; w * h];
-    let mut v = vec![0.0f32; w * h];
+    let mut u = zeroed(w * h);
+    let mut v = zeroed(w * h);
     u.par_chunks_mut(w).zip(v.par_chunks_mut(w)).enumerate().with_min_len(ROWS_PER_TASK).for_each(|(y, (ur, vr))| {
         let i0 = sc.i0.row(y);
         let mut sw = vec![0.0f32; w];
@@ -653,7 +660,7 @@ impl Checker {
     /// Zeroed padded arrays of both colours.
     fn zeros(&self) -> [Vec<f32>; 2] {
         let len = self.stride() * (self.h + 2);
-        [vec![0.0f32; len], vec![0.0f32; len]]
+        [zeroed(len), zeroed(len)]
     }
 
     /// Split `full` into the colours' padded arrays `out` (from [`Checker::zeros`]; the padding
@@ -699,8 +706,15 @@ struct ColourSystem {
 
 impl ColourSystem {
     fn zeros(n: usize) -> Self {
-        let z = || vec![0.0f32; n];
+        let z = || zeroed(n);
         Self { a12: z(), inv11: z(), inv22: z(), r1: z(), r2: z(), wl: z(), wr: z(), wu: z(), wd: z() }
+    }
+
+    /// Hands the arrays back to the buffer pool.
+    fn recycle(self) {
+        for v in [self.a12, self.inv11, self.inv22, self.r1, self.r2, self.wl, self.wr, self.wu, self.wd] {
+            recycle(v);
+        }
     }
 }
 
@@ -756,14 +770,14 @@ fn refine(i0: &Img, i1: &Img, (i0x, i0y): (&Img, &Img), u: &mut Img, v: &mut Img
     }
     let (w, h) = i0.dims();
     let n = w * h;
-    let (i1x, i1y) = gradients(i1);
-    let (i1x, i1y) = (&i1x, &i1y);
+    let first = gradients(i1);
+    let (i1x, i1y) = (&first.0, &first.1);
     // Second derivatives: xx and xy from the x-gradients, yy from the y-gradients.
-    let (((i0xx, i0xy), i0yy), ((i1xx, i1xy), i1yy)) = rayon::join(
+    let second = rayon::join(
         || rayon::join(|| gradients(i0x), || gradient_y(i0y)),
         || rayon::join(|| gradients(i1x), || gradient_y(i1y)),
     );
-    let (i0xx, i0xy, i0yy, i1xx, i1xy, i1yy) = (&i0xx, &i0xy, &i0yy, &i1xx, &i1xy, &i1yy);
+    let (((i0xx, i0xy), i0yy), ((i1xx, i1xy), i1yy)) = &second;
     // Linearisation at the current flow: warped second image and the data terms.
     let (us, vs) = (u.as_slice(), v.as_slice());
     let mut data = vec![DataTerm::default(); n];
@@ -797,11 +811,11 @@ fn refine(i0: &Img, i1: &Img, (i0x, i0y): (&Img, &Img), u: &mut Img, v: &mut Img
         }
     });
     let ck = Checker { w, h, hw: w.div_ceil(2) };
-    let mut du = vec![0.0f32; n];
-    let mut dv = vec![0.0f32; n];
+    let mut du = zeroed(n);
+    let mut dv = zeroed(n);
     let mut systems = [ColourSystem::zeros(ck.hw * h), ColourSystem::zeros(ck.hw * h)];
     // Work arrays reused by every fixed-point iteration.
-    let mut smooth = vec![0.0f32; n];
+    let mut smooth = zeroed(n);
     let (mut dus, mut dvs) = (ck.zeros(), ck.zeros());
     for _ in 0..p.refinement_iterations {
         // Smoothness weights per pixel: alpha * Psi'(|grad (u + du)|^2 + |grad (v + dv)|^2).
@@ -893,6 +907,17 @@ fn refine(i0: &Img, i1: &Img, (i0x, i0y): (&Img, &Img), u: &mut Img, v: &mut Img
     }
     u.as_mut_slice().iter_mut().zip(&du).for_each(|(a, d)| *a += d);
     v.as_mut_slice().iter_mut().zip(&dv).for_each(|(a, d)| *a += d);
+    // Every work array back to the pool for the next scale or call.
+    let [s0, s1] = systems;
+    s0.recycle();
+    s1.recycle();
+    for b in [du, dv, smooth].into_iter().chain(dus).chain(dvs) {
+        recycle(b);
+    }
+    let (((i0xx, i0xy), i0yy), ((i1xx, i1xy), i1yy)) = second;
+    for img in [first.0, first.1, i0xx, i0xy, i0yy, i1xx, i1xy, i1yy] {
+        recycle(img.into_vec());
+    }
 }
 
 impl Dis {
@@ -936,7 +961,8 @@ impl Dis {
             let (i0, i1) = (&p0[s - base], &p1[s - base]);
             let (sw, sh) = i0.dims();
             if flow.0.dims() != (sw, sh) {
-                flow = (upsample(&flow.0, sw, sh), upsample(&flow.1, sw, sh));
+                let finer = (upsample(&flow.0, sw, sh), upsample(&flow.1, sw, sh));
+                recycle_pair(std::mem::replace(&mut flow, finer));
             }
             if sw < p.patch_size || sh < p.patch_size {
                 continue;
@@ -944,17 +970,24 @@ impl Dis {
             let (i0x, i0y) = gradients(i0);
             let sc = Scale { i0, i1, i0x: &i0x, i0y: &i0y, ps: p.patch_size, mean_norm: p.mean_normalization };
             let (xs, ys, flows, shifts) = patch_flows(&sc, &flow, p);
-            flow = densify(&sc, &xs, &ys, &flows, &shifts);
+            recycle_pair(std::mem::replace(&mut flow, densify(&sc, &xs, &ys, &flows, &shifts)));
             refine(i0, i1, (&i0x, &i0y), &mut flow.0, &mut flow.1, p);
+            recycle_pair((i0x, i0y));
+        }
+        for img in p0.into_iter().chain(p1) {
+            recycle(img.into_vec());
         }
         // Up to full resolution by doublings, the last one written in the output layout.
         loop {
             let (fw, fh) = flow.0.dims();
             let (nw, nh) = if fw * 2 >= w || fh * 2 >= h { (w, h) } else { (fw * 2, fh * 2) };
             if (nw, nh) == (w, h) {
-                return resample_flow(&flow.0, &flow.1, w, h);
+                let out = resample_flow(&flow.0, &flow.1, w, h);
+                recycle_pair(flow);
+                return out;
             }
-            flow = (resample(&flow.0, nw, nh, 2.0), resample(&flow.1, nw, nh, 2.0));
+            let finer = (resample(&flow.0, nw, nh, 2.0), resample(&flow.1, nw, nh, 2.0));
+            recycle_pair(std::mem::replace(&mut flow, finer));
         }
     }
 }

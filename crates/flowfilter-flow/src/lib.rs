@@ -7,6 +7,7 @@
 //! - [`viz`]: the Middlebury colour-wheel visualisation.
 //! - [`FlowEstimator`]: the estimator seam ([`LucasKanade`], [`dis::Dis`]), with typed [`FlowError`]s.
 
+mod buffers;
 pub mod correspondences;
 pub mod dis;
 pub mod estimator;

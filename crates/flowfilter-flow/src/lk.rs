@@ -21,7 +21,7 @@ pub fn to_gray(img: &RgbImage) -> Gray {
 
 /// An image from a per-pixel function, rows in parallel (at least 24 rows per task).
 pub(crate) fn par_image(w: usize, h: usize, f: impl Fn(usize, usize) -> f32 + Sync) -> Gray {
-    let mut data = vec![0.0f32; w * h];
+    let mut data = crate::buffers::zeroed(w * h);
     data.par_chunks_mut(w.max(1)).enumerate().with_min_len(24).for_each(|(y, row)| {
         for (x, v) in row.iter_mut().enumerate() {
             *v = f(x, y);
