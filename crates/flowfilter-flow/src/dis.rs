@@ -56,6 +56,24 @@ pub struct DisParams {
     pub gamma: f32,
     /// SOR relaxation factor, in (0, 2).
     pub omega: f32,
+    /// Gradients of the patch search.
+    pub search_gradients: SearchGradients,
+}
+
+/// The image gradients the inverse patch search linearises with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SearchGradients {
+    /// Central differences: full Gauss-Newton steps (the better choice on our turntable pairs,
+    /// mean EPE 1.46 against 1.62 with `opencv_sobel`).
+    #[default]
+    Central,
+    /// OpenCV's `spatialGradient` (3x3 Sobel) at its unnormalised scale, eight times the
+    /// derivative, so every Gauss-Newton step is an eighth of the full one: OpenCV's DIS exactly
+    /// in this respect. Damped and smoothed, patches overshoot less on Sintel (EPE 0.339 / 1.586
+    /// / 0.304 / 1.917 against 0.374 / 1.629 / 0.324 / 1.918) but converge more slowly on large
+    /// motions.
+    OpencvSobel,
 }
 
 impl Default for DisParams {
@@ -74,6 +92,7 @@ impl Default for DisParams {
             delta: 5.0,
             gamma: 10.0,
             omega: 1.6,
+            search_gradients: SearchGradients::Central,
         }
     }
 }
@@ -164,6 +183,27 @@ fn gradients(img: &Img) -> (Img, Img) {
         (d[y * w + r] - d[y * w + l]) / (r - l).max(1) as f32
     });
     (gx, gradient_y(img))
+}
+
+/// OpenCV's `spatialGradient` (3x3 Sobel, `[1 2 1]` smoothing across a central difference) at
+/// its unnormalised scale, eight times the derivative (see [`SearchGradients::OpencvSobel`]).
+fn sobel(img: &Img) -> (Img, Img) {
+    let (w, h) = img.dims();
+    let d = img.as_slice();
+    let at = |x: isize, y: isize| d[(y.clamp(0, h as isize - 1) as usize) * w + x.clamp(0, w as isize - 1) as usize];
+    let gx = par_image(w, h, |x, y| {
+        let (x, y) = (x as isize, y as isize);
+        (at(x + 1, y - 1) - at(x - 1, y - 1))
+            + 2.0 * (at(x + 1, y) - at(x - 1, y))
+            + (at(x + 1, y + 1) - at(x - 1, y + 1))
+    });
+    let gy = par_image(w, h, |x, y| {
+        let (x, y) = (x as isize, y as isize);
+        (at(x - 1, y + 1) - at(x - 1, y - 1))
+            + 2.0 * (at(x, y + 1) - at(x, y - 1))
+            + (at(x + 1, y + 1) - at(x + 1, y - 1))
+    });
+    (gx, gy)
 }
 
 /// The y component of [`gradients`].
@@ -968,11 +1008,16 @@ impl Dis {
                 continue;
             }
             let (i0x, i0y) = gradients(i0);
-            let sc = Scale { i0, i1, i0x: &i0x, i0y: &i0y, ps: p.patch_size, mean_norm: p.mean_normalization };
+            let sobel_pair = (p.search_gradients == SearchGradients::OpencvSobel).then(|| sobel(i0));
+            let (sx, sy) = sobel_pair.as_ref().map_or((&i0x, &i0y), |(x, y)| (x, y));
+            let sc = Scale { i0, i1, i0x: sx, i0y: sy, ps: p.patch_size, mean_norm: p.mean_normalization };
             let (xs, ys, flows, shifts) = patch_flows(&sc, &flow, p);
             recycle_pair(std::mem::replace(&mut flow, densify(&sc, &xs, &ys, &flows, &shifts)));
             refine(i0, i1, (&i0x, &i0y), &mut flow.0, &mut flow.1, p);
             recycle_pair((i0x, i0y));
+            if let Some(pair) = sobel_pair {
+                recycle_pair(pair);
+            }
         }
         for img in p0.into_iter().chain(p1) {
             recycle(img.into_vec());
