@@ -2,7 +2,7 @@
 //! `cargo run --release -p flowfilter-flow [--features onnx] --example sintel_flow [-- REPEATS]`
 //! (with `onnx`: also our network, fixtures/models/ffnet.onnx).
 
-use flowfilter_flow::dis::{Dis, DisParams};
+use flowfilter_flow::dis::{Dis, DisParams, SearchGradients};
 use flowfilter_flow::lk::to_gray;
 use flowfilter_flow::metrics::epe;
 use flowfilter_flow::{FlowEstimator, LucasKanade, sintel};
@@ -19,6 +19,13 @@ fn main() {
     let estimators: Vec<(&str, Box<dyn FlowEstimator>)> = vec![
         ("dis-fast", Box::new(Dis::new(DisParams::fast()).expect("valid"))),
         ("dis-medium", Box::new(Dis::new(DisParams::medium()).expect("valid"))),
+        (
+            "dis-medium (central)",
+            Box::new(
+                Dis::new(DisParams { search_gradients: SearchGradients::Central, ..DisParams::medium() })
+                    .expect("valid"),
+            ),
+        ),
         ("lk-dense", Box::new(LucasKanade::default())),
         #[cfg(feature = "onnx")]
         ("net (ffnet)", Box::new(flowfilter_flow::net::ffnet().expect("shipped network"))),

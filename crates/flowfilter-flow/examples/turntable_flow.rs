@@ -2,11 +2,12 @@
 //! with exact ground truth from `flowfilter_synth::true_flow`, for the procedural objects and,
 //! when `../shared/data/ycb` is present, the YCB scans. Scores non-occluded object pixels.
 //! `cargo run --release -p flowfilter-flow [--features onnx] --example turntable_flow [-- STEPS] [CAMERAS] [OBJECTS]`
-//! (defaults `3,9,15`, `NP1,NP3,NP5` and every object; base angle 0). With the `onnx` feature the
+//! (defaults `3,9,15`, `NP1,NP3,NP5` and every object; base angle 0). DIS runs with
+//! central-difference search gradients, as the pipeline configures it. With the `onnx` feature the
 //! table has a column for our network (`net`, fixtures/models/ffnet.onnx).
 
 use flowfilter_bigbird::{FrameId, SensorId};
-use flowfilter_flow::dis::{Dis, DisParams};
+use flowfilter_flow::dis::{Dis, DisParams, SearchGradients};
 use flowfilter_flow::lk::to_gray;
 use flowfilter_flow::metrics::{epe, epe_at_points};
 use flowfilter_flow::{FlowEstimator, FlowField, LucasKanade};
@@ -43,8 +44,11 @@ fn main() {
     }
     let rig = Rig::bigbird_like();
     let noise = NoiseProfile::carmine();
-    let dis_fast = Dis::new(DisParams::fast()).expect("valid");
-    let dis_medium = Dis::new(DisParams::medium()).expect("valid");
+    // Central-difference patch search: the pipeline configuration's setting for these pairs
+    // (OpenCV's damped Sobel steps, the presets' default, reach large motions more slowly).
+    let central =
+        |p: DisParams| Dis::new(DisParams { search_gradients: SearchGradients::Central, ..p }).expect("valid");
+    let (dis_fast, dis_medium) = (central(DisParams::fast()), central(DisParams::medium()));
     let lk = LucasKanade::default();
     #[cfg(feature = "onnx")]
     let net = flowfilter_flow::net::ffnet().expect("shipped network");

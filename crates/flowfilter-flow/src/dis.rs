@@ -25,6 +25,10 @@ use flowfilter_geometry::fastmath::floor_f32;
 use flowfilter_geometry::{Grid, Mask};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+use wide::f32x8;
+
+mod refine;
+use refine::refine;
 
 /// Parameters of [`Dis`]; the defaults are OpenCV's `DISOpticalFlow` "medium" preset.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -64,15 +68,16 @@ pub struct DisParams {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum SearchGradients {
-    /// Central differences: full Gauss-Newton steps (the better choice on our turntable pairs,
-    /// mean EPE 1.46 against 1.62 with `opencv_sobel`).
-    #[default]
+    /// Central differences: full Gauss-Newton steps. Patches converge faster on large motions:
+    /// the better choice on our turntable pairs (mean EPE 1.46 against 1.62 with `opencv_sobel`),
+    /// and the pipeline configuration's choice.
     Central,
     /// OpenCV's `spatialGradient` (3x3 Sobel) at its unnormalised scale, eight times the
     /// derivative, so every Gauss-Newton step is an eighth of the full one: OpenCV's DIS exactly
-    /// in this respect. Damped and smoothed, patches overshoot less on Sintel (EPE 0.339 / 1.586
-    /// / 0.304 / 1.917 against 0.374 / 1.629 / 0.324 / 1.918) but converge more slowly on large
-    /// motions.
+    /// in this respect, and the presets' default. Damped and smoothed, patches overshoot less on
+    /// Sintel (EPE 0.339 / 1.587 / 0.304 / 1.916 against 0.374 / 1.627 / 0.324 / 1.920 with
+    /// `central`) but converge more slowly on large motions.
+    #[default]
     OpencvSobel,
 }
 
@@ -92,7 +97,7 @@ impl Default for DisParams {
             delta: 5.0,
             gamma: 10.0,
             omega: 1.6,
-            search_gradients: SearchGradients::Central,
+            search_gradients: SearchGradients::OpencvSobel,
         }
     }
 }
@@ -291,6 +296,9 @@ struct Template {
     values: Vec<f32>,
     gx: Vec<f32>,
     gy: Vec<f32>,
+    /// Sums of `gx` and `gy` over the patch (for the mean normalisation of the steps).
+    sum_gx: f32,
+    sum_gy: f32,
     /// Inverse of the 2x2 Hessian `[[a, b], [b, c]]`, or `None` when singular (flat patch).
     inv_h: Option<[f32; 3]>,
 }
@@ -323,15 +331,16 @@ impl Scale<'_> {
             b += gx[k] * gy[k];
             c += gy[k] * gy[k];
         }
+        let (sum_gx, sum_gy) = (gx.iter().sum::<f32>(), gy.iter().sum::<f32>());
         if self.mean_norm {
-            let (mx, my) = (gx.iter().sum::<f32>() / nf, gy.iter().sum::<f32>() / nf);
+            let (mx, my) = (sum_gx / nf, sum_gy / nf);
             a -= nf * mx * mx;
             b -= nf * mx * my;
             c -= nf * my * my;
         }
         let det = a * c - b * b;
         let inv_h = (det > 1e-6 * (a + c).powi(2).max(1e-12)).then(|| [c / det, -b / det, a / det]);
-        Template { values, gx, gy, inv_h }
+        Template { values, gx, gy, sum_gx, sum_gy, inv_h }
     }
 
     /// Warp the second image's patch at `(ox + u, oy + v)` into `out`; the warp is a pure
@@ -413,18 +422,39 @@ impl Scale<'_> {
 
     /// Sum of squared (mean-normalised) differences between the template and the warped patch.
     fn ssd(&self, t: &Template, ox: usize, oy: usize, f: [f32; 2], buf: &mut [f32]) -> f32 {
-        let shift = self.difference(t, ox, oy, f, buf);
-        let mut lanes = [0.0f32; LANES];
-        for d in buf.chunks_exact(LANES) {
-            for j in 0..LANES {
-                lanes[j] += (d[j] - shift) * (d[j] - shift);
-            }
+        let [sr, sq, _, _] = self.residual_sums(t, ox, oy, f, 0.0, buf);
+        let nf = buf.len() as f32;
+        if self.mean_norm { (sq - sr * sr / nf).max(0.0) } else { sq }
+    }
+
+    /// Sums over the patch of the residual `r = warped - template - centre`:
+    /// `[sum r, sum r^2, sum gx r, sum gy r]`. Patches of the presets' side inside the image are
+    /// warped, differenced and reduced in one pass; others go through `buf`.
+    fn residual_sums(&self, t: &Template, ox: usize, oy: usize, f: [f32; 2], centre: f32, buf: &mut [f32]) -> [f32; 4] {
+        let (w, h) = self.i1.dims();
+        let (x, y) = (ox as f32 + f[0], oy as f32 + f[1]);
+        let (x0, y0) = (floor_f32(x), floor_f32(y));
+        if self.ps == 8 && x0 >= 0.0 && y0 >= 0.0 && (x0 as usize + 8) < w && (y0 as usize + 8) < h {
+            let (fx, fy) = (x - x0, y - y0);
+            let weights = [(1.0 - fx) * (1.0 - fy), fx * (1.0 - fy), (1.0 - fx) * fy, fx * fy];
+            return fused_sums8(self.i1.as_slice(), w, x0 as usize, y0 as usize, weights, t, centre);
         }
-        let tail = buf.len() / LANES * LANES;
-        lanes.iter().sum::<f32>() + buf[tail..].iter().map(|d| (d - shift) * (d - shift)).sum::<f32>()
+        self.warp(ox, oy, f[0], f[1], buf);
+        let mut s = [0.0f32; 4];
+        for (((d, v), gx), gy) in buf.iter().zip(&t.values).zip(&t.gx).zip(&t.gy) {
+            let r = d - v - centre;
+            s[0] += r;
+            s[1] += r * r;
+            s[2] += gx * r;
+            s[3] += gy * r;
+        }
+        s
     }
 
     /// Inverse-compositional Gauss-Newton from `f`; returns the flow with the lowest SSD seen.
+    /// Each step reduces the residual once: the mean normalisation is applied to the sums
+    /// (`sum (r - m)^2 = sum r^2 - n m^2`, `sum g (r - m) = sum g r - m sum g`), with the residual
+    /// taken about the previous step's mean so that the subtraction loses no precision.
     fn search(
         &self,
         t: &Template,
@@ -438,28 +468,17 @@ impl Scale<'_> {
             let s = self.ssd(t, ox, oy, f, buf);
             return (f, s);
         };
+        let nf = buf.len() as f32;
         let mut cur = f;
         let mut best = (f, f32::INFINITY);
-        let tail = buf.len() / LANES * LANES;
+        let mut centre = 0.0f32;
         for _ in 0..iterations {
-            let shift = self.difference(t, ox, oy, cur, buf);
-            // Independent lanes: the reductions vectorise.
-            let (mut sx, mut sy, mut sq) = ([0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES]);
-            let chunks = buf.chunks_exact(LANES).zip(t.gx.chunks_exact(LANES)).zip(t.gy.chunks_exact(LANES));
-            for ((d, gx), gy) in chunks {
-                for j in 0..LANES {
-                    let r = d[j] - shift;
-                    sq[j] += r * r;
-                    sx[j] += gx[j] * r;
-                    sy[j] += gy[j] * r;
-                }
-            }
-            let (mut bx, mut by, mut ssd) = (sx.iter().sum::<f32>(), sy.iter().sum::<f32>(), sq.iter().sum::<f32>());
-            for ((d, gx), gy) in buf[tail..].iter().zip(&t.gx[tail..]).zip(&t.gy[tail..]) {
-                let r = d - shift;
-                ssd += r * r;
-                bx += gx * r;
-                by += gy * r;
+            let [sr, sq, sx, sy] = self.residual_sums(t, ox, oy, cur, centre, buf);
+            let m = if self.mean_norm { sr / nf } else { 0.0 };
+            let ssd = (sq - nf * m * m).max(0.0);
+            let (bx, by) = (sx - m * t.sum_gx, sy - m * t.sum_gy);
+            if self.mean_norm {
+                centre += m;
             }
             if ssd < best.1 {
                 best = (cur, ssd);
@@ -478,6 +497,35 @@ impl Scale<'_> {
         }
         best
     }
+}
+
+/// Eight consecutive values as one SIMD vector.
+#[inline(always)]
+fn lanes8(s: &[f32]) -> f32x8 {
+    f32x8::new(s[..8].try_into().expect("eight values"))
+}
+
+/// [`Scale::residual_sums`] for an interior 8 x 8 patch: warp (bilinear `weights` at
+/// `(bx, by)` of the image `d`, row length `w`), difference and reductions in one pass, one
+/// patch row per SIMD vector.
+#[inline]
+fn fused_sums8(d: &[f32], w: usize, bx: usize, by: usize, weights: [f32; 4], t: &Template, centre: f32) -> [f32; 4] {
+    let block = &d[by * w + bx..(by + 8) * w + bx + 9];
+    let (values, gxs, gys) = (&t.values[..64], &t.gx[..64], &t.gy[..64]);
+    let [w00, w10, w01, w11] = weights.map(f32x8::splat);
+    let c = f32x8::splat(centre);
+    let (mut sr, mut sq, mut sx, mut sy) = (f32x8::ZERO, f32x8::ZERO, f32x8::ZERO, f32x8::ZERO);
+    for j in 0..8 {
+        let (r0, r1) = (&block[j * w..j * w + 9], &block[(j + 1) * w..(j + 1) * w + 9]);
+        let warped = (w00 * lanes8(r0) + w10 * lanes8(&r0[1..])) + (w01 * lanes8(r1) + w11 * lanes8(&r1[1..]));
+        let k = j * 8;
+        let r = warped - lanes8(&values[k..]) - c;
+        sr += r;
+        sq += r * r;
+        sx += lanes8(&gxs[k..]) * r;
+        sy += lanes8(&gys[k..]) * r;
+    }
+    [sr.reduce_add(), sq.reduce_add(), sx.reduce_add(), sy.reduce_add()]
 }
 
 /// [`Scale::warp`]'s interior case for patches of side `P`: `out` (P x P) from the image `d`
@@ -645,320 +693,8 @@ fn densify(sc: &Scale<'_>, xs: &[usize], ys: &[usize], flows: &[[f32; 2]], shift
     (Img::from_vec(w, h, u).expect("sizes"), Img::from_vec(w, h, v).expect("sizes"))
 }
 
-/// Robust penalty derivative `Psi'(s2) = 1 / (2 sqrt(s2 + eps^2))`.
-#[inline]
-fn psi_prime(s2: f32) -> f32 {
-    0.5 / (s2 + 1e-6).sqrt()
-}
-
-/// The linearised data term at one pixel.
-#[derive(Clone, Copy, Default)]
-struct DataTerm {
-    ix: f32,
-    iy: f32,
-    iz: f32,
-    ixx: f32,
-    ixy: f32,
-    iyy: f32,
-    ixz: f32,
-    iyz: f32,
-    /// `1 / (ix^2 + iy^2 + zeta^2)`, `1 / (ixx^2 + ixy^2 + zeta^2)`, `1 / (ixy^2 + iyy^2 + zeta^2)`:
-    /// the normalisations of the three constancy terms.
-    n1: f32,
-    n2: f32,
-    n3: f32,
-}
-
-/// Regularisation of the constancy terms' normalisation (`zeta^2`, OpenCV's value).
-const ZETA2: f32 = 0.01;
-
 /// Rows handed to one rayon task at least (small scales are not worth splitting finely).
 const ROWS_PER_TASK: usize = 24;
-
-/// Red-black layout: pixel `(x, y)` has colour `(x + y) % 2` and index `x / 2` in its row of
-/// that colour's array. Unknowns are stored with one padding entry at both ends of every row and
-/// a padding row above and below (stride `hw + 2`), so the SOR reads its four neighbours
-/// without bounds checks (border weights are zero); coefficients are stored unpadded (stride
-/// `hw`).
-struct Checker {
-    w: usize,
-    h: usize,
-    hw: usize,
-}
-
-impl Checker {
-    /// Padded row stride of the unknowns.
-    fn stride(&self) -> usize {
-        self.hw + 2
-    }
-
-    /// Index of pixel `(x, y)` in its colour's padded array.
-    fn padded(&self, x: usize, y: usize) -> usize {
-        (y + 1) * self.stride() + x / 2 + 1
-    }
-
-    /// Zeroed padded arrays of both colours.
-    fn zeros(&self) -> [Vec<f32>; 2] {
-        let len = self.stride() * (self.h + 2);
-        [zeroed(len), zeroed(len)]
-    }
-
-    /// Split `full` into the colours' padded arrays `out` (from [`Checker::zeros`]; the padding
-    /// stays zero).
-    fn split(&self, full: &[f32], out: &mut [Vec<f32>; 2]) {
-        for (colour, part) in out.iter_mut().enumerate() {
-            part[self.stride()..(self.h + 1) * self.stride()]
-                .par_chunks_mut(self.stride())
-                .enumerate()
-                .with_min_len(ROWS_PER_TASK)
-                .for_each(|(y, row)| {
-                    for x in ((y + colour) % 2..self.w).step_by(2) {
-                        row[x / 2 + 1] = full[y * self.w + x];
-                    }
-                });
-        }
-    }
-
-    fn merge(&self, parts: &[Vec<f32>; 2], full: &mut [f32]) {
-        full.par_chunks_mut(self.w).enumerate().with_min_len(ROWS_PER_TASK).for_each(|(y, row)| {
-            for (x, v) in row.iter_mut().enumerate() {
-                *v = parts[(x + y) % 2][self.padded(x, y)];
-            }
-        });
-    }
-}
-
-/// The SOR system of one colour, per pixel of that colour (unpadded red-black layout):
-/// `a12`, `1 / (a11 + sum w)`, `1 / (a22 + sum w)`, the right-hand sides `r1`, `r2` (with
-/// `r = -b + sum_q w_q (u_q - u_p)`) and the four neighbour weights.
-#[derive(Default)]
-struct ColourSystem {
-    a12: Vec<f32>,
-    inv11: Vec<f32>,
-    inv22: Vec<f32>,
-    r1: Vec<f32>,
-    r2: Vec<f32>,
-    wl: Vec<f32>,
-    wr: Vec<f32>,
-    wu: Vec<f32>,
-    wd: Vec<f32>,
-}
-
-impl ColourSystem {
-    fn zeros(n: usize) -> Self {
-        let z = || zeroed(n);
-        Self { a12: z(), inv11: z(), inv22: z(), r1: z(), r2: z(), wl: z(), wr: z(), wu: z(), wd: z() }
-    }
-
-    /// Hands the arrays back to the buffer pool.
-    fn recycle(self) {
-        for v in [self.a12, self.inv11, self.inv22, self.r1, self.r2, self.wl, self.wr, self.wu, self.wd] {
-            recycle(v);
-        }
-    }
-}
-
-/// One SOR half-sweep over the pixels of one colour in row `y` (`n` of them, the first at
-/// column `start`): branch-free over contiguous arrays so that it vectorises.
-#[allow(clippy::too_many_arguments)]
-#[inline]
-fn sor_row(
-    sys: &ColourSystem,
-    ck: &Checker,
-    y: usize,
-    start: usize,
-    other_u: &[f32],
-    other_v: &[f32],
-    ru: &mut [f32],
-    rv: &mut [f32],
-    omega: f32,
-) {
-    let (hw, stride) = (ck.hw, ck.stride());
-    let n = (ck.w - start).div_ceil(2);
-    let c = y * hw;
-    // Neighbours in the other colour's padded rows: left/right at i - 1 + start / i + start
-    // (in row y), up/down at i (rows y - 1, y + 1); padded indices are one further right.
-    let (row, up, down) = ((y + 1) * stride, y * stride, (y + 2) * stride);
-    let left_u = &other_u[row + start..row + start + n];
-    let right_u = &other_u[row + start + 1..row + start + 1 + n];
-    let up_u = &other_u[up + 1..up + 1 + n];
-    let down_u = &other_u[down + 1..down + 1 + n];
-    let left_v = &other_v[row + start..row + start + n];
-    let right_v = &other_v[row + start + 1..row + start + 1 + n];
-    let up_v = &other_v[up + 1..up + 1 + n];
-    let down_v = &other_v[down + 1..down + 1 + n];
-    let (a12, inv11, inv22) = (&sys.a12[c..c + n], &sys.inv11[c..c + n], &sys.inv22[c..c + n]);
-    let (r1, r2) = (&sys.r1[c..c + n], &sys.r2[c..c + n]);
-    let (wl, wr, wu, wd) = (&sys.wl[c..c + n], &sys.wr[c..c + n], &sys.wu[c..c + n], &sys.wd[c..c + n]);
-    let (ru, rv) = (&mut ru[1..1 + n], &mut rv[1..1 + n]);
-    for i in 0..n {
-        let nu = wl[i] * left_u[i] + wr[i] * right_u[i] + wu[i] * up_u[i] + wd[i] * down_u[i];
-        let nv = wl[i] * left_v[i] + wr[i] * right_v[i] + wu[i] * up_v[i] + wd[i] * down_v[i];
-        let new_u = (r1[i] + nu - a12[i] * rv[i]) * inv11[i];
-        let u = (1.0 - omega) * ru[i] + omega * new_u;
-        ru[i] = u;
-        let new_v = (r2[i] + nv - a12[i] * u) * inv22[i];
-        rv[i] = (1.0 - omega) * rv[i] + omega * new_v;
-    }
-}
-
-/// Variational refinement of `(u, v)` in place (see the module documentation).
-/// `i0x`, `i0y` are the first image's gradients (already computed for the patch search).
-fn refine(i0: &Img, i1: &Img, (i0x, i0y): (&Img, &Img), u: &mut Img, v: &mut Img, p: &DisParams) {
-    if p.refinement_iterations == 0 {
-        return;
-    }
-    let (w, h) = i0.dims();
-    let n = w * h;
-    let first = gradients(i1);
-    let (i1x, i1y) = (&first.0, &first.1);
-    // Second derivatives: xx and xy from the x-gradients, yy from the y-gradients.
-    let second = rayon::join(
-        || rayon::join(|| gradients(i0x), || gradient_y(i0y)),
-        || rayon::join(|| gradients(i1x), || gradient_y(i1y)),
-    );
-    let (((i0xx, i0xy), i0yy), ((i1xx, i1xy), i1yy)) = &second;
-    // Linearisation at the current flow: warped second image and the data terms.
-    let (us, vs) = (u.as_slice(), v.as_slice());
-    let mut data = vec![DataTerm::default(); n];
-    data.par_chunks_mut(w).enumerate().with_min_len(ROWS_PER_TASK).for_each(|(y, row)| {
-        for (x, d) in row.iter_mut().enumerate() {
-            let k = y * w + x;
-            let (fx, fy) = (x as f32 + us[k], y as f32 + vs[k]);
-            if !(fx >= 0.0 && fy >= 0.0 && fx <= (w - 1) as f32 && fy <= (h - 1) as f32) {
-                continue;
-            }
-            let tap = BilinearTap::new(w, h, fx, fy);
-            let s = |img: &Img| tap.sample(img.as_slice());
-            let (wx, wy) = (s(i1x), s(i1y));
-            let (ix, iy) = (0.5 * (wx + i0x.as_slice()[k]), 0.5 * (wy + i0y.as_slice()[k]));
-            let ixx = 0.5 * (s(i1xx) + i0xx.as_slice()[k]);
-            let ixy = 0.5 * (s(i1xy) + i0xy.as_slice()[k]);
-            let iyy = 0.5 * (s(i1yy) + i0yy.as_slice()[k]);
-            *d = DataTerm {
-                ix,
-                iy,
-                iz: s(i1) - i0.as_slice()[k],
-                ixx,
-                ixy,
-                iyy,
-                ixz: wx - i0x.as_slice()[k],
-                iyz: wy - i0y.as_slice()[k],
-                n1: 1.0 / (ix * ix + iy * iy + ZETA2),
-                n2: 1.0 / (ixx * ixx + ixy * ixy + ZETA2),
-                n3: 1.0 / (ixy * ixy + iyy * iyy + ZETA2),
-            };
-        }
-    });
-    let ck = Checker { w, h, hw: w.div_ceil(2) };
-    let mut du = zeroed(n);
-    let mut dv = zeroed(n);
-    let mut systems = [ColourSystem::zeros(ck.hw * h), ColourSystem::zeros(ck.hw * h)];
-    // Work arrays reused by every fixed-point iteration.
-    let mut smooth = zeroed(n);
-    let (mut dus, mut dvs) = (ck.zeros(), ck.zeros());
-    for _ in 0..p.refinement_iterations {
-        // Smoothness weights per pixel: alpha * Psi'(|grad (u + du)|^2 + |grad (v + dv)|^2).
-        smooth.par_chunks_mut(w).enumerate().with_min_len(ROWS_PER_TASK).for_each(|(y, row)| {
-            for (x, out) in row.iter_mut().enumerate() {
-                let k = y * w + x;
-                let fu = |q: usize| us[q] + du[q];
-                let fv = |q: usize| vs[q] + dv[q];
-                let (r, b) = (if x + 1 < w { k + 1 } else { k }, if y + 1 < h { k + w } else { k });
-                let g = (fu(r) - fu(k)).powi(2)
-                    + (fu(b) - fu(k)).powi(2)
-                    + (fv(r) - fv(k)).powi(2)
-                    + (fv(b) - fv(k)).powi(2);
-                *out = p.alpha * psi_prime(g);
-            }
-        });
-        let smooth = &smooth;
-        for (colour, sys) in systems.iter_mut().enumerate() {
-            let ColourSystem { a12, inv11, inv22, r1, r2, wl, wr, wu, wd } = sys;
-            let hw = ck.hw;
-            a12.par_chunks_mut(hw)
-                .zip(inv11.par_chunks_mut(hw))
-                .zip(inv22.par_chunks_mut(hw))
-                .zip(r1.par_chunks_mut(hw))
-                .zip(r2.par_chunks_mut(hw))
-                .zip(wl.par_chunks_mut(hw))
-                .zip(wr.par_chunks_mut(hw))
-                .zip(wu.par_chunks_mut(hw))
-                .zip(wd.par_chunks_mut(hw))
-                .enumerate()
-                .with_min_len(ROWS_PER_TASK)
-                .for_each(|(y, ((((((((a12, inv11), inv22), r1), r2), wl), wr), wu), wd))| {
-                    for x in ((y + colour) % 2..w).step_by(2) {
-                        let (k, i) = (y * w + x, x / 2);
-                        let d = &data[k];
-                        let (a, b) = (du[k], dv[k]);
-                        let q1 = p.delta * psi_prime((d.iz + d.ix * a + d.iy * b).powi(2)) * d.n1;
-                        let q2 = p.gamma * psi_prime((d.ixz + d.ixx * a + d.ixy * b).powi(2)) * d.n2;
-                        let q3 = p.gamma * psi_prime((d.iyz + d.ixy * a + d.iyy * b).powi(2)) * d.n3;
-                        let a11 = q1 * d.ix * d.ix + q2 * d.ixx * d.ixx + q3 * d.ixy * d.ixy;
-                        let a22 = q1 * d.iy * d.iy + q2 * d.ixy * d.ixy + q3 * d.iyy * d.iyy;
-                        let b1 = q1 * d.ix * d.iz + q2 * d.ixx * d.ixz + q3 * d.ixy * d.iyz;
-                        let b2 = q1 * d.iy * d.iz + q2 * d.ixy * d.ixz + q3 * d.iyy * d.iyz;
-                        let wt = |q: usize| 0.5 * (smooth[k] + smooth[q]);
-                        let l = if x > 0 { wt(k - 1) } else { 0.0 };
-                        let r = if x + 1 < w { wt(k + 1) } else { 0.0 };
-                        let u = if y > 0 { wt(k - w) } else { 0.0 };
-                        let dn = if y + 1 < h { wt(k + w) } else { 0.0 };
-                        let lap = |f: &[f32]| {
-                            let c = f[k];
-                            let at = |q: usize, wq: f32| if wq > 0.0 { wq * (f[q] - c) } else { 0.0 };
-                            at(k.wrapping_sub(1), l) + at(k + 1, r) + at(k.wrapping_sub(w), u) + at(k + w, dn)
-                        };
-                        let sw = l + r + u + dn;
-                        a12[i] = q1 * d.ix * d.iy + q2 * d.ixx * d.ixy + q3 * d.ixy * d.iyy;
-                        inv11[i] = 1.0 / (a11 + sw).max(1e-9);
-                        inv22[i] = 1.0 / (a22 + sw).max(1e-9);
-                        r1[i] = lap(us) - b1;
-                        r2[i] = lap(vs) - b2;
-                        (wl[i], wr[i], wu[i], wd[i]) = (l, r, u, dn);
-                    }
-                });
-        }
-        // Red-black SOR on split arrays: a colour's update reads only the other colour.
-        ck.split(&du, &mut dus);
-        ck.split(&dv, &mut dvs);
-        let stride = ck.stride();
-        for _ in 0..p.sor_iterations {
-            for (colour, sys) in systems.iter().enumerate() {
-                let [red_u, black_u] = &mut dus;
-                let [red_v, black_v] = &mut dvs;
-                let (cur_u, other_u, cur_v, other_v) = if colour == 0 {
-                    (red_u, &*black_u, red_v, &*black_v)
-                } else {
-                    (black_u, &*red_u, black_v, &*red_v)
-                };
-                cur_u[stride..(h + 1) * stride]
-                    .par_chunks_mut(stride)
-                    .zip(cur_v[stride..(h + 1) * stride].par_chunks_mut(stride))
-                    .enumerate()
-                    .with_min_len(ROWS_PER_TASK)
-                    .for_each(|(y, (ru, rv))| {
-                        sor_row(sys, &ck, y, (y + colour) % 2, other_u, other_v, ru, rv, p.omega);
-                    });
-            }
-        }
-        ck.merge(&dus, &mut du);
-        ck.merge(&dvs, &mut dv);
-    }
-    u.as_mut_slice().iter_mut().zip(&du).for_each(|(a, d)| *a += d);
-    v.as_mut_slice().iter_mut().zip(&dv).for_each(|(a, d)| *a += d);
-    // Every work array back to the pool for the next scale or call.
-    let [s0, s1] = systems;
-    s0.recycle();
-    s1.recycle();
-    for b in [du, dv, smooth].into_iter().chain(dus).chain(dvs) {
-        recycle(b);
-    }
-    let (((i0xx, i0xy), i0yy), ((i1xx, i1xy), i1yy)) = second;
-    for img in [first.0, first.1, i0xx, i0xy, i0yy, i1xx, i1xy, i1yy] {
-        recycle(img.into_vec());
-    }
-}
 
 impl Dis {
     /// The coarsest scale for an image of this size.
@@ -1081,6 +817,41 @@ mod tests {
                     assert!((got - want).abs() <= 1e-5 * want.abs().max(1.0), "({ox}, {oy}) + ({u}, {v}) at {i}, {j}");
                 }
             }
+        }
+    }
+
+    /// The one-pass residual sums of interior 8x8 patches equal the sums over the warped patch
+    /// formed pixel by pixel, and the search's mean-normalised SSD equals the two-pass one.
+    #[test]
+    fn fused_patch_sums_equal_per_pixel_sums() {
+        let (w, h) = (40, 30);
+        let i0 = Img::from_fn(w, h, |x, y| ((x * 5 + y * 11) % 23) as f32 + 2.0 * (y as f32 * 0.2).cos());
+        let i1 = Img::from_fn(w, h, |x, y| ((x * 7 + y * 13) % 17) as f32 + 0.1 * (x as f32 * 0.3).sin());
+        let (gx, gy) = gradients(&i0);
+        let sc = Scale { i0: &i0, i1: &i1, i0x: &gx, i0y: &gy, ps: 8, mean_norm: true };
+        let mut buf = vec![0.0f32; 64];
+        for (ox, oy, u, v, centre) in [(10, 12, 1.25, -0.5, 0.0), (20, 5, -3.7, 2.2, 1.5), (3, 20, 0.1, 0.9, -4.0)] {
+            let t = sc.template(ox, oy);
+            let got = sc.residual_sums(&t, ox, oy, [u, v], centre, &mut buf);
+            let mut want = [0.0f64; 4];
+            for j in 0..8 {
+                for i in 0..8 {
+                    let r = bilinear(&i1, (ox + i) as f32 + u, (oy + j) as f32 + v) as f64
+                        - t.values[j * 8 + i] as f64
+                        - centre as f64;
+                    want[0] += r;
+                    want[1] += r * r;
+                    want[2] += t.gx[j * 8 + i] as f64 * r;
+                    want[3] += t.gy[j * 8 + i] as f64 * r;
+                }
+            }
+            for (g, w) in got.iter().zip(want) {
+                assert!((*g as f64 - w).abs() <= 1e-4 * w.abs().max(1.0), "({ox}, {oy}): {got:?} vs {want:?}");
+            }
+            let mean = want[0] / 64.0;
+            let two_pass = want[1] - 64.0 * mean * mean;
+            let ssd = sc.ssd(&t, ox, oy, [u, v], &mut buf) as f64;
+            assert!((ssd - two_pass).abs() <= 1e-3 * two_pass.max(1.0), "({ox}, {oy}): {ssd} vs {two_pass}");
         }
     }
 

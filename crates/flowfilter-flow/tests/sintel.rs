@@ -110,7 +110,7 @@ fn dense_and_sparse_flow_against_opencv() {
         let (pass, scene) = (case["pass"].as_str().unwrap(), case["scene"].as_str().unwrap());
         let pair = load(&root.join(pass).join(scene)).unwrap();
         let (a, b) = (to_gray(&pair.from), to_gray(&pair.to));
-        // Dense: DIS with OpenCV's "medium" parameters.
+        // Dense: DIS with OpenCV's "medium" preset (its Sobel search gradients included).
         let f = dis.dense(&a, &b, None).unwrap();
         let ours = epe(&f, &pair.flow, None).unwrap().0;
         let ours_noc = epe(&f, &pair.flow, Some(&pair.non_occluded)).unwrap().0;
@@ -149,21 +149,21 @@ fn dense_and_sparse_flow_against_opencv() {
              track: {lk_common:.3} vs {cv_common:.3}",
             case["lk"]["tracked"]
         );
-        // With OpenCV's own search gradients (Sobel, damped steps) our DIS-medium is at least as
-        // accurate as OpenCV's on every pair.
-        let sobel = Dis::new(DisParams { search_gradients: SearchGradients::OpencvSobel, ..DisParams::medium() })
+        // With central-difference search gradients (full steps, the pipeline's choice for its
+        // turntable pairs) the patches overshoot more on Sintel: recorded within 10% of
+        // OpenCV's (better on three of the four pairs, 0.374 vs 0.341 on clean/easy).
+        let central = Dis::new(DisParams { search_gradients: SearchGradients::Central, ..DisParams::medium() })
             .unwrap()
             .dense(&a, &b, None)
             .unwrap();
-        let ours_sobel = epe(&sobel, &pair.flow, None).unwrap().0;
+        let ours_central = epe(&central, &pair.flow, None).unwrap().0;
         println!(
-            "{pass}/{scene}: DIS-medium with OpenCV's Sobel search gradients EPE {ours_sobel:.3} vs OpenCV {cv:.3}"
+            "{pass}/{scene}: DIS-medium with central-difference search gradients EPE {ours_central:.3} vs OpenCV {cv:.3}"
         );
-        assert!(ours_sobel <= cv, "{pass}/{scene}: DIS (opencv_sobel) EPE {ours_sobel} vs OpenCV {cv}");
-        // Recorded gap: our DIS is within 10% of OpenCV's (better on three of the four pairs,
-        // 0.374 vs 0.341 on clean/easy). LK is at least as accurate as OpenCV's tracker, over
-        // the points both trackers keep and over each one's own.
-        assert!(ours <= cv * 1.10 + 0.01, "{pass}/{scene}: DIS EPE {ours} vs OpenCV {cv}");
+        assert!(ours_central <= cv * 1.10 + 0.01, "{pass}/{scene}: DIS (central) EPE {ours_central} vs OpenCV {cv}");
+        // The preset is at least as accurate as OpenCV's on every pair; LK is at least as
+        // accurate as OpenCV's tracker, over the points both trackers keep and over each one's own.
+        assert!(ours <= cv, "{pass}/{scene}: DIS EPE {ours} vs OpenCV {cv}");
         assert!(lk_common <= cv_common, "{pass}/{scene}: LK EPE {lk_common} vs OpenCV {cv_common} on common points");
         assert!(lk_epe <= cv_lk, "{pass}/{scene}: LK EPE {lk_epe} vs OpenCV {cv_lk}");
     }
