@@ -179,34 +179,65 @@ fn halve_scaled(img: &Img, k: f32) -> Img {
     })
 }
 
+/// An image written row by row in parallel: `f(y, row)` fills row `y`.
+fn row_image(w: usize, h: usize, f: impl Fn(usize, &mut [f32]) + Sync) -> Img {
+    let mut data = zeroed(w * h);
+    data.par_chunks_mut(w.max(1)).enumerate().with_min_len(ROWS_PER_TASK).for_each(|(y, row)| f(y, row));
+    Img::from_vec(w, h, data).expect("sizes")
+}
+
+/// `out[x] = (r[x + 1] - r[x - 1]) / 2` inside the row, one-sided differences at its ends.
+fn central_difference_row(r: &[f32], out: &mut [f32]) {
+    let w = r.len();
+    if w < 2 {
+        out.fill(0.0);
+        return;
+    }
+    out[0] = r[1] - r[0];
+    for ((o, &a), &b) in out[1..w - 1].iter_mut().zip(&r[..w - 2]).zip(&r[2..]) {
+        *o = (b - a) / 2.0;
+    }
+    out[w - 1] = r[w - 1] - r[w - 2];
+}
+
 /// Central-difference gradients (one-sided at the border).
 fn gradients(img: &Img) -> (Img, Img) {
     let (w, h) = img.dims();
-    let d = img.as_slice();
-    let gx = par_image(w, h, |x, y| {
-        let (l, r) = (x.saturating_sub(1), (x + 1).min(w - 1));
-        (d[y * w + r] - d[y * w + l]) / (r - l).max(1) as f32
-    });
+    let gx = row_image(w, h, |y, out| central_difference_row(img.row(y), out));
     (gx, gradient_y(img))
 }
 
 /// OpenCV's `spatialGradient` (3x3 Sobel, `[1 2 1]` smoothing across a central difference) at
-/// its unnormalised scale, eight times the derivative (see [`SearchGradients::OpencvSobel`]).
+/// its unnormalised scale, eight times the derivative (see [`SearchGradients::OpencvSobel`]);
+/// replicated borders.
 fn sobel(img: &Img) -> (Img, Img) {
     let (w, h) = img.dims();
-    let d = img.as_slice();
-    let at = |x: isize, y: isize| d[(y.clamp(0, h as isize - 1) as usize) * w + x.clamp(0, w as isize - 1) as usize];
-    let gx = par_image(w, h, |x, y| {
-        let (x, y) = (x as isize, y as isize);
-        (at(x + 1, y - 1) - at(x - 1, y - 1))
-            + 2.0 * (at(x + 1, y) - at(x - 1, y))
-            + (at(x + 1, y + 1) - at(x - 1, y + 1))
+    let rows = |y: usize| (img.row(y.saturating_sub(1)), img.row(y), img.row((y + 1).min(h - 1)));
+    let (l, r) = (|x: usize| x.saturating_sub(1), |x: usize| (x + 1).min(w - 1));
+    // Per column, the two replicated-border neighbours' offsets: fixed inside the row.
+    let at = |row: &[f32], x: usize| (row[l(x)], row[x], row[r(x)]);
+    let ends = |x: usize| x == 0 || x + 1 >= w;
+    let gx = row_image(w, h, |y, out| {
+        let (up, mid, down) = rows(y);
+        for (x, o) in out.iter_mut().enumerate() {
+            *o = if ends(x) {
+                let ((a, _, b), (c, _, d), (e, _, f)) = (at(up, x), at(mid, x), at(down, x));
+                (b - a) + 2.0 * (d - c) + (f - e)
+            } else {
+                (up[x + 1] - up[x - 1]) + 2.0 * (mid[x + 1] - mid[x - 1]) + (down[x + 1] - down[x - 1])
+            };
+        }
     });
-    let gy = par_image(w, h, |x, y| {
-        let (x, y) = (x as isize, y as isize);
-        (at(x - 1, y + 1) - at(x - 1, y - 1))
-            + 2.0 * (at(x, y + 1) - at(x, y - 1))
-            + (at(x + 1, y + 1) - at(x + 1, y - 1))
+    let gy = row_image(w, h, |y, out| {
+        let (up, _, down) = rows(y);
+        for (x, o) in out.iter_mut().enumerate() {
+            *o = if ends(x) {
+                let ((a, b, c), (d, e, f)) = (at(up, x), at(down, x));
+                (d - a) + 2.0 * (e - b) + (f - c)
+            } else {
+                (down[x - 1] - up[x - 1]) + 2.0 * (down[x] - up[x]) + (down[x + 1] - up[x + 1])
+            };
+        }
     });
     (gx, gy)
 }
@@ -214,10 +245,13 @@ fn sobel(img: &Img) -> (Img, Img) {
 /// The y component of [`gradients`].
 fn gradient_y(img: &Img) -> Img {
     let (w, h) = img.dims();
-    let d = img.as_slice();
-    par_image(w, h, |x, y| {
+    row_image(w, h, |y, out| {
         let (u, b) = (y.saturating_sub(1), (y + 1).min(h - 1));
-        (d[b * w + x] - d[u * w + x]) / (b - u).max(1) as f32
+        let (ru, rb) = (img.row(u), img.row(b));
+        let scale = 1.0 / (b - u).max(1) as f32;
+        for ((o, &a), &c) in out.iter_mut().zip(ru).zip(rb) {
+            *o = (c - a) * scale;
+        }
     })
 }
 
@@ -666,6 +700,26 @@ fn densify(sc: &Scale<'_>, xs: &[usize], ys: &[usize], flows: &[[f32; 2]], shift
                 let (bx, by) = (floor_f32(fx), floor_f32(fy));
                 let (ax, ay) = (fx - bx, fy - by);
                 let inside = bx >= 0.0 && by >= 0.0 && (bx as usize + ps) < w && (by as usize) + 1 < h;
+                if inside && ps == 8 {
+                    // The presets' patch side: the segment as one SIMD vector (the same operations
+                    // per pixel as below, so the same values).
+                    let (ix, iy) = (bx as usize, by as usize);
+                    let (r0, r1) = (&d1[iy * w + ix..iy * w + ix + 9], &d1[(iy + 1) * w + ix..(iy + 1) * w + ix + 9]);
+                    let (ax, ay) = (f32x8::splat(ax), f32x8::splat(ay));
+                    let (bx, by) = (f32x8::ONE - ax, f32x8::ONE - ay);
+                    let warped =
+                        (lanes8(r0) * bx + lanes8(&r0[1..]) * ax) * by + (lanes8(r1) * bx + lanes8(&r1[1..]) * ax) * ay;
+                    let residual = warped - lanes8(&i0[x0..]) - f32x8::splat(shifts[k]);
+                    let wt = f32x8::ONE / residual.abs().max(f32x8::ONE);
+                    let add = |acc: &mut [f32], v: f32x8| {
+                        let acc = &mut acc[x0..x0 + 8];
+                        acc.copy_from_slice(&(lanes8(acc) + v).to_array());
+                    };
+                    add(ur, wt * f32x8::splat(f[0]));
+                    add(vr, wt * f32x8::splat(f[1]));
+                    add(&mut sw, wt);
+                    continue;
+                }
                 for dx in 0..ps {
                     let x = x0 + dx;
                     let warped = if inside {
@@ -852,6 +906,37 @@ mod tests {
             let two_pass = want[1] - 64.0 * mean * mean;
             let ssd = sc.ssd(&t, ox, oy, [u, v], &mut buf) as f64;
             assert!((ssd - two_pass).abs() <= 1e-3 * two_pass.max(1.0), "({ox}, {oy}): {ssd} vs {two_pass}");
+        }
+    }
+
+    /// The row kernels equal the per-pixel definitions with replicated borders: central
+    /// differences (one-sided at the ends) and OpenCV's unnormalised 3x3 Sobel.
+    #[test]
+    fn gradient_kernels_equal_their_per_pixel_definitions() {
+        for (w, h) in [(9, 7), (2, 3), (1, 4)] {
+            let img = Img::from_fn(w, h, |x, y| ((x * 7 + y * 13) % 11) as f32 + 0.3 * (x * y) as f32);
+            let at =
+                |x: isize, y: isize| *img.at(x.clamp(0, w as isize - 1) as usize, y.clamp(0, h as isize - 1) as usize);
+            let (gx, gy) = gradients(&img);
+            let (sx, sy) = sobel(&img);
+            for y in 0..h as isize {
+                for x in 0..w as isize {
+                    let span = |c: isize, n: usize| ((c + 1).min(n as isize - 1) - (c - 1).max(0)).max(1) as f32;
+                    let cx = (at(x + 1, y) - at(x - 1, y)) / span(x, w);
+                    let cy = (at(x, y + 1) - at(x, y - 1)) / span(y, h);
+                    let sobel_x = (at(x + 1, y - 1) - at(x - 1, y - 1))
+                        + 2.0 * (at(x + 1, y) - at(x - 1, y))
+                        + (at(x + 1, y + 1) - at(x - 1, y + 1));
+                    let sobel_y = (at(x - 1, y + 1) - at(x - 1, y - 1))
+                        + 2.0 * (at(x, y + 1) - at(x, y - 1))
+                        + (at(x + 1, y + 1) - at(x + 1, y - 1));
+                    let (ux, uy) = (x as usize, y as usize);
+                    assert_eq!(*gx.at(ux, uy), cx, "{w}x{h} gx at ({x}, {y})");
+                    assert_eq!(*gy.at(ux, uy), cy, "{w}x{h} gy at ({x}, {y})");
+                    assert_eq!(*sx.at(ux, uy), sobel_x, "{w}x{h} sobel x at ({x}, {y})");
+                    assert_eq!(*sy.at(ux, uy), sobel_y, "{w}x{h} sobel y at ({x}, {y})");
+                }
+            }
         }
     }
 
