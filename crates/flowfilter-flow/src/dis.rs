@@ -27,7 +27,9 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use wide::f32x8;
 
+mod patch_sums;
 mod refine;
+use patch_sums::{Kernel, PatchInputs, lanes8};
 use refine::refine;
 
 /// Parameters of [`Dis`]; the defaults are OpenCV's `DISOpticalFlow` "medium" preset.
@@ -262,22 +264,53 @@ fn taps(src: usize, dst: usize) -> Vec<([usize; 2], f32)> {
     (0..dst).map(|x| BilinearTap::new(src, 1, (x as f32 + 0.5) / s - 0.5, 0.0).column()).collect()
 }
 
+/// One output row of a bilinear resampling (pixel centres aligned): the source rows `top` and
+/// `bottom` blended with weight `fy` on the second into `blended`, then spread over the output
+/// columns into `out` (an exact doubling with its fixed 1/4, 3/4 weights, else the `columns`
+/// taps), every value multiplied by `s`.
+fn resample_row(
+    (top, bottom, fy): (&[f32], &[f32], f32),
+    columns: &[([usize; 2], f32)],
+    s: f32,
+    blended: &mut [f32],
+    out: &mut [f32],
+) {
+    for ((b, &t), &d) in blended.iter_mut().zip(top).zip(bottom) {
+        *b = t * (1.0 - fy) + d * fy;
+    }
+    let n = blended.len();
+    if out.len() == 2 * n && n >= 2 {
+        // Output column 2i samples i - 1/4, column 2i + 1 samples i + 1/4 (clamped at the ends).
+        out[0] = s * blended[0];
+        out[2 * n - 1] = s * blended[n - 1];
+        for (i, pair) in blended.windows(2).enumerate() {
+            out[2 * i + 1] = s * (pair[0] * 0.75 + pair[1] * 0.25);
+            out[2 * i + 2] = s * (pair[0] * 0.25 + pair[1] * 0.75);
+        }
+        return;
+    }
+    for (o, &([x0, x1], fx)) in out.iter_mut().zip(columns) {
+        *o = s * (blended[x0] * (1.0 - fx) + blended[x1] * fx);
+    }
+}
+
+/// The source rows and weight of output row `y` when resampling `fh` rows to `h`.
+fn source_rows(d: &[f32], fw: usize, fh: usize, h: usize, y: usize) -> (&[f32], &[f32], f32) {
+    let (r, fy) = BilinearTap::new(1, fh, 0.0, (y as f32 + 0.5) * fh as f32 / h as f32 - 0.5).row();
+    (&d[r[0] * fw..(r[0] + 1) * fw], &d[r[1] * fw..(r[1] + 1) * fw], fy)
+}
+
 /// Resample a flow component to `(w, h)` (pixel centres aligned, bilinear) and multiply it by
-/// `s`; the taps of each column and row are computed once.
+/// `s`; the taps of each column are computed once.
 fn resample(f: &Img, w: usize, h: usize, s: f32) -> Img {
     let (fw, fh) = f.dims();
-    let sy = h as f32 / fh as f32;
     let columns = taps(fw, w);
     let d = f.as_slice();
     let mut out = zeroed(w * h);
-    out.par_chunks_mut(w).enumerate().with_min_len(ROWS_PER_TASK).for_each(|(y, row)| {
-        let (r, fy) = BilinearTap::new(1, fh, 0.0, (y as f32 + 0.5) / sy - 0.5).row();
-        let (top, bottom) = (&d[r[0] * fw..(r[0] + 1) * fw], &d[r[1] * fw..(r[1] + 1) * fw]);
-        for (v, &([x0, x1], fx)) in row.iter_mut().zip(&columns) {
-            let (a, b, c, e) = (top[x0], top[x1], bottom[x0], bottom[x1]);
-            *v = s * ((a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + e * fx) * fy);
-        }
-    });
+    out.par_chunks_mut(w).enumerate().with_min_len(ROWS_PER_TASK).for_each_init(
+        || vec![0.0f32; fw],
+        |blended, (y, row)| resample_row(source_rows(d, fw, fh, h, y), &columns, s, blended, row),
+    );
     Img::from_vec(w, h, out).expect("sizes")
 }
 
@@ -286,19 +319,19 @@ fn resample(f: &Img, w: usize, h: usize, s: f32) -> Img {
 fn resample_flow(u: &Img, v: &Img, w: usize, h: usize) -> Vec<[f32; 2]> {
     let (fw, fh) = u.dims();
     let (sx, sy) = (w as f32 / fw as f32, h as f32 / fh as f32);
-    let (columns, rows) = (taps(fw, w), taps(fh, h));
+    let columns = taps(fw, w);
     let (du, dv) = (u.as_slice(), v.as_slice());
     let mut out = vec![[0.0f32; 2]; w * h];
-    out.par_chunks_mut(w).zip(&rows).with_min_len(ROWS_PER_TASK).for_each(|(row, &([r0, r1], fy))| {
-        let blend = |d: &[f32], c: [usize; 2], fx: f32| {
-            let (top, bottom) = (&d[r0 * fw..(r0 + 1) * fw], &d[r1 * fw..(r1 + 1) * fw]);
-            (top[c[0]] * (1.0 - fx) + top[c[1]] * fx) * (1.0 - fy)
-                + (bottom[c[0]] * (1.0 - fx) + bottom[c[1]] * fx) * fy
-        };
-        for (o, &(c, fx)) in row.iter_mut().zip(&columns) {
-            *o = [sx * blend(du, c, fx), sy * blend(dv, c, fx)];
-        }
-    });
+    out.par_chunks_mut(w).enumerate().with_min_len(ROWS_PER_TASK).for_each_init(
+        || (vec![0.0f32; fw], vec![0.0f32; w], vec![0.0f32; w]),
+        |(blended, ru, rv), (y, row)| {
+            resample_row(source_rows(du, fw, fh, h, y), &columns, sx, blended, ru);
+            resample_row(source_rows(dv, fw, fh, h, y), &columns, sy, blended, rv);
+            for ((o, &a), &b) in row.iter_mut().zip(ru.iter()).zip(rv.iter()) {
+                *o = [a, b];
+            }
+        },
+    );
     out
 }
 
@@ -345,6 +378,8 @@ struct Scale<'a> {
     i0y: &'a Img,
     ps: usize,
     mean_norm: bool,
+    /// The patch-sums kernel for this CPU.
+    kernel: Kernel,
 }
 
 impl Scale<'_> {
@@ -471,7 +506,10 @@ impl Scale<'_> {
         if self.ps == 8 && x0 >= 0.0 && y0 >= 0.0 && (x0 as usize + 8) < w && (y0 as usize + 8) < h {
             let (fx, fy) = (x - x0, y - y0);
             let weights = [(1.0 - fx) * (1.0 - fy), fx * (1.0 - fy), (1.0 - fx) * fy, fx * fy];
-            return fused_sums8(self.i1.as_slice(), w, x0 as usize, y0 as usize, weights, t, centre);
+            let (bx, by) = (x0 as usize, y0 as usize);
+            let block = &self.i1.as_slice()[by * w + bx..(by + 8) * w + bx + 9];
+            let (values, gx, gy) = (&t.values[..64], &t.gx[..64], &t.gy[..64]);
+            return self.kernel.sums(&PatchInputs { block, w, weights, values, gx, gy, centre });
         }
         self.warp(ox, oy, f[0], f[1], buf);
         let mut s = [0.0f32; 4];
@@ -531,35 +569,6 @@ impl Scale<'_> {
         }
         best
     }
-}
-
-/// Eight consecutive values as one SIMD vector.
-#[inline(always)]
-fn lanes8(s: &[f32]) -> f32x8 {
-    f32x8::new(s[..8].try_into().expect("eight values"))
-}
-
-/// [`Scale::residual_sums`] for an interior 8 x 8 patch: warp (bilinear `weights` at
-/// `(bx, by)` of the image `d`, row length `w`), difference and reductions in one pass, one
-/// patch row per SIMD vector.
-#[inline]
-fn fused_sums8(d: &[f32], w: usize, bx: usize, by: usize, weights: [f32; 4], t: &Template, centre: f32) -> [f32; 4] {
-    let block = &d[by * w + bx..(by + 8) * w + bx + 9];
-    let (values, gxs, gys) = (&t.values[..64], &t.gx[..64], &t.gy[..64]);
-    let [w00, w10, w01, w11] = weights.map(f32x8::splat);
-    let c = f32x8::splat(centre);
-    let (mut sr, mut sq, mut sx, mut sy) = (f32x8::ZERO, f32x8::ZERO, f32x8::ZERO, f32x8::ZERO);
-    for j in 0..8 {
-        let (r0, r1) = (&block[j * w..j * w + 9], &block[(j + 1) * w..(j + 1) * w + 9]);
-        let warped = (w00 * lanes8(r0) + w10 * lanes8(&r0[1..])) + (w01 * lanes8(r1) + w11 * lanes8(&r1[1..]));
-        let k = j * 8;
-        let r = warped - lanes8(&values[k..]) - c;
-        sr += r;
-        sq += r * r;
-        sx += lanes8(&gxs[k..]) * r;
-        sy += lanes8(&gys[k..]) * r;
-    }
-    [sr.reduce_add(), sq.reduce_add(), sx.reduce_add(), sy.reduce_add()]
 }
 
 /// [`Scale::warp`]'s interior case for patches of side `P`: `out` (P x P) from the image `d`
@@ -800,7 +809,8 @@ impl Dis {
             let (i0x, i0y) = gradients(i0);
             let sobel_pair = (p.search_gradients == SearchGradients::OpencvSobel).then(|| sobel(i0));
             let (sx, sy) = sobel_pair.as_ref().map_or((&i0x, &i0y), |(x, y)| (x, y));
-            let sc = Scale { i0, i1, i0x: sx, i0y: sy, ps: p.patch_size, mean_norm: p.mean_normalization };
+            let kernel = Kernel::detect();
+            let sc = Scale { i0, i1, i0x: sx, i0y: sy, ps: p.patch_size, mean_norm: p.mean_normalization, kernel };
             let (xs, ys, flows, shifts) = patch_flows(&sc, &flow, p);
             recycle_pair(std::mem::replace(&mut flow, densify(&sc, &xs, &ys, &flows, &shifts)));
             refine(i0, i1, (&i0x, &i0y), &mut flow.0, &mut flow.1, p);
@@ -858,7 +868,8 @@ mod tests {
         let (w, h) = (40, 30);
         let i1 = Img::from_fn(w, h, |x, y| ((x * 7 + y * 13) % 17) as f32 + 0.1 * (x as f32 * 0.3).sin());
         let zeros = Img::filled(w, h, 0.0);
-        let sc = Scale { i0: &zeros, i1: &i1, i0x: &zeros, i0y: &zeros, ps: 8, mean_norm: false };
+        let sc =
+            Scale { i0: &zeros, i1: &i1, i0x: &zeros, i0y: &zeros, ps: 8, mean_norm: false, kernel: Kernel::detect() };
         let mut out = vec![0.0f32; 64];
         for (ox, oy, u, v) in
             [(0, 0, -2.3, -0.6), (32, 22, 0.4, 0.7), (32, 0, 3.9, -5.2), (10, 12, 1.25, -0.5), (5, 22, -7.5, 9.1)]
@@ -882,7 +893,7 @@ mod tests {
         let i0 = Img::from_fn(w, h, |x, y| ((x * 5 + y * 11) % 23) as f32 + 2.0 * (y as f32 * 0.2).cos());
         let i1 = Img::from_fn(w, h, |x, y| ((x * 7 + y * 13) % 17) as f32 + 0.1 * (x as f32 * 0.3).sin());
         let (gx, gy) = gradients(&i0);
-        let sc = Scale { i0: &i0, i1: &i1, i0x: &gx, i0y: &gy, ps: 8, mean_norm: true };
+        let sc = Scale { i0: &i0, i1: &i1, i0x: &gx, i0y: &gy, ps: 8, mean_norm: true, kernel: Kernel::detect() };
         let mut buf = vec![0.0f32; 64];
         for (ox, oy, u, v, centre) in [(10, 12, 1.25, -0.5, 0.0), (20, 5, -3.7, 2.2, 1.5), (3, 20, 0.1, 0.9, -4.0)] {
             let t = sc.template(ox, oy);
@@ -936,6 +947,22 @@ mod tests {
                     assert_eq!(*sx.at(ux, uy), sobel_x, "{w}x{h} sobel x at ({x}, {y})");
                     assert_eq!(*sy.at(ux, uy), sobel_y, "{w}x{h} sobel y at ({x}, {y})");
                 }
+            }
+        }
+    }
+
+    /// The exact-doubling fast path of a resampled row equals the general bilinear taps.
+    #[test]
+    fn doubled_rows_equal_the_general_taps() {
+        for n in [2usize, 3, 8, 13] {
+            let (top, bottom): (Vec<f32>, Vec<f32>) = (0..n).map(|i| ((i as f32 * 1.7).sin(), i as f32 * 0.3)).unzip();
+            let columns = taps(n, 2 * n);
+            let (mut blended, mut out) = (vec![0.0; n], vec![0.0; 2 * n]);
+            resample_row((&top, &bottom, 0.25), &columns, 2.0, &mut blended, &mut out);
+            for (x, &([x0, x1], fx)) in columns.iter().enumerate() {
+                let row = |i: usize| top[i] * 0.75 + bottom[i] * 0.25;
+                let want = 2.0 * (row(x0) * (1.0 - fx) + row(x1) * fx);
+                assert!((out[x] - want).abs() <= 1e-6 * want.abs().max(1.0), "n {n}, column {x}: {} vs {want}", out[x]);
             }
         }
     }
