@@ -242,9 +242,12 @@ impl NeighbourCache {
     /// Whether the lists still cover radius `r` around every point of `queries` (the same points,
     /// moved) without being much wider than needed (each candidate costs a distance evaluation).
     fn covers(&self, queries: &[Point3], r: f64) -> bool {
-        let slack = self.radius - r;
+        self.radius <= CACHE_MAX_WIDTH * r && self.moved_less_than(queries, self.radius - r)
+    }
+
+    /// Whether every query moved less than `slack` (> 0) since the lists were gathered.
+    fn moved_less_than(&self, queries: &[Point3], slack: f64) -> bool {
         slack > 0.0
-            && self.radius <= CACHE_MAX_WIDTH * r
             && queries.len() == self.built_at.len()
             && queries.iter().zip(&self.built_at).all(|(q, b)| (q - b).norm_squared() < slack * slack)
     }
@@ -254,11 +257,7 @@ impl NeighbourCache {
     /// difference of the radii since the lists were gathered). No k-d tree search: sigma shrinks
     /// a few percent per iteration, and re-gathering was most of the exact E-step's time.
     fn shrunk(&self, queries: &[Point3], values: &[f64], vd: usize, radius: f64) -> Option<Self> {
-        let slack = self.radius - radius;
-        let moved_ok = slack > 0.0
-            && queries.len() == self.built_at.len()
-            && queries.iter().zip(&self.built_at).all(|(q, b)| (q - b).norm_squared() < slack * slack);
-        if !moved_ok {
+        if !self.moved_less_than(queries, self.radius - radius) {
             return None;
         }
         let r2 = radius * radius;
@@ -460,6 +459,11 @@ impl Registrar for FilterReg {
     }
 }
 
+/// `values` in the order `order` (indices into `values`).
+fn permuted<T: Copy>(values: &[T], order: &[u32]) -> Vec<T> {
+    order.iter().map(|&i| values[i as usize]).collect()
+}
+
 impl FilterReg {
     /// [`Registrar::register`]'s body, run on a pool thread.
     fn solve(&self, p: &RegistrationProblem) -> Result<Registration, RegistrationError> {
@@ -468,16 +472,11 @@ impl FilterReg {
         validate_problem(p, pt2pl.then_some("filterreg-pt2pl"))?;
         // Both clouds in a spatially coherent order: the neighbours of a point, and the points
         // queried one after the other, then sit close together in memory.
-        let permuted = |v: &[Point3], order: &[u32]| -> Vec<Point3> { order.iter().map(|&i| v[i as usize]).collect() };
         let source = &permuted(&p.source.points, &spatial_order(&p.source.points));
         let target_order = spatial_order(&p.target.points);
         let target = &permuted(&p.target.points, &target_order);
-        let normals: Option<Vec<Vector3>> = p
-            .target
-            .normals
-            .as_deref()
-            .filter(|_| pt2pl)
-            .map(|n| target_order.iter().map(|&i| n[i as usize]).collect());
+        let normals: Option<Vec<Vector3>> =
+            p.target.normals.as_deref().filter(|_| pt2pl).map(|n| permuted(n, &target_order));
         let (vd, values) = target_values(target, normals.as_deref());
         let index = KnnIndex::new(target);
         // The median distance from (a strided sample of) target points to their
