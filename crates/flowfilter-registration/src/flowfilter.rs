@@ -60,6 +60,15 @@ pub struct FlowFilterConfig {
     pub geometric_ratio: f64,
     /// Truncation of the residual (metres).
     pub geometric_tau_m: f64,
+    /// Motion check (part of the geometric check): FilterReg from the initial pose also wins
+    /// when it fits the clouds better than the flow result *and* moves further than the flow
+    /// pose by more than this many degrees. Both cues fail towards "no motion": flow where the
+    /// visible pattern does not move with the surface (shading on a turning surface of
+    /// revolution seen from above: consistent, wrong, near-static tracks), geometry where the
+    /// shape is symmetric (a registration from the initial pose stays there). A geometric
+    /// registration that leaves the initial pose for more motion than the flow found, and fits
+    /// better, was pulled there by unambiguous geometry. Negative switches the check off.
+    pub motion_margin_deg: f64,
     /// Final point-to-plane ICP polish with this correspondence gate (metres; 0 = off): the GMM
     /// estimate is biased by its own smoothing on partial views, a short point-to-plane ICP from
     /// it is not (and cannot slide far: the gate is a few millimetres).
@@ -82,6 +91,7 @@ impl Default for FlowFilterConfig {
             geometric_margin_m: 0.001,
             geometric_ratio: 1.8,
             geometric_tau_m: 0.01,
+            motion_margin_deg: 2.0,
             polish_distance_m: 0.005,
             filterreg: FilterRegConfig::default(),
         }
@@ -149,10 +159,12 @@ impl FlowFilter {
             || config.geometric_ratio < 1.0
             || config.geometric_tau_m <= 0.0
             || config.polish_distance_m < 0.0
+            || config.motion_margin_deg.is_nan()
         {
             return Err(RegistrationError::Config(
                 "flowfilter needs ransac_iterations > 0, inlier_threshold_m > 0, correspondence_weight >= 0, \
-                 min_inlier_fraction in [0, 1]"
+                 min_inlier_fraction in [0, 1], geometric_margin_m >= 0, geometric_ratio >= 1, \
+                 geometric_tau_m > 0, polish_distance_m >= 0 and a motion_margin_deg that is a number"
                     .into(),
             ));
         }
@@ -296,6 +308,23 @@ impl FlowFilter {
             alternatives.push(("FilterReg from the flow pose without the flow term", local));
         }
         let s_flow = score(&flow_result);
+        let angle = |r: &Registration| (p.init.inverse() * r.transform).rotation.angle().to_degrees();
+        if cfg.motion_margin_deg >= 0.0 {
+            let (name, from_init) = &alternatives[0];
+            let s = score(from_init);
+            let (moved, flow_moved) = (angle(from_init), angle(&flow_result));
+            if s < s_flow && moved > flow_moved + cfg.motion_margin_deg {
+                let mut r = from_init.clone();
+                r.warnings.push(format!(
+                    "motion check: {name} moved {moved:.1} deg from the initial pose and fits the clouds better \
+                     (mean residual {:.2} mm) than the flow result, which moved {flow_moved:.1} deg ({:.2} mm): \
+                     kept the former (the flow tracked a pattern that does not move with the surface)",
+                    s * 1e3,
+                    s_flow * 1e3
+                ));
+                return Ok((r, true));
+            }
+        }
         let best = alternatives
             .into_iter()
             .map(|(name, r)| (score(&r), name, r))
