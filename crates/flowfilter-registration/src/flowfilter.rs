@@ -69,6 +69,9 @@ pub struct FlowFilterConfig {
     /// registration that leaves the initial pose for more motion than the flow found, and fits
     /// better, was pulled there by unambiguous geometry. Negative switches the check off.
     pub motion_margin_deg: f64,
+    /// Correspondence gate (metres) of the point-to-plane ICP from the initial pose that the
+    /// motion check also considers (0 = FilterReg only; needs target normals).
+    pub motion_icp_distance_m: f64,
     /// Final point-to-plane ICP polish with this correspondence gate (metres; 0 = off): the GMM
     /// estimate is biased by its own smoothing on partial views, a short point-to-plane ICP from
     /// it is not (and cannot slide far: the gate is a few millimetres).
@@ -92,6 +95,7 @@ impl Default for FlowFilterConfig {
             geometric_ratio: 1.8,
             geometric_tau_m: 0.01,
             motion_margin_deg: 2.0,
+            motion_icp_distance_m: 0.02,
             polish_distance_m: 0.005,
             filterreg: FilterRegConfig::default(),
         }
@@ -160,11 +164,13 @@ impl FlowFilter {
             || config.geometric_tau_m <= 0.0
             || config.polish_distance_m < 0.0
             || config.motion_margin_deg.is_nan()
+            || config.motion_icp_distance_m.is_nan()
+            || config.motion_icp_distance_m < 0.0
         {
             return Err(RegistrationError::Config(
                 "flowfilter needs ransac_iterations > 0, inlier_threshold_m > 0, correspondence_weight >= 0, \
                  min_inlier_fraction in [0, 1], geometric_margin_m >= 0, geometric_ratio >= 1, \
-                 geometric_tau_m > 0, polish_distance_m >= 0 and a motion_margin_deg that is a number"
+                 geometric_tau_m > 0, polish_distance_m >= 0, a motion_margin_deg that is a number and motion_icp_distance_m >= 0"
                     .into(),
             ));
         }
@@ -310,11 +316,26 @@ impl FlowFilter {
         let s_flow = score(&flow_result);
         let angle = |r: &Registration| (p.init.inverse() * r.transform).rotation.angle().to_degrees();
         if cfg.motion_margin_deg >= 0.0 {
-            let (name, from_init) = &alternatives[0];
-            let s = score(from_init);
-            let (moved, flow_moved) = (angle(from_init), angle(&flow_result));
-            if s < s_flow && moved > flow_moved + cfg.motion_margin_deg {
-                let mut r = from_init.clone();
+            // Geometric registrations from the initial pose: FilterReg, and point-to-plane ICP
+            // (its hard gate holds on to small asymmetric features, such as a mug's handle,
+            // that the GMM's wide kernels average away).
+            let mut from_init = vec![(alternatives[0].0, alternatives[0].1.clone())];
+            if cfg.motion_icp_distance_m > 0.0 && p.target.normals.is_some() {
+                let icp = Icp::new(IcpConfig {
+                    variant: IcpVariant::PointToPlane,
+                    max_correspondence_distance: cfg.motion_icp_distance_m,
+                    max_iterations: 50,
+                    ..IcpConfig::default()
+                })?;
+                from_init.push(("point-to-plane ICP from the initial pose", icp.register(&plain)?));
+            }
+            let flow_moved = angle(&flow_result);
+            let candidate = from_init
+                .into_iter()
+                .map(|(name, r)| (score(&r), angle(&r), name, r))
+                .filter(|(s, moved, _, _)| *s < s_flow && *moved > flow_moved + cfg.motion_margin_deg)
+                .min_by(|a, b| a.0.total_cmp(&b.0));
+            if let Some((s, moved, name, mut r)) = candidate {
                 r.warnings.push(format!(
                     "motion check: {name} moved {moved:.1} deg from the initial pose and fits the clouds better \
                      (mean residual {:.2} mm) than the flow result, which moved {flow_moved:.1} deg ({:.2} mm): \
