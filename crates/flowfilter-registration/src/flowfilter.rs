@@ -60,15 +60,24 @@ pub struct FlowFilterConfig {
     pub geometric_ratio: f64,
     /// Truncation of the residual (metres).
     pub geometric_tau_m: f64,
-    /// Motion check (part of the geometric check): FilterReg from the initial pose also wins
-    /// when it fits the clouds better than the flow result *and* moves further than the flow
-    /// pose by more than this many degrees. Both cues fail towards "no motion": flow where the
+    /// Motion check (part of the geometric check): a geometric registration from the initial
+    /// pose (FilterReg, and point-to-plane ICP) wins when it fits the clouds better than the
+    /// flow result *and* moves further than the flow pose by more than this many degrees (or
+    /// fits nearly as well, `motion_fit_tolerance`, and moves more than twice as far plus this). Both cues fail towards "no motion": flow where the
     /// visible pattern does not move with the surface (shading on a turning surface of
     /// revolution seen from above: consistent, wrong, near-static tracks), geometry where the
     /// shape is symmetric (a registration from the initial pose stays there). A geometric
     /// registration that leaves the initial pose for more motion than the flow found, and fits
     /// better, was pulled there by unambiguous geometry. Negative switches the check off.
     pub motion_margin_deg: f64,
+    /// How much worse (relative mean residual) than the flow result a candidate of the motion
+    /// check may fit and still win, when it moved more than twice as far as the flow pose: the
+    /// visible-point residual of partial views separates poses only by a few percent (measured:
+    /// a mug turned 30 degrees, the right pose 10% worse than the flow result that barely moved;
+    /// a box turned 30 degrees, a flipped pose that moved 58 degrees 4% worse than the right flow
+    /// pose). Among the candidates that qualify, the one that moved furthest wins (both cues err
+    /// towards no motion).
+    pub motion_fit_tolerance: f64,
     /// Correspondence gate (metres) of the point-to-plane ICP from the initial pose that the
     /// motion check also considers (0 = FilterReg only; needs target normals).
     pub motion_icp_distance_m: f64,
@@ -95,6 +104,7 @@ impl Default for FlowFilterConfig {
             geometric_ratio: 1.8,
             geometric_tau_m: 0.01,
             motion_margin_deg: 2.0,
+            motion_fit_tolerance: 0.15,
             motion_icp_distance_m: 0.02,
             polish_distance_m: 0.005,
             filterreg: FilterRegConfig::default(),
@@ -151,6 +161,18 @@ pub fn ransac_kabsch(
     Some((pose, inl))
 }
 
+impl FlowFilterConfig {
+    /// The motion check's rule: whether a geometric registration from the initial pose with
+    /// mean visible residual `s` that moved `moved` degrees replaces the flow result
+    /// `(s_flow, flow_moved)` (see [`FlowFilterConfig::motion_margin_deg`]).
+    pub fn motion_wins(&self, (s, moved): (f64, f64), (s_flow, flow_moved): (f64, f64)) -> bool {
+        let further = moved > flow_moved + self.motion_margin_deg;
+        let much_further = moved > 2.0 * flow_moved + self.motion_margin_deg;
+        self.motion_margin_deg >= 0.0
+            && ((further && s < s_flow) || (much_further && s <= s_flow * (1.0 + self.motion_fit_tolerance)))
+    }
+}
+
 impl FlowFilter {
     /// Flow Filter with the given parameters.
     pub fn new(config: FlowFilterConfig) -> Result<Self, RegistrationError> {
@@ -166,11 +188,12 @@ impl FlowFilter {
             || config.motion_margin_deg.is_nan()
             || config.motion_icp_distance_m.is_nan()
             || config.motion_icp_distance_m < 0.0
+            || !(config.motion_fit_tolerance >= 0.0)
         {
             return Err(RegistrationError::Config(
                 "flowfilter needs ransac_iterations > 0, inlier_threshold_m > 0, correspondence_weight >= 0, \
                  min_inlier_fraction in [0, 1], geometric_margin_m >= 0, geometric_ratio >= 1, \
-                 geometric_tau_m > 0, polish_distance_m >= 0, a motion_margin_deg that is a number and motion_icp_distance_m >= 0"
+                 geometric_tau_m > 0, polish_distance_m >= 0, a motion_margin_deg that is a number, motion_icp_distance_m >= 0 and motion_fit_tolerance >= 0"
                     .into(),
             ));
         }
@@ -333,12 +356,12 @@ impl FlowFilter {
             let candidate = from_init
                 .into_iter()
                 .map(|(name, r)| (score(&r), angle(&r), name, r))
-                .filter(|(s, moved, _, _)| *s < s_flow && *moved > flow_moved + cfg.motion_margin_deg)
-                .min_by(|a, b| a.0.total_cmp(&b.0));
+                .filter(|(s, moved, _, _)| cfg.motion_wins((*s, *moved), (s_flow, flow_moved)))
+                .max_by(|a, b| a.1.total_cmp(&b.1));
             if let Some((s, moved, name, mut r)) = candidate {
                 r.warnings.push(format!(
-                    "motion check: {name} moved {moved:.1} deg from the initial pose and fits the clouds better \
-                     (mean residual {:.2} mm) than the flow result, which moved {flow_moved:.1} deg ({:.2} mm): \
+                    "motion check: {name} moved {moved:.1} deg from the initial pose and fits the clouds as well \
+                     (mean residual {:.2} mm) as the flow result, which moved {flow_moved:.1} deg ({:.2} mm): \
                      kept the former (the flow tracked a pattern that does not move with the surface)",
                     s * 1e3,
                     s_flow * 1e3
