@@ -188,7 +188,8 @@ impl FlowFilter {
             || config.motion_margin_deg.is_nan()
             || config.motion_icp_distance_m.is_nan()
             || config.motion_icp_distance_m < 0.0
-            || !(config.motion_fit_tolerance >= 0.0)
+            || config.motion_fit_tolerance.is_nan()
+            || config.motion_fit_tolerance < 0.0
         {
             return Err(RegistrationError::Config(
                 "flowfilter needs ransac_iterations > 0, inlier_threshold_m > 0, correspondence_weight >= 0, \
