@@ -118,24 +118,28 @@ fn geometry_overrules_flow_that_contradicts_it() {
     assert!(r.warnings.is_empty() && err(&r.transform) < 0.1, "{:?} {}", r.warnings, err(&r.transform));
 }
 
+/// The asymmetric shape 70 cm from the camera turned `deg` degrees (1 mm of sensor noise: no
+/// pose fits exactly), with "flow" pairs on every fifth point that all say it stood still (a
+/// tracker locked on shading that does not move with a turning surface); and the true motion.
+fn turned_with_static_flow(deg: f64) -> (RegistrationProblem, Pose) {
+    let mut source = common::bumpy_shape(2500, 3);
+    source.transform(&Pose::translation(0.0, 0.0, 0.7));
+    let c0 = source.centroid().unwrap();
+    let truth = rotation_about(&c0, Vector3::new(0.1, 1.0, 0.2), deg);
+    let target = common::corrupted(&source, &truth, 0.001, 0.0, 7);
+    let pairs: Vec<Point3> = source.points.iter().step_by(5).copied().collect();
+    let mut problem = RegistrationProblem::new(source, target);
+    problem.correspondences =
+        Some(Correspondences { source: pairs.clone(), target: pairs.clone(), weights: vec![1.0; pairs.len()] });
+    (problem, truth)
+}
+
 #[test]
 fn geometry_that_moves_overrules_flow_that_stands_still() {
     // The asymmetric shape turns 20 degrees, but every "flow" pair says it stood still (a
     // tracker locked on shading that does not move with a turning surface). FilterReg from the
     // initial pose leaves it for 20 degrees of motion and fits better: the motion check keeps it.
-    let mut source = common::bumpy_shape(2500, 3);
-    source.transform(&Pose::translation(0.0, 0.0, 0.7));
-    let c0 = source.centroid().unwrap();
-    let truth = rotation_about(&c0, Vector3::new(0.1, 1.0, 0.2), 20.0);
-    // 1 mm of sensor noise: no pose fits exactly.
-    let target = common::corrupted(&source, &truth, 0.001, 0.0, 7);
-    let static_pairs = Correspondences {
-        source: source.points.iter().step_by(5).copied().collect(),
-        target: source.points.iter().step_by(5).copied().collect(),
-        weights: vec![1.0; source.points.iter().step_by(5).count()],
-    };
-    let mut problem = RegistrationProblem::new(source.clone(), target);
-    problem.correspondences = Some(static_pairs);
+    let (problem, truth) = turned_with_static_flow(20.0);
     let err = |t: &Pose| (t * truth.inverse()).rotation.angle().to_degrees();
     // On these whole, noise-free clouds the residual ratio alone would expose the flow result;
     // on real partial views it is 1.04-1.7 (measured on the turntable pairs: no threshold
@@ -159,20 +163,12 @@ fn geometry_that_moves_overrules_flow_that_stands_still() {
 
 #[test]
 fn the_motion_check_also_asks_point_to_plane_icp() {
-    // The asymmetric shape turns 20 degrees; every flow pair says it stood still. FilterReg is
+    // The asymmetric shape turns 12 degrees; every flow pair says it stood still. FilterReg is
     // held to two iterations here (standing in for the GMM's wide kernels averaging a small
     // feature, such as a mug's handle, away: measured on the turntable mugs), so only the
     // motion check's point-to-plane ICP candidate, started from the same initial pose, can
     // find the turn.
-    let mut source = common::bumpy_shape(2500, 3);
-    source.transform(&Pose::translation(0.0, 0.0, 0.7));
-    let c0 = source.centroid().unwrap();
-    let truth = rotation_about(&c0, Vector3::new(0.1, 1.0, 0.2), 12.0);
-    let target = common::corrupted(&source, &truth, 0.001, 0.0, 7);
-    let pairs: Vec<Point3> = source.points.iter().step_by(5).copied().collect();
-    let mut problem = RegistrationProblem::new(source.clone(), target);
-    problem.correspondences =
-        Some(Correspondences { source: pairs.clone(), target: pairs.clone(), weights: vec![1.0; pairs.len()] });
+    let (problem, truth) = turned_with_static_flow(12.0);
     let err = |t: &Pose| (t * truth.inverse()).rotation.angle().to_degrees();
     let mut config = FlowFilterConfig { geometric_ratio: 1e3, ..Default::default() };
     config.filterreg.max_iterations = 2;
