@@ -2,7 +2,7 @@
 //! target depth interpolated at the flowed position, both back-projected: 3-D/3-D pairs.
 
 use crate::estimator::{FlowError, FlowEstimator, forward_backward_sparse};
-use crate::lk::Gray;
+use crate::lk::{Gray, IDENTITY_WARP, WindowWarp};
 use flowfilter_camera::{CameraModel, RayTable};
 use flowfilter_geometry::{DepthMap, Mask, Point3, Pose, mask_bbox};
 use serde::{Deserialize, Serialize};
@@ -50,11 +50,16 @@ pub struct CorrespondenceParams {
     /// by this margin (pixels): the result is the same as on the full frames when the margin
     /// covers the estimator's reach, at a fraction of the cost. 0 = no cropping.
     pub crop_margin_px: usize,
+    /// Guided tracking warps each matching window by the predicted motion's local linear map
+    /// (in-image rotation, scale, foreshortening of the surface under the pixel), for
+    /// estimators that match windows (Lucas-Kanade). Without it a window that turns with the
+    /// object matches best short of the true displacement.
+    pub warp_windows: bool,
 }
 
 impl Default for CorrespondenceParams {
     fn default() -> Self {
-        Self { grid_step: 6, fb_threshold: 1.0, depth_k_sigma: 2.5, crop_margin_px: 96 }
+        Self { grid_step: 6, fb_threshold: 1.0, depth_k_sigma: 2.5, crop_margin_px: 96, warp_windows: true }
     }
 }
 
@@ -130,6 +135,60 @@ pub struct FlowGuide<'a> {
     pub pose: &'a Pose,
 }
 
+/// Pixels from a model pixel to the samples of its predicted warp's finite differences.
+const WARP_REACH_PX: isize = 6;
+
+/// Neighbours whose depth differs from the pixel's by more than this lie on another surface:
+/// they are taken at the pixel's depth instead (metres).
+const WARP_SAME_SURFACE_M: f64 = 0.01;
+
+/// The predicted motion's local linear map at model pixel `(x, y)` with depth `z`: central
+/// differences of the projected, moved back-projections of the neighbours [`WARP_REACH_PX`] away
+/// along x and along y (one-sided at the image border), each at its own depth when it is on the
+/// same surface (so the surface's slant foreshortens the window), else at the pixel's depth.
+/// The identity when the prediction leaves the image or is degenerate.
+fn predicted_warp(
+    guide: &FlowGuide<'_>,
+    rays: &RayTable,
+    depth: &DepthMap,
+    mask: &Mask,
+    (x, y): (usize, usize),
+    z: f64,
+) -> WindowWarp {
+    let (w, h) = (depth.width() as isize, depth.height() as isize);
+    let moved = |px: isize, py: isize| {
+        let (ux, uy) = (px as usize, py as usize);
+        let d = f64::from(*depth.at(ux, uy));
+        let d = if *mask.at(ux, uy) && d > 0.0 && (d - z).abs() <= WARP_SAME_SURFACE_M { d } else { z };
+        rays.backproject(ux, uy, d).and_then(|p| guide.camera.project(&(guide.pose * p)))
+    };
+    let column = |dx: isize, dy: isize| -> Option<[f64; 2]> {
+        let inside = |k: isize| {
+            let (px, py) = (x as isize + k * dx, y as isize + k * dy);
+            (px >= 0 && py >= 0 && px < w && py < h).then_some((px, py, k))
+        };
+        let (lo, hi) = (inside(-WARP_REACH_PX).or(inside(0))?, inside(WARP_REACH_PX).or(inside(0))?);
+        let (a, b) = (moved(lo.0, lo.1)?, moved(hi.0, hi.1)?);
+        let span = (hi.2 - lo.2) as f64;
+        (span > 0.0).then(|| [(b.x - a.x) / span, (b.y - a.y) / span])
+    };
+    match (column(1, 0), column(0, 1)) {
+        (Some(cx), Some(cy)) => {
+            let m = [cx[0] as f32, cy[0] as f32, cx[1] as f32, cy[1] as f32];
+            let det = m[0] * m[3] - m[1] * m[2];
+            // A prediction that folds or squeezes the window by more than 4x is not trusted.
+            if (0.25..=4.0).contains(&det) { m } else { IDENTITY_WARP }
+        }
+        _ => IDENTITY_WARP,
+    }
+}
+
+/// The inverse of a (non-degenerate) window warp.
+fn inverse_warp(m: &WindowWarp) -> WindowWarp {
+    let det = m[0] * m[3] - m[1] * m[2];
+    [m[3] / det, -m[1] / det, -m[2] / det, m[0] / det]
+}
+
 /// [`flow_correspondences`], each model pixel's track starting from the flow that `guide`
 /// predicts (its back-projected point moved by the pose and projected), the backward track from
 /// the forward result reversed.
@@ -184,17 +243,33 @@ pub fn flow_correspondences_guided(
                         .map_or([0.0; 2], |t| [(t.x - f64::from(q[0])) as f32, (t.y - f64::from(q[1])) as f32])
                 })
                 .collect();
-            let f = estimator.sparse_guided(&ga, &gb, &local, &guesses, Some(&ma))?;
-            let back: Vec<[f32; 2]> =
-                f.iter().zip(&guesses).map(|(f, g)| f.map_or([-g[0], -g[1]], |f| [-f[0], -f[1]])).collect();
-            (f, Some(back))
+            let back_guess = |f: &[Option<[f32; 2]>]| -> Vec<[f32; 2]> {
+                f.iter().zip(&guesses).map(|(f, g)| f.map_or([-g[0], -g[1]], |f| [-f[0], -f[1]])).collect()
+            };
+            if p.warp_windows {
+                let warps: Vec<WindowWarp> = pixels
+                    .iter()
+                    .map(|q| {
+                        let (x, y) = (q[0] as usize, q[1] as usize);
+                        predicted_warp(&g, rays, model_depth, model_mask, (x, y), f64::from(*model_depth.at(x, y)))
+                    })
+                    .collect();
+                let f = estimator.sparse_warped(&ga, &gb, &local, &guesses, &warps, Some(&ma))?;
+                let back = back_guess(&f);
+                (f, Some((back, Some(warps.iter().map(inverse_warp).collect::<Vec<_>>()))))
+            } else {
+                let f = estimator.sparse_guided(&ga, &gb, &local, &guesses, Some(&ma))?;
+                let back = back_guess(&f);
+                (f, Some((back, None)))
+            }
         }
     };
     let moved_local: Vec<[f32; 2]> =
         local.iter().zip(&forward).map(|(q, f)| f.map_or(*q, |f| [q[0] + f[0], q[1] + f[1]])).collect();
     let backward = match &backward_guess {
         None => estimator.sparse(&gb, &ga, &moved_local, Some(&mb))?,
-        Some(b) => estimator.sparse_guided(&gb, &ga, &moved_local, b, Some(&mb))?,
+        Some((b, None)) => estimator.sparse_guided(&gb, &ga, &moved_local, b, Some(&mb))?,
+        Some((b, Some(warps))) => estimator.sparse_warped(&gb, &ga, &moved_local, b, warps, Some(&mb))?,
     };
     let moved: Vec<[f32; 2]> = moved_local.iter().map(|q| [q[0] + shift[0], q[1] + shift[1]]).collect();
     let flow_seconds = t0.elapsed().as_secs_f64();

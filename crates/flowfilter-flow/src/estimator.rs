@@ -2,7 +2,7 @@
 //! with typed errors for inputs no estimator can use, and the forward-backward consistency check.
 
 use crate::FlowField;
-use crate::lk::{Gray, LkParams, track_guided, track_masked};
+use crate::lk::{Gray, LkParams, WindowWarp, track_masked, track_warped};
 use flowfilter_geometry::Mask;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
@@ -108,6 +108,21 @@ pub trait FlowEstimator: Send + Sync {
         let _ = guesses;
         self.sparse(from, to, points, mask)
     }
+
+    /// [`FlowEstimator::sparse_guided`] with, per point, the predicted motion's local linear
+    /// map (see [`track_warped`]), for estimators that match windows. The default ignores it.
+    fn sparse_warped(
+        &self,
+        from: &Gray,
+        to: &Gray,
+        points: &[[f32; 2]],
+        guesses: &[[f32; 2]],
+        warps: &[WindowWarp],
+        mask: Option<&Mask>,
+    ) -> Result<Vec<Option<[f32; 2]>>, FlowError> {
+        let _ = warps;
+        self.sparse_guided(from, to, points, guesses, mask)
+    }
 }
 
 /// Pixels whose forward flow, followed by the backward flow sampled at the arrival point,
@@ -189,11 +204,17 @@ impl LucasKanade {
         to: &Gray,
         points: &[[f32; 2]],
         guesses: Option<&[[f32; 2]]>,
+        warps: Option<&[WindowWarp]>,
         mask: Option<&Mask>,
     ) -> Result<Vec<Option<[f32; 2]>>, FlowError> {
         self.validate()?;
         check_pair(from, to, mask)?;
-        Ok(track_guided(from, to, points, guesses, &self.params(), mask))
+        for (what, n) in [("guesses", guesses.map(<[_]>::len)), ("warps", warps.map(<[_]>::len))] {
+            if let Some(n) = n.filter(|n| *n != points.len()) {
+                return Err(FlowError::Config(format!("{n} {what} for {} points", points.len())));
+            }
+        }
+        Ok(track_warped(from, to, points, guesses, warps, &self.params(), mask))
     }
 
     /// Check parameter ranges.
@@ -220,7 +241,7 @@ impl FlowEstimator for LucasKanade {
         points: &[[f32; 2]],
         mask: Option<&Mask>,
     ) -> Result<Vec<Option<[f32; 2]>>, FlowError> {
-        self.track(from, to, points, None, mask)
+        self.track(from, to, points, None, None, mask)
     }
 
     fn sparse_guided(
@@ -231,10 +252,19 @@ impl FlowEstimator for LucasKanade {
         guesses: &[[f32; 2]],
         mask: Option<&Mask>,
     ) -> Result<Vec<Option<[f32; 2]>>, FlowError> {
-        if guesses.len() != points.len() {
-            return Err(FlowError::Config(format!("{} guesses for {} points", guesses.len(), points.len())));
-        }
-        self.track(from, to, points, Some(guesses), mask)
+        self.track(from, to, points, Some(guesses), None, mask)
+    }
+
+    fn sparse_warped(
+        &self,
+        from: &Gray,
+        to: &Gray,
+        points: &[[f32; 2]],
+        guesses: &[[f32; 2]],
+        warps: &[WindowWarp],
+        mask: Option<&Mask>,
+    ) -> Result<Vec<Option<[f32; 2]>>, FlowError> {
+        self.track(from, to, points, Some(guesses), Some(warps), mask)
     }
 
     fn dense(&self, from: &Gray, to: &Gray, mask: Option<&Mask>) -> Result<FlowField, FlowError> {

@@ -200,6 +200,31 @@ pub fn track_guided(
     p: &LkParams,
     mask: Option<&Mask>,
 ) -> Vec<Option<[f32; 2]>> {
+    track_warped(from, to, points, guesses, None, p, mask)
+}
+
+/// A 2x2 linear map of window offsets, row-major: `(u, v) -> (m[0] u + m[1] v, m[2] u + m[3] v)`.
+pub type WindowWarp = [f32; 4];
+
+/// The identity [`WindowWarp`].
+pub const IDENTITY_WARP: WindowWarp = [1.0, 0.0, 0.0, 1.0];
+
+/// [`track_guided`] whose windows in `to` are warped: point `i`'s window offset `(u, v)` is
+/// sampled at `guess + d + warps[i] (u, v)` (the local linear part of a predicted motion:
+/// in-image rotation, scale and foreshortening), and each Newton step is mapped through the
+/// warp. A translation-only window under a rotation of several degrees matches best short of
+/// the true displacement (the window's outer pixels pull towards less motion, more the wider the
+/// window); a window warped by the prediction sees an almost translated patch. The template
+/// (in `from`) is not warped, so the gradient matrix is the plain one.
+pub fn track_warped(
+    from: &Gray,
+    to: &Gray,
+    points: &[[f32; 2]],
+    guesses: Option<&[[f32; 2]]>,
+    warps: Option<&[WindowWarp]>,
+    p: &LkParams,
+    mask: Option<&Mask>,
+) -> Vec<Option<[f32; 2]>> {
     let mut pa = vec![from.clone()];
     let mut pb = vec![to.clone()];
     let mut pm: Vec<Mask> = mask.map(|m| vec![m.clone()]).unwrap_or_default();
@@ -228,6 +253,8 @@ pub fn track_guided(
         .enumerate()
         .map(|(i, pt)| {
             let mut g = guesses.and_then(|gs| gs.get(i)).map_or([0.0f32; 2], |q| [q[0] / top, q[1] / top]);
+            // A linear map is the same at every pyramid level; the identity needs no warping.
+            let warp = warps.and_then(|ws| ws.get(i)).copied().filter(|m| *m != IDENTITY_WARP);
             for level in (0..=start_level).rev() {
                 let s = (1u32 << level) as f32;
                 let (a, b) = (&pa[level], &pb[level]);
@@ -278,16 +305,27 @@ pub fn track_guided(
                         bx += diff * ix;
                         by += diff * iy;
                     };
-                    match Window::inside(b, cx, cy, side) {
+                    match (warp, Window::inside(b, cx, cy, side)) {
+                        // A warped window: every sample has its own bilinear weights.
+                        (Some(m), _) => {
+                            let (ox, oy) = (cx + r as f32, cy + r as f32);
+                            for j in 0..side {
+                                let v = j as f32 - r as f32;
+                                for i in 0..side {
+                                    let u = i as f32 - r as f32;
+                                    add(j * side + i, bilinear(b, ox + m[0] * u + m[1] * v, oy + m[2] * u + m[3] * v));
+                                }
+                            }
+                        }
                         // The whole window in the image: one set of bilinear weights.
-                        Some(win) => {
+                        (None, Some(win)) => {
                             for j in 0..side {
                                 for i in 0..side {
                                     add(j * side + i, win.sample(b, i, j));
                                 }
                             }
                         }
-                        None => {
+                        (None, None) => {
                             for j in 0..side {
                                 for i in 0..side {
                                     add(j * side + i, bilinear(b, cx + i as f32, cy + j as f32));
@@ -296,6 +334,9 @@ pub fn track_guided(
                         }
                     }
                     let step = [(gyy * bx - gxy * by) / det, (gxx * by - gxy * bx) / det];
+                    // The template's shift, seen through the warp, is the window's.
+                    let step =
+                        warp.map_or(step, |m| [m[0] * step[0] + m[1] * step[1], m[2] * step[0] + m[3] * step[1]]);
                     d[0] += step[0];
                     d[1] += step[1];
                     if step[0].abs() < p.epsilon && step[1].abs() < p.epsilon {
@@ -338,6 +379,57 @@ mod tests {
                 assert!(e < 0.1, "shift {shift:?}: estimate {f:?}, error {e}");
             }
         }
+    }
+
+    /// A texture turned by 12 degrees about the image centre (and shifted): tracks started from
+    /// the exact displacement stay on it when the window is warped by the rotation, and drift
+    /// short of it with translation-only windows; a warp that is the identity changes nothing.
+    #[test]
+    fn warped_windows_track_a_rotated_texture() {
+        let (w, h) = (200usize, 200usize);
+        let (c, shift, theta) = (100.0f32, [2.5f32, -1.5f32], 12f32.to_radians());
+        let (sn, cs) = theta.sin_cos();
+        let pattern = |u: f32, v: f32| {
+            0.5 + 0.2 * (u * 0.23).sin() * (v * 0.19).cos()
+                + 0.15 * ((u + 2.0 * v) * 0.11).sin()
+                + 0.1 * ((3.0 * u - v) * 0.07).cos()
+        };
+        let a = Gray::from_fn(w, h, |x, y| pattern(x as f32, y as f32));
+        // b(q) = a(R^-1 (q - c - shift) + c): point p of `a` moves to c + shift + R (p - c).
+        let b = Gray::from_fn(w, h, |x, y| {
+            let (dx, dy) = (x as f32 - c - shift[0], y as f32 - c - shift[1]);
+            pattern(cs * dx + sn * dy + c, -sn * dx + cs * dy + c)
+        });
+        let pts: Vec<[f32; 2]> =
+            (0..4).flat_map(|i| (0..4).map(move |j| [70.0 + 20.0 * i as f32, 70.0 + 20.0 * j as f32])).collect();
+        let truth: Vec<[f32; 2]> = pts
+            .iter()
+            .map(|p| {
+                let (dx, dy) = (p[0] - c, p[1] - c);
+                [c + shift[0] + cs * dx - sn * dy - p[0], c + shift[1] + sn * dx + cs * dy - p[1]]
+            })
+            .collect();
+        let rotation: Vec<WindowWarp> = vec![[cs, -sn, sn, cs]; pts.len()];
+        let identity: Vec<WindowWarp> = vec![IDENTITY_WARP; pts.len()];
+        let p = LkParams::default();
+        let mean_error = |warps: Option<&[WindowWarp]>| {
+            let flow = track_warped(&a, &b, &pts, Some(&truth), warps, &p, None);
+            flow.iter()
+                .zip(&truth)
+                .map(|(f, t)| {
+                    let f = f.expect("tracked");
+                    ((f[0] - t[0]).powi(2) + (f[1] - t[1]).powi(2)).sqrt()
+                })
+                .sum::<f32>()
+                / pts.len() as f32
+        };
+        let (warped, plain) = (mean_error(Some(&rotation)), mean_error(None));
+        assert!(warped < 0.05, "warped windows: mean error {warped} px");
+        assert!(plain > 4.0 * warped, "translation-only windows: mean error {plain} px (warped {warped})");
+        assert_eq!(
+            track_warped(&a, &b, &pts, Some(&truth), Some(&identity), &p, None),
+            track_guided(&a, &b, &pts, Some(&truth), &p, None)
+        );
     }
 
     #[test]

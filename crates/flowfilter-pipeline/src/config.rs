@@ -34,7 +34,7 @@ pub struct FlowStageConfig {
     /// clouds) and keep whichever set of pairs agrees on a rigid motion more widely: reaches
     /// displacements the pyramid alone cannot bridge.
     pub guided: bool,
-    /// Lucas-Kanade parameters.
+    /// Lucas-Kanade parameters (default: a 9-pixel window, otherwise the tracker's defaults).
     pub lk: LucasKanade,
     /// Dense inverse search parameters (default: the medium preset with central-difference
     /// search gradients; a `[flow.dis]` table's omitted keys take the preset's values).
@@ -48,7 +48,10 @@ impl Default for FlowStageConfig {
         Self {
             estimator: "lk".into(),
             guided: true,
-            lk: LucasKanade::default(),
+            // A 9-pixel window (OpenCV's 21 matches a turning surface short of its motion;
+            // bench mean error 3.30 deg at 21, 2.11 at 9). A `[flow.lk]` table's omitted keys
+            // take the tracker's own defaults.
+            lk: LucasKanade { window: 9, ..LucasKanade::default() },
             // Central-difference patch search: better than the presets' OpenCV-like damped steps
             // on turntable pairs (mean EPE 1.46 against 1.62).
             dis: DisParams { search_gradients: SearchGradients::Central, ..DisParams::default() },

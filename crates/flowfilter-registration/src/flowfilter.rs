@@ -85,6 +85,10 @@ pub struct FlowFilterConfig {
     /// estimate is biased by its own smoothing on partial views, a short point-to-plane ICP from
     /// it is not (and cannot slide far: the gate is a few millimetres).
     pub polish_distance_m: f64,
+    /// The polish is undone when it moves the flow pairs' median residual up by more than half
+    /// of itself and more than this (metres): a polish that slides along a symmetry, or that
+    /// follows a partial view's geometric bias away from accurate flow, disagrees with the flow.
+    pub polish_flow_slack_m: f64,
     /// The FilterReg part.
     pub filterreg: FilterRegConfig,
 }
@@ -107,6 +111,7 @@ impl Default for FlowFilterConfig {
             motion_fit_tolerance: 0.15,
             motion_icp_distance_m: 0.02,
             polish_distance_m: 0.005,
+            polish_flow_slack_m: 0.0005,
             filterreg: FilterRegConfig::default(),
         }
     }
@@ -162,6 +167,12 @@ pub fn ransac_kabsch(
 }
 
 impl FlowFilterConfig {
+    /// The polish's guard: whether a polish that moves the flow pairs' median residual from
+    /// `before` to `after` (metres) is kept (see [`FlowFilterConfig::polish_flow_slack_m`]).
+    pub fn polish_agrees_with_flow(&self, before: f64, after: f64) -> bool {
+        after <= before + (0.5 * before).max(self.polish_flow_slack_m)
+    }
+
     /// The motion check's rule: whether a geometric registration from the initial pose with
     /// mean visible residual `s` that moved `moved` degrees replaces the flow result
     /// `(s_flow, flow_moved)` (see [`FlowFilterConfig::motion_margin_deg`]).
@@ -190,11 +201,13 @@ impl FlowFilter {
             || config.motion_icp_distance_m < 0.0
             || config.motion_fit_tolerance.is_nan()
             || config.motion_fit_tolerance < 0.0
+            || config.polish_flow_slack_m.is_nan()
+            || config.polish_flow_slack_m < 0.0
         {
             return Err(RegistrationError::Config(
                 "flowfilter needs ransac_iterations > 0, inlier_threshold_m > 0, correspondence_weight >= 0, \
                  min_inlier_fraction in [0, 1], geometric_margin_m >= 0, geometric_ratio >= 1, \
-                 geometric_tau_m > 0, polish_distance_m >= 0, a motion_margin_deg that is a number, motion_icp_distance_m >= 0 and motion_fit_tolerance >= 0"
+                 geometric_tau_m > 0, polish_distance_m >= 0, a motion_margin_deg that is a number, motion_icp_distance_m >= 0, motion_fit_tolerance >= 0 and polish_flow_slack_m >= 0"
                     .into(),
             ));
         }
@@ -242,7 +255,7 @@ impl FlowFilter {
         plain.correspondences = None;
         let q = icp.register(&plain)?;
         // The polish must not undo what the flow decided (a slide along a symmetry): the flow
-        // pairs' median residual may not grow by more than 1 mm (or half of itself).
+        // pairs' median residual may not grow by more than half of itself and the slack.
         if let Some(c) = p.correspondences.as_ref().filter(|c| c.weights.iter().any(|w| *w > 0.0)) {
             let median = |t: &Pose| {
                 let mut d: Vec<f64> = (0..c.len())
@@ -253,7 +266,7 @@ impl FlowFilter {
                 d[d.len() / 2]
             };
             let (before, after) = (median(&r.transform), median(&q.transform));
-            if after > before + (0.5 * before).max(0.001) {
+            if !self.config.polish_agrees_with_flow(before, after) {
                 return Ok(r);
             }
         }
