@@ -4,45 +4,90 @@
 use flowfilter_bigbird::SensorId;
 use flowfilter_depth::{DepthConfig, DepthStage};
 use flowfilter_flow::LucasKanade;
-use flowfilter_flow::correspondences::{CorrespondenceParams, FlowView, flow_correspondences};
-use flowfilter_flow::lk::to_gray;
-use flowfilter_synth::{NoiseProfile, Rig, Scene, procedural, render_frame, world_from_table};
+use flowfilter_flow::correspondences::{
+    CorrespondenceParams, FlowGuide, FlowPairs, FlowView, flow_correspondences, flow_correspondences_guided,
+};
+use flowfilter_flow::lk::{Gray, to_gray};
+use flowfilter_geometry::{DepthMap, Mask, Pose, weighted_kabsch};
+use flowfilter_synth::{NoiseProfile, Rig, RigSensor, Scene, procedural, render_frame, world_from_table};
+
+/// The procedural box seen by one camera at two turntable angles: noisy renders through the
+/// default depth stage.
+struct BoxViews {
+    sensor: RigSensor,
+    stage: DepthStage,
+    angles: [u32; 2],
+    grays: [Gray; 2],
+    depths: [DepthMap; 2],
+    masks: [Mask; 2],
+}
+
+impl BoxViews {
+    /// Camera NP`camera`, turntable angles `angles` (degrees).
+    fn render(camera: u8, angles: [u32; 2]) -> Self {
+        let rig = Rig::bigbird_like();
+        let id = SensorId::new(camera).unwrap();
+        let sensor = rig.sensors[&id].clone();
+        let scene = Scene::new(procedural("box", 1).unwrap().placed_on_table(0.01, -0.005), 1);
+        let stage = DepthStage::new(DepthConfig::default()).unwrap();
+        let noise = NoiseProfile::carmine();
+        let frames = angles.map(|a| render_frame(&scene, &rig, id, a, Some(&noise), 1));
+        let depths = [0, 1].map(|k| {
+            stage.process(&frames[k].raw_depth, &frames[k].color, &frames[k].mask, &sensor.rgbd).unwrap().depth
+        });
+        Self {
+            grays: [0, 1].map(|k| to_gray(&frames[k].color)),
+            masks: frames.map(|f| f.mask),
+            sensor,
+            stage,
+            angles,
+            depths,
+        }
+    }
+
+    fn view(&self, k: usize) -> FlowView<'_> {
+        FlowView { gray: &self.grays[k], depth: &self.depths[k], mask: &self.masks[k] }
+    }
+
+    /// The motion from the first view to a view at turntable angle `to` (the colour frames).
+    fn motion_to(&self, to: f64) -> Pose {
+        let h = |angle: f64| self.sensor.h_color_from_world * world_from_table(angle);
+        h(to) * h(f64::from(self.angles[0])).inverse()
+    }
+
+    /// The true motion between the two views.
+    fn truth(&self) -> Pose {
+        self.motion_to(f64::from(self.angles[1]))
+    }
+
+    /// Correspondence search between the two views, optionally guided by `guide`.
+    fn pairs(&self, p: &CorrespondenceParams, guide: Option<&Pose>) -> FlowPairs {
+        let rays = self.stage.rays(&self.sensor.rgbd.color);
+        let guide = guide.map(|pose| FlowGuide { camera: &self.sensor.rgbd.color, pose });
+        match guide {
+            None => flow_correspondences(&LucasKanade::default(), &self.view(0), &self.view(1), &rays, p),
+            Some(g) => {
+                flow_correspondences_guided(&LucasKanade::default(), &self.view(0), &self.view(1), &rays, p, Some(g))
+            }
+        }
+        .unwrap()
+    }
+}
+
+/// The kept pairs' sorted 3-D errors against the true motion, and their indices.
+fn kept_errors(pairs: &FlowPairs, truth: &Pose) -> (Vec<usize>, Vec<f64>) {
+    let kept: Vec<usize> = (0..pairs.model.len()).filter(|&i| pairs.weights[i] > 0.0).collect();
+    let mut errors: Vec<f64> = kept.iter().map(|&i| (truth * pairs.model[i] - pairs.target[i]).norm()).collect();
+    errors.sort_by(f64::total_cmp);
+    (kept, errors)
+}
 
 #[test]
 fn box_correspondences_follow_the_true_motion() {
-    let rig = Rig::bigbird_like();
-    let sensor = SensorId::new(3).unwrap();
-    let s = &rig.sensors[&sensor];
-    let scene = Scene::new(procedural("box", 1).unwrap().placed_on_table(0.01, -0.005), 1);
-    let stage = DepthStage::new(DepthConfig::default()).unwrap();
-    let noise = NoiseProfile::carmine();
-    let (a, b) = (0u32, 6u32);
-    let fa = render_frame(&scene, &rig, sensor, a, Some(&noise), 1);
-    let fb = render_frame(&scene, &rig, sensor, b, Some(&noise), 1);
-    let da = stage.process(&fa.raw_depth, &fa.color, &fa.mask, &s.rgbd).unwrap();
-    let db = stage.process(&fb.raw_depth, &fb.color, &fb.mask, &s.rgbd).unwrap();
-    let (ga, gb) = (to_gray(&fa.color), to_gray(&fb.color));
-    let pairs = flow_correspondences(
-        &LucasKanade::default(),
-        &FlowView { gray: &ga, depth: &da.depth, mask: &fa.mask },
-        &FlowView { gray: &gb, depth: &db.depth, mask: &fb.mask },
-        &stage.rays(&s.rgbd.color),
-        &CorrespondenceParams::default(),
-    )
-    .unwrap();
-    let h = |angle: u32| s.h_color_from_world * world_from_table(f64::from(angle));
-    let truth = h(b) * h(a).inverse();
-    let errors: Vec<f64> = pairs
-        .model
-        .iter()
-        .zip(&pairs.target)
-        .zip(&pairs.weights)
-        .filter(|(_, w)| **w > 0.0)
-        .map(|((p, q), _)| (truth * p - q).norm())
-        .collect();
-    let mut sorted = errors.clone();
-    sorted.sort_by(f64::total_cmp);
-    let median = sorted[sorted.len() / 2];
+    let views = BoxViews::render(3, [0, 6]);
+    let pairs = views.pairs(&CorrespondenceParams::default(), None);
+    let (_, errors) = kept_errors(&pairs, &views.truth());
+    let median = errors[errors.len() / 2];
     println!("{} tracked, {} pairs kept, median 3-D error {:.2} mm", pairs.tracked, errors.len(), median * 1e3);
     assert!(errors.len() > 200, "{} pairs", errors.len());
     assert!(median < 2e-3, "median error {median} m");
@@ -55,37 +100,13 @@ fn box_correspondences_follow_the_true_motion() {
 /// prediction 2 degrees short of the truth (a geometric registration's typical error).
 #[test]
 fn warped_windows_follow_a_turn_that_translated_windows_fall_short_of() {
-    use flowfilter_flow::correspondences::{FlowGuide, flow_correspondences_guided};
-    use flowfilter_geometry::{Pose, weighted_kabsch};
-    let rig = Rig::bigbird_like();
-    let sensor = SensorId::new(5).unwrap();
-    let s = &rig.sensors[&sensor];
-    let scene = Scene::new(procedural("box", 1).unwrap().placed_on_table(0.01, -0.005), 1);
-    let stage = DepthStage::new(DepthConfig::default()).unwrap();
-    let noise = NoiseProfile::carmine();
-    let (a, b) = (0u32, 15u32);
-    let fa = render_frame(&scene, &rig, sensor, a, Some(&noise), 1);
-    let fb = render_frame(&scene, &rig, sensor, b, Some(&noise), 1);
-    let da = stage.process(&fa.raw_depth, &fa.color, &fa.mask, &s.rgbd).unwrap();
-    let db = stage.process(&fb.raw_depth, &fb.color, &fb.mask, &s.rgbd).unwrap();
-    let (ga, gb) = (to_gray(&fa.color), to_gray(&fb.color));
-    let h = |angle: f64| s.h_color_from_world * world_from_table(angle);
-    let truth: Pose = h(f64::from(b)) * h(f64::from(a)).inverse();
-    let guess: Pose = h(f64::from(b) - 2.0) * h(f64::from(a)).inverse();
-    let rays = stage.rays(&s.rgbd.color);
+    let views = BoxViews::render(5, [0, 15]);
+    let truth = views.truth();
+    let guess = views.motion_to(13.0);
     let run = |warp_windows: bool| {
-        let pairs = flow_correspondences_guided(
-            &LucasKanade::default(),
-            &FlowView { gray: &ga, depth: &da.depth, mask: &fa.mask },
-            &FlowView { gray: &gb, depth: &db.depth, mask: &fb.mask },
-            &rays,
-            &CorrespondenceParams { warp_windows, ..CorrespondenceParams::default() },
-            Some(FlowGuide { camera: &s.rgbd.color, pose: &guess }),
-        )
-        .unwrap();
-        let kept: Vec<usize> = (0..pairs.model.len()).filter(|&i| pairs.weights[i] > 0.0).collect();
-        let mut errors: Vec<f64> = kept.iter().map(|&i| (truth * pairs.model[i] - pairs.target[i]).norm()).collect();
-        errors.sort_by(f64::total_cmp);
+        let pairs =
+            views.pairs(&CorrespondenceParams { warp_windows, ..CorrespondenceParams::default() }, Some(&guess));
+        let (kept, errors) = kept_errors(&pairs, &truth);
         let src: Vec<_> = kept.iter().map(|&i| pairs.model[i]).collect();
         let dst: Vec<_> = kept.iter().map(|&i| pairs.target[i]).collect();
         let pose = weighted_kabsch(&src, &dst, None).unwrap();
