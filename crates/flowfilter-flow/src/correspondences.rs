@@ -142,7 +142,7 @@ const WARP_REACH_PX: isize = 6;
 /// they are taken at the pixel's depth instead (metres).
 const WARP_SAME_SURFACE_M: f64 = 0.01;
 
-/// The predicted motion's local linear map at model pixel `(x, y)` with depth `z`: central
+/// The predicted motion's local linear map at model pixel `(x, y)` (which has depth): central
 /// differences of the projected, moved back-projections of the neighbours [`WARP_REACH_PX`] away
 /// along x and along y (one-sided at the image border), each at its own depth when it is on the
 /// same surface (so the surface's slant foreshortens the window), else at the pixel's depth.
@@ -152,9 +152,10 @@ fn predicted_warp(
     rays: &RayTable,
     depth: &DepthMap,
     mask: &Mask,
-    (x, y): (usize, usize),
-    z: f64,
+    x: usize,
+    y: usize,
 ) -> WindowWarp {
+    let z = f64::from(*depth.at(x, y));
     let (w, h) = (depth.width() as isize, depth.height() as isize);
     let moved = |px: isize, py: isize| {
         let (ux, uy) = (px as usize, py as usize);
@@ -243,25 +244,20 @@ pub fn flow_correspondences_guided(
                         .map_or([0.0; 2], |t| [(t.x - f64::from(q[0])) as f32, (t.y - f64::from(q[1])) as f32])
                 })
                 .collect();
-            let back_guess = |f: &[Option<[f32; 2]>]| -> Vec<[f32; 2]> {
-                f.iter().zip(&guesses).map(|(f, g)| f.map_or([-g[0], -g[1]], |f| [-f[0], -f[1]])).collect()
-            };
-            if p.warp_windows {
-                let warps: Vec<WindowWarp> = pixels
+            let warps: Option<Vec<WindowWarp>> = p.warp_windows.then(|| {
+                pixels
                     .iter()
-                    .map(|q| {
-                        let (x, y) = (q[0] as usize, q[1] as usize);
-                        predicted_warp(&g, rays, model_depth, model_mask, (x, y), f64::from(*model_depth.at(x, y)))
-                    })
-                    .collect();
-                let f = estimator.sparse_warped(&ga, &gb, &local, &guesses, &warps, Some(&ma))?;
-                let back = back_guess(&f);
-                (f, Some((back, Some(warps.iter().map(inverse_warp).collect::<Vec<_>>()))))
-            } else {
-                let f = estimator.sparse_guided(&ga, &gb, &local, &guesses, Some(&ma))?;
-                let back = back_guess(&f);
-                (f, Some((back, None)))
-            }
+                    .map(|q| predicted_warp(&g, rays, model_depth, model_mask, q[0] as usize, q[1] as usize))
+                    .collect()
+            });
+            let f = match &warps {
+                Some(w) => estimator.sparse_warped(&ga, &gb, &local, &guesses, w, Some(&ma))?,
+                None => estimator.sparse_guided(&ga, &gb, &local, &guesses, Some(&ma))?,
+            };
+            // The backward track starts from the forward result reversed, through the inverse warps.
+            let back: Vec<[f32; 2]> =
+                f.iter().zip(&guesses).map(|(f, g)| f.map_or([-g[0], -g[1]], |f| [-f[0], -f[1]])).collect();
+            (f, Some((back, warps.map(|w| w.iter().map(inverse_warp).collect::<Vec<_>>()))))
         }
     };
     let moved_local: Vec<[f32; 2]> =
