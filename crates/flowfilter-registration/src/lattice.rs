@@ -132,9 +132,33 @@ impl Embedding {
     /// The enclosing simplex of `pos`: writes its `d + 1` vertex keys (`d` integers each) to
     /// `keys` and the barycentric weights to `weights`.
     fn simplex(&self, pos: &[f64], w: &mut Scratch, keys: &mut [i32], weights: &mut [f64]) {
-        let d = self.d;
+        // Three dimensions (FilterReg's case) get their own copy with `d` a constant: the
+        // loops unroll and most bounds checks go.
+        match self.d {
+            3 => {
+                let mut w3 = ([0.0; 4], [0.0; 4], [0; 4], [0.0; 5]);
+                let s = (&mut w3.0[..], &mut w3.1[..], &mut w3.2[..], &mut w3.3[..]);
+                self.simplex_in(3, pos, s, keys, weights)
+            }
+            d => {
+                let Scratch { elevated, rem0, rank, b } = w;
+                self.simplex_in(d, pos, (elevated, rem0, rank, b), keys, weights)
+            }
+        }
+    }
+
+    /// [`Embedding::simplex`] for `d == self.d`, with work space `(elevated, rem0, rank, b)`
+    /// of lengths `d + 1, d + 1, d + 1, d + 2`.
+    #[inline(always)]
+    fn simplex_in(
+        &self,
+        d: usize,
+        pos: &[f64],
+        (elevated, rem0, rank, b): (&mut [f64], &mut [f64], &mut [i64], &mut [f64]),
+        keys: &mut [i32],
+        weights: &mut [f64],
+    ) {
         let dp1 = (d + 1) as f64;
-        let Scratch { elevated, rem0, rank, b } = w;
         // Elevate onto the hyperplane x . 1 = 0 of R^(d+1).
         let mut sm = 0.0;
         for i in (1..=d).rev() {
