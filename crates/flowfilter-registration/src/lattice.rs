@@ -176,35 +176,23 @@ impl Embedding {
             rem0[i] = if take_up { up } else { down };
             sum += down_k + take_up as i64;
         }
+        // Branch-free: the comparisons are data-dependent and mispredict half of the time.
         rank.fill(0);
         for i in 0..d {
             for j in i + 1..=d {
-                if elevated[i] - rem0[i] < elevated[j] - rem0[j] {
-                    rank[i] += 1;
-                } else {
-                    rank[j] += 1;
-                }
+                let below = (elevated[i] - rem0[i] < elevated[j] - rem0[j]) as i64;
+                rank[i] += below;
+                rank[j] += 1 - below;
             }
         }
         let d1 = (d + 1) as i64;
-        if sum > 0 {
-            for i in 0..=d {
-                if rank[i] >= d1 - sum {
-                    rem0[i] -= dp1;
-                    rank[i] += sum - d1;
-                } else {
-                    rank[i] += sum;
-                }
-            }
-        } else if sum < 0 {
-            for i in 0..=d {
-                if rank[i] < -sum {
-                    rem0[i] += dp1;
-                    rank[i] += d1 + sum;
-                } else {
-                    rank[i] += sum;
-                }
-            }
+        // sum > 0: the `sum` highest-ranked coordinates step down; sum < 0: the `-sum` lowest
+        // step up; every rank shifts by `sum` modulo d + 1.
+        for i in 0..=d {
+            let down = (sum > 0 && rank[i] >= d1 - sum) as i64;
+            let up = (sum < 0 && rank[i] < -sum) as i64;
+            rem0[i] += (up - down) as f64 * dp1;
+            rank[i] += sum + (up - down) * d1;
         }
         // Barycentric coordinates.
         b.fill(0.0);
