@@ -44,8 +44,7 @@ fn merge(
     spreads: &[f64],
     values: &[f64],
 ) -> AggregateLevel {
-    let mut order: Vec<u32> = (0..keys.len() as u32).collect();
-    order.sort_unstable_by_key(|&i| (keys[i as usize], i));
+    let order = sorted_by_key(&keys);
     let mut out =
         AggregateLevel { edge, points: vec![], counts: vec![], spreads: vec![], values: vec![], keys: vec![] };
     let mut start = 0;
@@ -80,6 +79,28 @@ fn merge(
     out
 }
 
+/// Indices `0..keys.len()` sorted by `(key, index)`. Keys whose offsets from the smallest fit in
+/// 21 bits per axis (every cloud below two million voxels across) are packed into one `u64` and
+/// sorted with their index as plain pairs, several times faster than comparing `[i64; 3]` keys
+/// through the index; the order is the same either way.
+fn sorted_by_key(keys: &[[i64; 3]]) -> Vec<u32> {
+    const BITS: u32 = 21;
+    let lo = keys.iter().fold([i64::MAX; 3], |m, k| [m[0].min(k[0]), m[1].min(k[1]), m[2].min(k[2])]);
+    let fits = keys.iter().all(|k| (0..3).all(|a| ((k[a] as i128) - (lo[a] as i128)) < (1i128 << BITS)));
+    if !fits {
+        let mut order: Vec<u32> = (0..keys.len() as u32).collect();
+        order.sort_unstable_by_key(|&i| (keys[i as usize], i));
+        return order;
+    }
+    // Lexicographic order of [k0, k1, k2] == numeric order of k0 | k1 | k2 (high to low bits).
+    let pack = |k: &[i64; 3]| {
+        (((k[0] - lo[0]) as u64) << (2 * BITS)) | (((k[1] - lo[1]) as u64) << BITS) | (k[2] - lo[2]) as u64
+    };
+    let mut pairs: Vec<(u64, u32)> = keys.iter().enumerate().map(|(i, k)| (pack(k), i as u32)).collect();
+    pairs.sort_unstable();
+    pairs.into_iter().map(|(_, i)| i).collect()
+}
+
 impl Pyramid {
     /// Levels with voxel edges `finest * 2^l` (voxels aligned on the origin) while a level still
     /// merges: construction stops once a level holds fewer than `min_points` centroids.
@@ -112,6 +133,27 @@ impl Pyramid {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The packed sort and the plain one agree, on small keys and on keys too far apart to pack.
+    #[test]
+    fn packed_key_sort_is_the_plain_sort() {
+        let plain = |keys: &[[i64; 3]]| {
+            let mut order: Vec<u32> = (0..keys.len() as u32).collect();
+            order.sort_unstable_by_key(|&i| (keys[i as usize], i));
+            order
+        };
+        let mut s = 7u64;
+        let mut next = |m: i64| {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((s >> 33) as i64 % (2 * m)) - m
+        };
+        let small: Vec<[i64; 3]> = (0..3000).map(|_| [next(20), next(20), next(20)]).collect();
+        assert_eq!(sorted_by_key(&small), plain(&small));
+        let mut wide = small.clone();
+        wide[17] = [1 << 40, -5, 3];
+        wide[99] = [-(1 << 40), 2, 1 << 30];
+        assert_eq!(sorted_by_key(&wide), plain(&wide));
+    }
 
     fn cloud(n: usize) -> Vec<Point3> {
         (0..n)
