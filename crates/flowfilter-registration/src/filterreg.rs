@@ -213,7 +213,7 @@ struct NeighbourCache {
 
 /// Candidate lists are gathered this much wider than the kernel's 4-sigma support. Tight lists
 /// win: every candidate costs a distance evaluation in every iteration, and cutting or
-/// re-gathering the lists is cheap next to that (1.05 / 1.2 measured 10-15% faster than
+/// re-gathering the lists is cheap next to that (1.05 / 1.2 measured 10-20% faster than
 /// 1.25 / 1.6 on the peers' clouds, same poses).
 const CACHE_MARGIN: f64 = 1.05;
 /// Lists wider than this many times the current support are cut down (sigma has shrunk).

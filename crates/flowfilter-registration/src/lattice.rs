@@ -375,18 +375,51 @@ mod tests {
         (*seed >> 11) as f64 / (1u64 << 53) as f64
     }
 
+    /// The point's elevation onto the hyperplane `x . 1 = 0` of `R^(d+1)` (as `simplex` does it).
+    fn elevated(e: &Embedding, pos: &[f64]) -> Vec<f64> {
+        let d = e.d;
+        let mut out = vec![0.0; d + 1];
+        let mut sm = 0.0;
+        for i in (1..=d).rev() {
+            let cf = pos[i - 1] * e.scale[i - 1];
+            out[i] = sm - i as f64 * cf;
+            sm += cf;
+        }
+        out[0] = sm;
+        out
+    }
+
+    /// In every dimension (the three-dimensional copy included): the weights are non-negative and
+    /// sum to one, and the weighted vertices (keys, with the last coordinate implied by the
+    /// hyperplane) reproduce the elevated point.
     #[test]
     fn barycentric_weights_sum_to_one_and_reconstruct_the_point() {
-        let e = Embedding::new(3);
-        let mut seed = 1;
-        let mut scratch = Scratch::new(3);
-        let (mut keys, mut weights) = ([0i32; 12], [0.0f64; 4]);
-        for _ in 0..100 {
-            let p: Vec<f64> = (0..3).map(|_| lcg(&mut seed) * 10.0 - 5.0).collect();
-            e.simplex(&p, &mut scratch, &mut keys, &mut weights);
-            let sum: f64 = weights.iter().sum();
-            assert!((sum - 1.0).abs() < 1e-9, "{sum}");
-            assert!(weights.iter().all(|&w| w >= -1e-9), "{weights:?}");
+        for d in [1usize, 2, 3, 4, 6] {
+            let e = Embedding::new(d);
+            let mut seed = 1 + d as u64;
+            let mut scratch = Scratch::new(d);
+            let (mut keys, mut weights) = (vec![0i32; (d + 1) * d], vec![0.0f64; d + 1]);
+            for _ in 0..500 {
+                let p: Vec<f64> = (0..d).map(|_| lcg(&mut seed) * 40.0 - 20.0).collect();
+                e.simplex(&p, &mut scratch, &mut keys, &mut weights);
+                let sum: f64 = weights.iter().sum();
+                assert!((sum - 1.0).abs() < 1e-9, "d = {d}: {sum}");
+                assert!(weights.iter().all(|&w| w >= -1e-9), "d = {d}: {weights:?}");
+                let want = elevated(&e, &p);
+                let mut got = vec![0.0; d + 1];
+                for (k, w) in keys.chunks_exact(d).zip(&weights) {
+                    let last: i64 = -k.iter().map(|&c| c as i64).sum::<i64>();
+                    for (g, c) in got.iter_mut().zip(k.iter().map(|&c| c as i64).chain([last])) {
+                        *g += w * c as f64;
+                    }
+                }
+                for i in 0..=d {
+                    assert!(
+                        (got[i] - want[i]).abs() < 1e-9 * (1.0 + want[i].abs()),
+                        "d = {d}, {p:?}: {got:?} vs {want:?}"
+                    );
+                }
+            }
         }
     }
 
