@@ -207,9 +207,37 @@ const MERGED_MIN_POINTS: usize = 64;
 struct NeighbourCache {
     radius: f64,
     built_at: Vec<Point3>,
-    offsets: Vec<usize>,
+    /// The lists of [`CACHE_CHUNK`] consecutive points per chunk: gathered, cut and read chunk by
+    /// chunk in parallel, with no per-point allocation and no serial concatenation.
+    chunks: Vec<ListChunk>,
+}
+
+/// The candidate lists of consecutive points: point `i`'s list is
+/// `indices[offsets[i]..offsets[i + 1]]`, ascending.
+struct ListChunk {
+    offsets: Vec<u32>,
     indices: Vec<u32>,
 }
+
+impl ListChunk {
+    fn with_capacity(points: usize, candidates: usize) -> Self {
+        let mut offsets = Vec::with_capacity(points + 1);
+        offsets.push(0);
+        Self { offsets, indices: Vec::with_capacity(candidates) }
+    }
+
+    fn list(&self, i: usize) -> &[u32] {
+        &self.indices[self.offsets[i] as usize..self.offsets[i + 1] as usize]
+    }
+
+    /// Ends the list of the next point (the indices pushed since the previous one).
+    fn close(&mut self) {
+        self.offsets.push(self.indices.len() as u32);
+    }
+}
+
+/// Points per [`ListChunk`].
+const CACHE_CHUNK: usize = 256;
 
 /// Candidate lists are gathered this much wider than the kernel's 4-sigma support. Tight lists
 /// win: every candidate costs a distance evaluation in every iteration, and cutting or
@@ -223,23 +251,24 @@ impl NeighbourCache {
     fn build(index: &KnnIndex, target: &[Point3], queries: &[Point3], radius: f64) -> Self {
         // A uniform grid where the box allows one (the usual case), else the k-d tree.
         let grid = RadiusGrid::new(target, radius);
-        let lists: Vec<Vec<u32>> = queries
-            .par_iter()
-            .map(|q| {
-                let mut l: Vec<u32> = match &grid {
-                    Some(g) => {
-                        let mut l = Vec::new();
-                        g.within(q, &mut l);
-                        l
+        let chunks = queries
+            .par_chunks(CACHE_CHUNK)
+            .map(|qs| {
+                let mut c = ListChunk::with_capacity(qs.len(), 0);
+                for q in qs {
+                    let start = c.indices.len();
+                    match &grid {
+                        Some(g) => g.within(q, &mut c.indices),
+                        None => c.indices.extend(index.within(q, radius).iter().map(|n| n.index as u32)),
                     }
-                    None => index.within(q, radius).iter().map(|n| n.index as u32).collect(),
-                };
-                // Ascending indices: the sums then walk the target arrays forwards.
-                l.sort_unstable();
-                l
+                    // Ascending indices: the sums then walk the target arrays forwards.
+                    c.indices[start..].sort_unstable();
+                    c.close();
+                }
+                c
             })
             .collect();
-        Self::from_lists(lists, radius, queries)
+        Self { radius, built_at: queries.to_vec(), chunks }
     }
 
     /// Whether the lists still cover radius `r` around every point of `queries` (the same points,
@@ -264,32 +293,23 @@ impl NeighbourCache {
             return None;
         }
         let r2 = radius * radius;
-        let lists: Vec<Vec<u32>> = queries
+        let chunks = self
+            .chunks
             .par_iter()
-            .enumerate()
-            .map(|(i, q)| {
-                self.indices[self.offsets[i]..self.offsets[i + 1]]
-                    .iter()
-                    .copied()
-                    .filter(|&k| {
+            .zip(queries.par_chunks(CACHE_CHUNK))
+            .map(|(c, qs)| {
+                let mut out = ListChunk::with_capacity(qs.len(), c.indices.len());
+                for (i, q) in qs.iter().enumerate() {
+                    out.indices.extend(c.list(i).iter().copied().filter(|&k| {
                         let v = &values[k as usize * vd..];
                         (v[1] - q.x).powi(2) + (v[2] - q.y).powi(2) + (v[3] - q.z).powi(2) <= r2
-                    })
-                    .collect()
+                    }));
+                    out.close();
+                }
+                out
             })
             .collect();
-        Some(Self::from_lists(lists, radius, queries))
-    }
-
-    fn from_lists(lists: Vec<Vec<u32>>, radius: f64, queries: &[Point3]) -> Self {
-        let mut offsets = Vec::with_capacity(lists.len() + 1);
-        offsets.push(0);
-        let mut indices = Vec::with_capacity(lists.iter().map(Vec::len).sum());
-        for l in &lists {
-            indices.extend_from_slice(l);
-            offsets.push(indices.len());
-        }
-        Self { radius, built_at: queries.to_vec(), offsets, indices }
+        Some(Self { radius, built_at: queries.to_vec(), chunks })
     }
 }
 
@@ -312,20 +332,24 @@ impl ExactEStep<'_> {
         let cache = cache.as_ref().expect("built above");
         let (inv, r2) = (-0.5 / (sigma * sigma), r * r);
         let mut out = vec![0.0; queries.len() * vd];
-        out.par_chunks_mut(vd).enumerate().for_each(|(i, acc)| {
-            let q = &queries[i];
-            for &k in &cache.indices[cache.offsets[i]..cache.offsets[i + 1]] {
-                // values hold [1, y, |y|^2, ...]: the coordinates come from the same cache lines.
-                let v = &values[k as usize * vd..(k as usize + 1) * vd];
-                let d2 = (v[1] - q.x).powi(2) + (v[2] - q.y).powi(2) + (v[3] - q.z).powi(2);
-                if d2 <= r2 {
-                    let w = (d2 * inv).exp();
-                    for (a, vc) in acc.iter_mut().zip(v) {
-                        *a += w * vc;
+        out.par_chunks_mut(vd * CACHE_CHUNK)
+            .zip(cache.chunks.par_iter())
+            .zip(queries.par_chunks(CACHE_CHUNK))
+            .for_each(|((out, c), qs)| {
+                for ((i, q), acc) in qs.iter().enumerate().zip(out.chunks_exact_mut(vd)) {
+                    for &k in c.list(i) {
+                        // values hold [1, y, |y|^2, ...]: the coordinates come from the same cache lines.
+                        let v = &values[k as usize * vd..(k as usize + 1) * vd];
+                        let d2 = (v[1] - q.x).powi(2) + (v[2] - q.y).powi(2) + (v[3] - q.z).powi(2);
+                        if d2 <= r2 {
+                            let w = (d2 * inv).exp();
+                            for (a, vc) in acc.iter_mut().zip(v) {
+                                *a += w * vc;
+                            }
+                        }
                     }
                 }
-            }
-        });
+            });
         unpack(&out, vd)
     }
 }

@@ -276,9 +276,11 @@ impl Lattice {
         let table = &self.table;
         // Along each of the d + 1 lattice directions: [1 2 1] / 4 over the two neighbours
         // (missing vertices hold zero). Every vertex is independent within a pass.
+        // Two buffers used in turn: every entry of the output is written, so neither is cleared,
+        // and no pass allocates (fresh pages of a multi-megabyte buffer fault in one by one).
+        let mut next = vec![0.0; n * vd];
         for j in 0..=d {
             let values = &self.values;
-            let mut next = vec![0.0; n * vd];
             next.par_chunks_mut(vd * 256).enumerate().for_each(|(chunk, out)| {
                 let mut key = vec![0i32; d];
                 for (o, v) in out.chunks_exact_mut(vd).zip(chunk * 256..) {
@@ -305,7 +307,7 @@ impl Lattice {
                     }
                 }
             });
-            self.values = next;
+            std::mem::swap(&mut self.values, &mut next);
         }
     }
 
