@@ -147,6 +147,19 @@ impl Embedding {
         }
     }
 
+    /// Writes `pos` (`d` coordinates, `d == self.d`) elevated onto the hyperplane `x . 1 = 0` of
+    /// `R^(d+1)` to `elevated` (`d + 1` entries).
+    #[inline(always)]
+    fn elevate(&self, d: usize, pos: &[f64], elevated: &mut [f64]) {
+        let mut sm = 0.0;
+        for i in (1..=d).rev() {
+            let cf = pos[i - 1] * self.scale[i - 1];
+            elevated[i] = sm - i as f64 * cf;
+            sm += cf;
+        }
+        elevated[0] = sm;
+    }
+
     /// [`Embedding::simplex`] for `d == self.d`, with work space `(elevated, rem0, rank, b)`
     /// of lengths `d + 1, d + 1, d + 1, d + 2`.
     #[inline(always)]
@@ -159,14 +172,7 @@ impl Embedding {
         weights: &mut [f64],
     ) {
         let dp1 = (d + 1) as f64;
-        // Elevate onto the hyperplane x . 1 = 0 of R^(d+1).
-        let mut sm = 0.0;
-        for i in (1..=d).rev() {
-            let cf = pos[i - 1] * self.scale[i - 1];
-            elevated[i] = sm - i as f64 * cf;
-            sm += cf;
-        }
-        elevated[0] = sm;
+        self.elevate(d, pos, elevated);
         // The nearest remainder-0 lattice point, and the ranks of the differences.
         let mut sum = 0i64;
         for i in 0..=d {
@@ -377,20 +383,6 @@ mod tests {
         (*seed >> 11) as f64 / (1u64 << 53) as f64
     }
 
-    /// The point's elevation onto the hyperplane `x . 1 = 0` of `R^(d+1)` (as `simplex` does it).
-    fn elevated(e: &Embedding, pos: &[f64]) -> Vec<f64> {
-        let d = e.d;
-        let mut out = vec![0.0; d + 1];
-        let mut sm = 0.0;
-        for i in (1..=d).rev() {
-            let cf = pos[i - 1] * e.scale[i - 1];
-            out[i] = sm - i as f64 * cf;
-            sm += cf;
-        }
-        out[0] = sm;
-        out
-    }
-
     /// In every dimension (the three-dimensional copy included): the weights are non-negative and
     /// sum to one, and the weighted vertices (keys, with the last coordinate implied by the
     /// hyperplane) reproduce the elevated point.
@@ -407,7 +399,8 @@ mod tests {
                 let sum: f64 = weights.iter().sum();
                 assert!((sum - 1.0).abs() < 1e-9, "d = {d}: {sum}");
                 assert!(weights.iter().all(|&w| w >= -1e-9), "d = {d}: {weights:?}");
-                let want = elevated(&e, &p);
+                let mut want = vec![0.0; d + 1];
+                e.elevate(d, &p, &mut want);
                 let mut got = vec![0.0; d + 1];
                 for (k, w) in keys.chunks_exact(d).zip(&weights) {
                     let last: i64 = -k.iter().map(|&c| c as i64).sum::<i64>();
