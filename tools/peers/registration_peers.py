@@ -152,7 +152,8 @@ def bench(directory, sizes, cpd_max, repeat=1):
         # probreg's CPD is O(N^2) in time and memory per iteration: skipped above cpd_max.
         # Each peer's fastest of `repeat` runs (same pose every run): a shared machine's
         # stalls only ever add time, so the minimum is the repeatable number.
-        runs = [run_peers(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(src)), t, with_cpd=n <= cpd_max) for _ in range(repeat)]
+        s = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(src))
+        runs = [run_peers(s, t, with_cpd=n <= cpd_max) for _ in range(repeat)]
         peers = {name: (runs[0][name][0], min(r[name][1] for r in runs)) for name in runs[0]}
         row = {"n": n, "truth": truth.tolist(), "repeat": repeat, "peers": {}}
         for peer, (m, secs) in peers.items():

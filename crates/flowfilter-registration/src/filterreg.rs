@@ -300,10 +300,8 @@ impl NeighbourCache {
             .map(|(c, qs)| {
                 let mut out = ListChunk::with_capacity(qs.len(), c.indices.len());
                 for (i, q) in qs.iter().enumerate() {
-                    out.indices.extend(c.list(i).iter().copied().filter(|&k| {
-                        let v = &values[k as usize * vd..];
-                        (v[1] - q.x).powi(2) + (v[2] - q.y).powi(2) + (v[3] - q.z).powi(2) <= r2
-                    }));
+                    out.indices
+                        .extend(c.list(i).iter().copied().filter(|&k| dist2(&values[k as usize * vd..], q) <= r2));
                     out.close();
                 }
                 out
@@ -311,6 +309,13 @@ impl NeighbourCache {
             .collect();
         Some(Self { radius, built_at: queries.to_vec(), chunks })
     }
+}
+
+/// Squared distance from `q` to the target point of a values row `[1, y, |y|^2, ...]` (the
+/// coordinates come from the same cache lines as the values summed).
+#[inline]
+fn dist2(v: &[f64], q: &Point3) -> f64 {
+    (v[1] - q.x).powi(2) + (v[2] - q.y).powi(2) + (v[3] - q.z).powi(2)
 }
 
 /// The exact E-step: a k-d tree over the target and the current neighbour lists.
@@ -338,14 +343,11 @@ impl ExactEStep<'_> {
             .for_each(|((out, c), qs)| {
                 for ((i, q), acc) in qs.iter().enumerate().zip(out.chunks_exact_mut(vd)) {
                     for &k in c.list(i) {
-                        // values hold [1, y, |y|^2, ...]: the coordinates come from the same cache lines.
                         let v = &values[k as usize * vd..(k as usize + 1) * vd];
-                        let d2 = (v[1] - q.x).powi(2) + (v[2] - q.y).powi(2) + (v[3] - q.z).powi(2);
+                        let d2 = dist2(v, q);
                         if d2 <= r2 {
                             let w = (d2 * inv).exp();
-                            for (a, vc) in acc.iter_mut().zip(v) {
-                                *a += w * vc;
-                            }
+                            acc.iter_mut().zip(v).for_each(|(a, vc)| *a += w * vc);
                         }
                     }
                 }
