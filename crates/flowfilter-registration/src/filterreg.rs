@@ -106,6 +106,14 @@ pub struct FilterRegConfig {
     /// iterations that decide the final pose always use every point; the other E-steps never
     /// merge (with the lattice alone, the last iterations decide the pose). 0 disables merging.
     pub merge_fraction: f64,
+    /// Point-to-plane with [`SigmaSchedule::Update`]: once an iteration moves the source by less
+    /// than a tenth of sigma, estimate sigma^2 as the EM estimate less the kernel's two tangential
+    /// variances. On surfaces the isotropic EM estimate is about `(2 sigma^2 + r^2) / 3` (the
+    /// posterior spreads by sigma^2 along each tangent axis, by the residual `r^2` along the
+    /// normal), so it shrinks by only a third per step towards `r^2`; `3 em - 2 sigma^2` goes
+    /// there directly (still at most halving sigma^2 per step). The fixed point is the same.
+    /// Ignored by point-to-point, whose tangential sliding needs the wider kernel.
+    pub surface_sigma: bool,
 }
 
 impl Default for FilterRegConfig {
@@ -123,6 +131,7 @@ impl Default for FilterRegConfig {
             evaluation_distance: 0.01,
             anderson_depth: 5,
             merge_fraction: 0.5,
+            surface_sigma: true,
         }
     }
 }
@@ -449,6 +458,10 @@ struct EmCoordinates {
     with_sigma: bool,
 }
 
+/// [`FilterRegConfig::surface_sigma`] applies once an iteration moves the source (its centroid,
+/// plus the rotation's sweep at its RMS radius) by less than this fraction of sigma.
+const SURFACE_SIGMA_SETTLED: f64 = 0.1;
+
 /// Mixing starts once an EM step changes sigma^2 by less than this fraction.
 const MIXING_SIGMA_CHANGE: f64 = 0.05;
 
@@ -544,11 +557,15 @@ impl FilterReg {
         };
         let (mut history, mut converged, mut iterations, mut warnings) = (vec![], false, 0, vec![]);
         let corr = p.correspondences.as_ref().filter(|c| !c.is_empty());
-        // Anderson mixing of the EM map (pose, sigma^2) -> (pose', sigma'^2).
-        let mut mixing = (cfg.anderson_depth > 0).then(|| {
+        // The source's centroid and RMS radius (how far an update moves it; Anderson coordinates).
+        let (centre, radius) = {
             let n = source.len() as f64;
             let centre = Point3::from(source.iter().fold(Vector3::zeros(), |a, s| a + s.coords) / n);
-            let radius = (source.iter().map(|s| (s - centre).norm_squared()).sum::<f64>() / n).sqrt().max(1e-9);
+            (centre, (source.iter().map(|s| (s - centre).norm_squared()).sum::<f64>() / n).sqrt().max(1e-9))
+        };
+        let surface_sigma = cfg.surface_sigma && pt2pl;
+        // Anderson mixing of the EM map (pose, sigma^2) -> (pose', sigma'^2).
+        let mut mixing = (cfg.anderson_depth > 0).then(|| {
             let with_sigma = matches!(cfg.sigma, SigmaSchedule::Update { .. });
             (Anderson::new(cfg.anderson_depth), EmCoordinates { reference: t, centre, radius, with_sigma })
         });
@@ -611,7 +628,16 @@ impl FilterReg {
             let new_sigma2 = match cfg.sigma {
                 // The EM estimate, shrinking by at most half per iteration: an EM step that
                 // collapses sigma freezes the posteriors before the pose has converged.
-                SigmaSchedule::Update { .. } => (num / (3.0 * den)).max(0.5 * sigma2).max(min_sigma * min_sigma),
+                SigmaSchedule::Update { .. } => {
+                    let em = num / (3.0 * den);
+                    let moved = (g * centre - t * centre).norm() + delta.rotation.angle() * radius;
+                    let estimate = if surface_sigma && moved < SURFACE_SIGMA_SETTLED * sigma {
+                        3.0 * em - 2.0 * sigma2
+                    } else {
+                        em
+                    };
+                    estimate.max(0.5 * sigma2).max(min_sigma * min_sigma)
+                }
                 SigmaSchedule::Anneal { factor, .. } => (sigma2 * factor * factor).max(min_sigma * min_sigma),
             };
             history.push(IterationRecord { iteration: it, transform: g, objective: new_sigma2 });

@@ -4,8 +4,8 @@ mod common;
 
 use common::{bumpy_shape, corrupted, errors, random_transform};
 use flowfilter_registration::{
-    FilterReg, FilterRegConfig, FilterRegEStep, Icp, IcpVariant, METHOD_NAMES, Registrar, RegistrationConfig,
-    RegistrationProblem, registrar_by_name,
+    FilterReg, FilterRegConfig, FilterRegEStep, FilterRegVariant, Icp, IcpVariant, METHOD_NAMES, Registrar,
+    RegistrationConfig, RegistrationProblem, registrar_by_name,
 };
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -222,5 +222,47 @@ fn anderson_mixing_reaches_the_plain_em_pose_in_fewer_iterations() {
     assert!(
         (mixed_iterations as f64) < 0.8 * plain_iterations as f64,
         "Anderson {mixed_iterations} vs plain {plain_iterations} iterations"
+    );
+}
+
+/// Point-to-plane: the surface-aware sigma estimate (the EM estimate less the kernel's tangential
+/// variances, once the pose has settled) reaches the plain EM pose in fewer iterations.
+#[test]
+fn surface_sigma_reaches_the_plain_point_to_plane_pose_in_fewer_iterations() {
+    let source = bumpy_shape(4000, 12);
+    let mut rng = ChaCha8Rng::seed_from_u64(31);
+    let (mut plain_iterations, mut surface_iterations) = (0, 0);
+    for case in 0..3 {
+        let truth = random_transform(&mut rng, 30.0, 0.05);
+        let target = corrupted(&source, &truth, 0.001, 0.1, 60 + case);
+        let run = |surface_sigma| {
+            FilterReg::new(FilterRegConfig {
+                variant: FilterRegVariant::PointToPlane,
+                w: 0.2,
+                surface_sigma,
+                ..Default::default()
+            })
+            .unwrap()
+            .register(&RegistrationProblem::new(source.clone(), target.clone()))
+            .unwrap()
+        };
+        let (plain, surface) = (run(false), run(true));
+        let (dp, ds) = (errors(&plain.transform, &truth), errors(&surface.transform, &truth));
+        println!(
+            "case {case}: plain sigma {} iterations, {:.4} deg; surface sigma {} iterations, {:.4} deg",
+            plain.iterations, dp.0, surface.iterations, ds.0
+        );
+        assert!(plain.converged && surface.converged, "case {case}");
+        // The same fixed point: sigma^2 settles where the EM estimate equals it.
+        assert!(errors(&plain.transform, &surface.transform).0 < 0.01, "case {case}");
+        assert!(ds.0 <= dp.0 + 0.005, "case {case}: {} vs {} deg", ds.0, dp.0);
+        let (sp, ss) = (plain.sigma2.unwrap().sqrt(), surface.sigma2.unwrap().sqrt());
+        assert!((sp - ss).abs() < 0.02 * sp, "case {case}: final sigma {ss} vs {sp}");
+        plain_iterations += plain.iterations;
+        surface_iterations += surface.iterations;
+    }
+    assert!(
+        (surface_iterations as f64) < 0.85 * plain_iterations as f64,
+        "surface sigma {surface_iterations} vs plain {plain_iterations} iterations"
     );
 }
