@@ -114,6 +114,14 @@ pub struct FilterRegConfig {
     /// there directly (still at most halving sigma^2 per step). The fixed point is the same.
     /// Ignored by point-to-point, whose tangential sliding needs the wider kernel.
     pub surface_sigma: bool,
+    /// While the pose settles, iterate on an evenly spread subset of about this many source
+    /// points (every k-th point in spatial order, each standing for k; it replaces the merged
+    /// level where it is smaller); once an update moves the subset by less than 1% of sigma and
+    /// changes sigma^2 by less than 1%, iterate on every point, with a fresh Anderson history,
+    /// to convergence. The subset changes the route (the slow EM crawl of the middle iterations
+    /// costs a fraction), not the fixed point. Clouds of at most twice this many points, and 0,
+    /// use every point throughout.
+    pub settling_points: usize,
 }
 
 impl Default for FilterRegConfig {
@@ -132,6 +140,7 @@ impl Default for FilterRegConfig {
             anderson_depth: 5,
             merge_fraction: 0.5,
             surface_sigma: true,
+            settling_points: 1000,
         }
     }
 }
@@ -462,6 +471,10 @@ struct EmCoordinates {
 /// plus the rotation's sweep at its RMS radius) by less than this fraction of sigma.
 const SURFACE_SIGMA_SETTLED: f64 = 0.1;
 
+/// The iterations on [`FilterRegConfig::settling_points`] have settled once an update moves the
+/// source by less than this fraction of sigma and changes sigma^2 by less than this fraction.
+const SUBSET_SETTLED: f64 = 0.01;
+
 /// Mixing starts once an EM step changes sigma^2 by less than this fraction.
 const MIXING_SIGMA_CHANGE: f64 = 0.05;
 
@@ -574,14 +587,30 @@ impl FilterReg {
         let mut previous_residual: Option<f64> = None;
         let (mut mixed, mut started) = (false, false);
         let mut result = t;
+        // The evenly spread subset of the source visited while the pose settles (every k-th
+        // point in spatial order, each standing for its share of the cloud), and whether the
+        // iterations still visit it.
+        let subset = (cfg.settling_points > 0 && source.len() > 2 * cfg.settling_points).then(|| {
+            let pts: Vec<Point3> = source.iter().step_by(source.len().div_ceil(cfg.settling_points)).copied().collect();
+            let counts = vec![source.len() as f64 / pts.len() as f64; pts.len()];
+            (pts, counts)
+        });
+        let mut on_subset = subset.is_some();
         for it in 0..cfg.max_iterations {
             let sigma = sigma2.sqrt();
             let use_lattice = match cfg.e_step {
                 FilterRegEStep::Lattice => true,
                 FilterRegEStep::Exact => false,
                 FilterRegEStep::Auto => {
-                    // Once exact, stay exact (sigma rarely grows back; no flip-flopping).
-                    exact_phase |= exact_below.is_some_and(|r| 4.0 * sigma < r);
+                    // Once exact, stay exact (sigma rarely grows back; no flip-flopping). The exact
+                    // sums cost the kernel's neighbour count, (4 sigma / r)^2 * AUTO_NEIGHBOURS
+                    // on a surface, per source point visited, the lattice the points of both
+                    // clouds: visiting a subset of the source moves the switch to wider kernels.
+                    let share = match subset.as_ref().filter(|_| on_subset) {
+                        Some((pts, _)) => pts.len() as f64 / source.len() as f64,
+                        None => 1.0,
+                    };
+                    exact_phase |= exact_below.is_some_and(|r| (4.0 * sigma / r).powi(2) * share < 1.0);
                     !exact_phase
                 }
             };
@@ -590,9 +619,13 @@ impl FilterReg {
                 .as_ref()
                 .filter(|_| use_lattice)
                 .map(|(ps, pt)| (ps.level_for(cfg.merge_fraction * sigma), pt.level_for(cfg.merge_fraction * sigma)));
-            let (src, counts, spreads) = match levels.and_then(|l| l.0) {
-                Some(l) => (&l.points[..], Some(&l.counts[..]), Some(&l.spreads[..])),
-                None => (&source[..], None, None),
+            // The source points visited: the settling subset where it has fewer points than the
+            // merged level, else the merged level, else every point.
+            let (src, counts, spreads) = match (levels.and_then(|l| l.0), subset.as_ref().filter(|_| on_subset)) {
+                (Some(l), Some((pts, n))) if pts.len() < l.points.len() => (&pts[..], Some(&n[..]), None),
+                (Some(l), _) => (&l.points[..], Some(&l.counts[..]), Some(&l.spreads[..])),
+                (None, Some((pts, n))) => (&pts[..], Some(&n[..]), None),
+                (None, None) => (&source[..], None, None),
             };
             let (tgt, tgt_values) = match levels.and_then(|l| l.1) {
                 Some(l) => (&l.points[..], &l.values[..]),
@@ -625,12 +658,13 @@ impl FilterReg {
                     (q / (m0 + c), n * m0 / (m0 + c))
                 })
                 .fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
+            // How far this update moved the source: its centroid, plus the rotation's sweep at its RMS radius.
+            let moved = (g * centre - t * centre).norm() + delta.rotation.angle() * radius;
             let new_sigma2 = match cfg.sigma {
                 // The EM estimate, shrinking by at most half per iteration: an EM step that
                 // collapses sigma freezes the posteriors before the pose has converged.
                 SigmaSchedule::Update { .. } => {
                     let em = num / (3.0 * den);
-                    let moved = (g * centre - t * centre).norm() + delta.rotation.angle() * radius;
                     let estimate = if surface_sigma && moved < SURFACE_SIGMA_SETTLED * sigma {
                         3.0 * em - 2.0 * sigma2
                     } else {
@@ -643,6 +677,18 @@ impl FilterReg {
             history.push(IterationRecord { iteration: it, transform: g, objective: new_sigma2 });
             let small = delta.rotation.angle() < cfg.tolerance && delta.translation.vector.norm() < cfg.tolerance;
             let sigma_settled = (new_sigma2 - sigma2).abs() <= 1e-3 * sigma2;
+            // The subset's iteration has settled: from here on every point, with a fresh history.
+            if on_subset && moved < SUBSET_SETTLED * sigma && (new_sigma2 - sigma2).abs() <= SUBSET_SETTLED * sigma2 {
+                on_subset = false;
+                (t, sigma2) = (g, new_sigma2);
+                if let Some((anderson, coords)) = mixing.as_mut() {
+                    anderson.reset();
+                    coords.reference = g;
+                }
+                previous_residual = None;
+                mixed = false;
+                continue;
+            }
             if small && sigma_settled {
                 sigma2 = new_sigma2;
                 converged = true;

@@ -266,3 +266,36 @@ fn surface_sigma_reaches_the_plain_point_to_plane_pose_in_fewer_iterations() {
         "surface sigma {surface_iterations} vs plain {plain_iterations} iterations"
     );
 }
+
+/// Iterating on an evenly spread subset of the source while the pose settles changes the route,
+/// not the result: the pose matches the all-points run's, for both objectives.
+#[test]
+fn settling_subset_reaches_the_all_points_pose() {
+    let source = bumpy_shape(6000, 14);
+    let mut rng = ChaCha8Rng::seed_from_u64(37);
+    for case in 0..3 {
+        let truth = random_transform(&mut rng, 30.0, 0.05);
+        let target = corrupted(&source, &truth, 0.001, 0.1, 70 + case);
+        for variant in [FilterRegVariant::PointToPoint, FilterRegVariant::PointToPlane] {
+            let run = |settling_points| {
+                FilterReg::new(FilterRegConfig { variant, w: 0.2, settling_points, ..Default::default() })
+                    .unwrap()
+                    .register(&RegistrationProblem::new(source.clone(), target.clone()))
+                    .unwrap()
+            };
+            let (all, subset) = (run(0), run(1000));
+            let (da, ds) = (errors(&all.transform, &truth).0, errors(&subset.transform, &truth).0);
+            println!(
+                "case {case} {variant:?}: every point {} iterations {da:.4} deg; subset first {} iterations {ds:.4} deg",
+                all.iterations, subset.iterations
+            );
+            assert!(all.converged && subset.converged, "case {case} {variant:?}");
+            // The routes differ (the subset's sums are not the cloud's)...
+            let differs = all.history.iter().zip(&subset.history).any(|(a, b)| a.objective != b.objective);
+            assert!(differs, "case {case} {variant:?}: the subset was not used");
+            // ...the destinations do not.
+            assert!(errors(&all.transform, &subset.transform).0 < 0.01, "case {case} {variant:?}");
+            assert!(ds <= da + 0.005, "case {case} {variant:?}: {ds} vs {da} deg");
+        }
+    }
+}
