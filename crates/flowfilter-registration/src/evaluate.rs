@@ -109,11 +109,18 @@ impl RobustKernel {
     }
 }
 
-/// One Gauss-Newton step of weighted point-to-plane alignment: the twist `xi` (left
-/// perturbation) minimising `sum w_i (n_i . (exp(xi) x_i - y_i))^2` to first order. `None` when
-/// the normal equations are singular (e.g. all normals parallel).
-pub fn point_to_plane_step(x: &[Point3], y: &[Point3], n: &[Vector3], w: &[f64]) -> Option<Pose> {
-    gauss_newton_step(x.len(), |i, h, g| plane_term(&x[i], &y[i], &n[i], w[i], h, g))
+/// One Gauss-Newton step of weighted point-to-plane alignment over `len` pairs given by
+/// `pair(i) = (x_i, y_i, n_i, w_i)` (read where they are stored, no gathered copies): the twist
+/// `xi` (left perturbation) minimising `sum w_i (n_i . (exp(xi) x_i - y_i))^2` to first order.
+/// `None` when the normal equations are singular (e.g. all normals parallel).
+pub fn point_to_plane_step_by(
+    len: usize,
+    pair: impl Fn(usize) -> (Point3, Point3, Vector3, f64) + Sync,
+) -> Option<Pose> {
+    gauss_newton_step(len, |i, h, g| {
+        let (x, y, n, w) = pair(i);
+        plane_term(&x, &y, &n, w, h, g)
+    })
 }
 
 /// Adds one weighted point-to-plane residual `n . (x - y)` to the normal equations.
@@ -148,7 +155,7 @@ fn gauss_newton_step(len: usize, term: impl Fn(usize, &mut Matrix6<f64>, &mut Ve
     xi.iter().all(|v| v.is_finite()).then(|| se3::exp(&xi))
 }
 
-/// [`point_to_plane_step`] where a pair without a normal (`None`) contributes its full
+/// [`point_to_plane_step_by`] where a pair without a normal (`None`) contributes its full
 /// point-to-point residual `|x - y|^2` (the sum of its point-to-plane residuals along the axes),
 /// and the source points are first moved by `pre` (the Gauss-Newton steps taken so far).
 pub fn plane_or_point_step(x: &[Point3], y: &[Point3], n: &[Option<Vector3>], w: &[f64], pre: &Pose) -> Option<Pose> {
@@ -198,7 +205,7 @@ mod tests {
                 ew.push(w[i]);
             }
         }
-        let want = point_to_plane_step(&ex, &ey, &en, &ew).unwrap();
+        let want = point_to_plane_step_by(ex.len(), |i| (ex[i], ey[i], en[i], ew[i])).unwrap();
         let got = plane_or_point_step(&x, &y, &n, &w, &pre).unwrap();
         assert!((want.to_homogeneous() - got.to_homogeneous()).abs().max() < 1e-12);
     }

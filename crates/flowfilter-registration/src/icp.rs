@@ -2,7 +2,7 @@
 //! (Chen & Medioni 1992), with robust kernels and Open3D's convergence criteria.
 
 use crate::error::RegistrationError;
-use crate::evaluate::{RobustKernel, point_to_plane_step};
+use crate::evaluate::{RobustKernel, point_to_plane_step_by};
 use crate::problem::{IterationRecord, Registrar, Registration, RegistrationProblem, in_pool, validate_problem};
 use flowfilter_geometry::{KnnIndex, Point3, spatial_order, weighted_kabsch};
 use rayon::prelude::*;
@@ -148,13 +148,15 @@ impl Icp {
                 ));
                 break;
             }
-            let x: Vec<Point3> = corr.iter().map(|c| c.0).collect();
-            let y: Vec<Point3> = corr.iter().map(|c| p.target.points[c.1]).collect();
-            let w: Vec<f64> = corr.iter().map(|c| cfg.kernel.weight(c.2)).collect();
             let delta = if pt2pl {
-                let n: Vec<_> = corr.iter().map(|c| normals[c.1]).collect();
-                point_to_plane_step(&x, &y, &n, &w)
+                point_to_plane_step_by(corr.len(), |i| {
+                    let (x, j, d) = corr[i];
+                    (x, p.target.points[j], normals[j], cfg.kernel.weight(d))
+                })
             } else {
+                let x: Vec<Point3> = corr.iter().map(|c| c.0).collect();
+                let y: Vec<Point3> = corr.iter().map(|c| p.target.points[c.1]).collect();
+                let w: Vec<f64> = corr.iter().map(|c| cfg.kernel.weight(c.2)).collect();
                 weighted_kabsch(&x, &y, Some(&w)).ok()
             };
             let Some(delta) = delta else {
