@@ -318,8 +318,15 @@ impl NeighbourCache {
             .map(|(c, qs)| {
                 let mut out = ListChunk::with_capacity(qs.len(), c.indices.len());
                 for (i, q) in qs.iter().enumerate() {
-                    out.indices
-                        .extend(c.list(i).iter().copied().filter(|&k| dist2(&values[k as usize * vd..], q) <= r2));
+                    // Branch-free compaction: every candidate is written, the kept ones advance.
+                    let (list, start) = (c.list(i), out.indices.len());
+                    out.indices.resize(start + list.len(), 0);
+                    let mut kept = start;
+                    for &k in list {
+                        out.indices[kept] = k;
+                        kept += usize::from(dist2(&values[k as usize * vd..], q) <= r2);
+                    }
+                    out.indices.truncate(kept);
                     out.close();
                 }
                 out
