@@ -478,12 +478,6 @@ struct EmCoordinates {
 /// plus the rotation's sweep at its RMS radius) by less than this fraction of sigma.
 const SURFACE_SIGMA_SETTLED: f64 = 0.1;
 
-/// On [`FilterRegConfig::settling_points`], the exact E-step takes over once its work per
-/// iteration (source points visited times kernel neighbours) falls below this fraction of
-/// [`AUTO_NEIGHBOURS`] per point of the whole cloud (1 without a subset). Measured on the peers'
-/// clouds: 0.5 against 1, 0.25 and 0.1.
-const SUBSET_EXACT_WORK: f64 = 0.5;
-
 /// The iterations on [`FilterRegConfig::settling_points`] have settled once an update moves the
 /// source by less than this fraction of sigma and changes sigma^2 by less than this fraction.
 const SUBSET_SETTLED: f64 = 0.01;
@@ -618,13 +612,12 @@ impl FilterReg {
                     // Once exact, stay exact (sigma rarely grows back; no flip-flopping). The exact
                     // sums cost the kernel's neighbour count, (4 sigma / r)^2 * AUTO_NEIGHBOURS
                     // on a surface, per source point visited, the lattice the points of both
-                    // clouds: visiting a subset of the source moves the switch to wider kernels
-                    // (not all the way: the first gather of long lists costs several sums).
-                    let (share, limit) = match subset.as_ref().filter(|_| on_subset) {
-                        Some((pts, _)) => (pts.len() as f64 / source.len() as f64, SUBSET_EXACT_WORK),
-                        None => (1.0, 1.0),
+                    // clouds: visiting a subset of the source moves the switch to wider kernels.
+                    let share = match subset.as_ref().filter(|_| on_subset) {
+                        Some((pts, _)) => pts.len() as f64 / source.len() as f64,
+                        None => 1.0,
                     };
-                    exact_phase |= exact_below.is_some_and(|r| (4.0 * sigma / r).powi(2) * share < limit);
+                    exact_phase |= exact_below.is_some_and(|r| (4.0 * sigma / r).powi(2) * share < 1.0);
                     !exact_phase
                 }
             };
