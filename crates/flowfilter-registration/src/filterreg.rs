@@ -273,6 +273,7 @@ impl NeighbourCache {
             .par_chunks(CACHE_CHUNK)
             .map(|qs| {
                 let mut c = ListChunk::with_capacity(qs.len(), 0);
+                let mut seen = vec![];
                 for q in qs {
                     let start = c.indices.len();
                     match &grid {
@@ -280,7 +281,7 @@ impl NeighbourCache {
                         None => c.indices.extend(index.within(q, radius).iter().map(|n| n.index as u32)),
                     }
                     // Ascending indices: the sums then walk the target arrays forwards.
-                    c.indices[start..].sort_unstable();
+                    sort_distinct(&mut c.indices[start..], target.len(), &mut seen);
                     c.close();
                 }
                 c
@@ -334,6 +335,32 @@ impl NeighbourCache {
             .collect();
         Some(Self { radius, built_at: queries.to_vec(), chunks })
     }
+}
+
+/// Sorts `list`, distinct indices below `n`, ascending: by comparisons when it is short, else by
+/// marking the indices in the bit set `seen` and reading them back in order (linear time; the
+/// lists of wide kernels hold hundreds to thousands of candidates). Either way the same order.
+fn sort_distinct(list: &mut [u32], n: usize, seen: &mut Vec<u64>) {
+    let words = n.div_ceil(64);
+    if list.len() < 64 || words > 4 * list.len() {
+        list.sort_unstable();
+        return;
+    }
+    seen.clear();
+    seen.resize(words, 0);
+    for &k in list.iter() {
+        seen[k as usize / 64] |= 1 << (k % 64);
+    }
+    let mut out = 0;
+    for (w, &word) in seen.iter().enumerate() {
+        let mut bits = word;
+        while bits != 0 {
+            list[out] = (w * 64) as u32 + bits.trailing_zeros();
+            out += 1;
+            bits &= bits - 1;
+        }
+    }
+    debug_assert_eq!(out, list.len(), "indices were not distinct");
 }
 
 /// Squared distance from `q` to the target point of a values row `[1, y, |y|^2, ...]` (the
@@ -779,6 +806,26 @@ mod tests {
             (s >> 11) as f64 / (1u64 << 53) as f64
         };
         (0..n).map(|_| Point3::new(r() * 0.1, r() * 0.1, r() * 0.02)).collect()
+    }
+
+    /// Long lists sorted through the bit set come out as a comparison sort's.
+    #[test]
+    fn bit_set_sorting_is_the_comparison_sort() {
+        let mut seed = 5u64;
+        let mut seen = vec![];
+        for (len, n) in [(10usize, 100usize), (64, 200), (300, 1000), (2000, 20000), (5000, 5000)] {
+            // Distinct indices below n in a scrambled order (a permutation's prefix).
+            let mut all: Vec<u32> = (0..n as u32).collect();
+            for i in (1..n).rev() {
+                seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                all.swap(i, (seed >> 33) as usize % (i + 1));
+            }
+            let mut list = all[..len].to_vec();
+            let mut want = list.clone();
+            want.sort_unstable();
+            sort_distinct(&mut list, n, &mut seen);
+            assert_eq!(list, want, "{len} of {n}");
+        }
     }
 
     /// Sums from reused neighbour lists equal sums from a fresh k-d tree search, and lists are
