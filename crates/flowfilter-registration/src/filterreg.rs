@@ -622,14 +622,13 @@ impl FilterReg {
         let (mut mixed, mut started) = (false, false);
         let mut result = t;
         // The evenly spread subset of the source visited while the pose settles (every k-th
-        // point in spatial order, each standing for its share of the cloud), and whether the
-        // iterations still visit it.
-        let subset = (cfg.settling_points > 0 && source.len() > 2 * cfg.settling_points).then(|| {
+        // point in spatial order, each standing for its share of the cloud); `None` once the
+        // iterations visit every point.
+        let mut subset = (cfg.settling_points > 0 && source.len() > 2 * cfg.settling_points).then(|| {
             let pts: Vec<Point3> = source.iter().step_by(source.len().div_ceil(cfg.settling_points)).copied().collect();
             let counts = vec![source.len() as f64 / pts.len() as f64; pts.len()];
             (pts, counts)
         });
-        let mut on_subset = subset.is_some();
         for it in 0..cfg.max_iterations {
             let sigma = sigma2.sqrt();
             let use_lattice = match cfg.e_step {
@@ -640,10 +639,7 @@ impl FilterReg {
                     // sums cost the kernel's neighbour count, (4 sigma / r)^2 * AUTO_NEIGHBOURS
                     // on a surface, per source point visited, the lattice the points of both
                     // clouds: visiting a subset of the source moves the switch to wider kernels.
-                    let share = match subset.as_ref().filter(|_| on_subset) {
-                        Some((pts, _)) => pts.len() as f64 / source.len() as f64,
-                        None => 1.0,
-                    };
+                    let share = subset.as_ref().map_or(1.0, |(pts, _)| pts.len() as f64 / source.len() as f64);
                     exact_phase |= exact_below.is_some_and(|r| (4.0 * sigma / r).powi(2) * share < 1.0);
                     !exact_phase
                 }
@@ -655,7 +651,7 @@ impl FilterReg {
                 .map(|(ps, pt)| (ps.level_for(cfg.merge_fraction * sigma), pt.level_for(cfg.merge_fraction * sigma)));
             // The source points visited: the settling subset where it has fewer points than the
             // merged level, else the merged level, else every point.
-            let (src, counts, spreads) = match (levels.and_then(|l| l.0), subset.as_ref().filter(|_| on_subset)) {
+            let (src, counts, spreads) = match (levels.and_then(|l| l.0), subset.as_ref()) {
                 (Some(l), Some((pts, n))) if pts.len() < l.points.len() => (&pts[..], Some(&n[..]), None),
                 (Some(l), _) => (&l.points[..], Some(&l.counts[..]), Some(&l.spreads[..])),
                 (None, Some((pts, n))) => (&pts[..], Some(&n[..]), None),
@@ -712,15 +708,13 @@ impl FilterReg {
             let small = delta.rotation.angle() < cfg.tolerance && delta.translation.vector.norm() < cfg.tolerance;
             let sigma_settled = (new_sigma2 - sigma2).abs() <= 1e-3 * sigma2;
             // The subset's iteration has settled: from here on every point, with a fresh history.
-            if on_subset && moved < SUBSET_SETTLED * sigma && (new_sigma2 - sigma2).abs() <= SUBSET_SETTLED * sigma2 {
-                on_subset = false;
-                (t, sigma2) = (g, new_sigma2);
-                if let Some((anderson, coords)) = mixing.as_mut() {
-                    anderson.reset();
-                    coords.reference = g;
-                }
+            if subset.is_some()
+                && moved < SUBSET_SETTLED * sigma
+                && (new_sigma2 - sigma2).abs() <= SUBSET_SETTLED * sigma2
+            {
+                subset = None;
                 previous_residual = None;
-                mixed = false;
+                (t, sigma2, mixed) = (g, new_sigma2, false);
                 continue;
             }
             if small && sigma_settled {
@@ -735,7 +729,10 @@ impl FilterReg {
                 (t, sigma2) = (g, new_sigma2);
                 continue;
             };
+            // A fresh history wherever the last residual is unknown: at the start, after the
+            // safeguard below, and once the iterations move from the subset to every point.
             if previous_residual.is_none() {
+                anderson.reset();
                 coords.reference = t;
             }
             let z = coords.encode(&t, sigma2);
@@ -747,8 +744,6 @@ impl FilterReg {
                 && mixed
                 && residual > previous
             {
-                anderson.reset();
-                coords.reference = g;
                 previous_residual = None;
                 (t, sigma2, mixed) = (g, new_sigma2, false);
                 continue;
