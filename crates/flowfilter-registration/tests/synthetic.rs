@@ -3,12 +3,27 @@
 mod common;
 
 use common::{bumpy_shape, corrupted, errors, random_transform};
+use flowfilter_geometry::{PointCloud, Pose};
 use flowfilter_registration::{
     FilterReg, FilterRegConfig, FilterRegEStep, FilterRegVariant, Icp, IcpVariant, METHOD_NAMES, Registrar,
-    RegistrationConfig, RegistrationProblem, registrar_by_name,
+    Registration, RegistrationConfig, RegistrationProblem, registrar_by_name,
 };
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+
+/// FilterReg with `config` on the pair (a valid configuration, a well-posed problem).
+fn filterreg(config: FilterRegConfig, source: &PointCloud, target: &PointCloud) -> Registration {
+    FilterReg::new(config).unwrap().register(&RegistrationProblem::new(source.clone(), target.clone())).unwrap()
+}
+
+/// Both runs converged to the same fixed point (poses within 0.01 deg), and `variant` is no
+/// less accurate than `reference` (within 0.005 deg) against `truth`.
+fn assert_same_fixed_point(reference: &Registration, variant: &Registration, truth: &Pose, what: &str) {
+    assert!(reference.converged && variant.converged, "{what}");
+    assert!(errors(&reference.transform, &variant.transform).0 < 0.01, "{what}");
+    let (dr, dv) = (errors(&reference.transform, truth).0, errors(&variant.transform, truth).0);
+    assert!(dv <= dr + 0.005, "{what}: {dv} vs {dr} deg");
+}
 
 fn config() -> RegistrationConfig {
     let mut c = RegistrationConfig::default();
@@ -150,10 +165,7 @@ fn merged_coarse_iterations_reach_the_unmerged_pose() {
         let truth = random_transform(&mut rng, 30.0, 0.05);
         let target = corrupted(&source, &truth, 0.001, 0.1, 40 + case);
         let run = |merge_fraction| {
-            FilterReg::new(FilterRegConfig { w: 0.2, merge_fraction, ..Default::default() })
-                .unwrap()
-                .register(&RegistrationProblem::new(source.clone(), target.clone()))
-                .unwrap()
+            filterreg(FilterRegConfig { w: 0.2, merge_fraction, ..Default::default() }, &source, &target)
         };
         let (plain, merged) = (run(0.0), run(0.5));
         let (dp, dm) = (errors(&plain.transform, &truth).0, errors(&merged.transform, &truth).0);
@@ -161,12 +173,10 @@ fn merged_coarse_iterations_reach_the_unmerged_pose() {
             "case {case}: unmerged {} iterations {dp:.4} deg; merged {} iterations {dm:.4} deg",
             plain.iterations, merged.iterations
         );
-        assert!(plain.converged && merged.converged, "case {case}");
         // The routes differ (the first, wide-kernel steps ran on merged points)...
         assert_ne!(plain.history[0].objective, merged.history[0].objective, "case {case}: nothing was merged");
         // ...the destinations do not.
-        assert!(errors(&plain.transform, &merged.transform).0 < 0.01, "case {case}");
-        assert!(dm <= dp + 0.005, "case {case}: {dm} vs {dp} deg");
+        assert_same_fixed_point(&plain, &merged, &truth, &format!("case {case}"));
     }
 }
 
@@ -176,12 +186,7 @@ fn lattice_and_exact_e_steps_agree() {
     let mut rng = ChaCha8Rng::seed_from_u64(9);
     let truth = random_transform(&mut rng, 25.0, 0.05);
     let target = corrupted(&source, &truth, 0.001, 0.0, 4);
-    let run = |e_step| {
-        FilterReg::new(FilterRegConfig { e_step, ..Default::default() })
-            .unwrap()
-            .register(&RegistrationProblem::new(source.clone(), target.clone()))
-            .unwrap()
-    };
+    let run = |e_step| filterreg(FilterRegConfig { e_step, ..Default::default() }, &source, &target);
     let (a, b) = (run(FilterRegEStep::Lattice), run(FilterRegEStep::Exact));
     let (da, db) = (errors(&a.transform, &truth), errors(&b.transform, &truth));
     println!("lattice {:.4} deg / exact {:.4} deg", da.0, db.0);
@@ -201,10 +206,7 @@ fn anderson_mixing_reaches_the_plain_em_pose_in_fewer_iterations() {
         let truth = random_transform(&mut rng, 30.0, 0.05);
         let target = corrupted(&source, &truth, 0.001, 0.0, 30 + case);
         let run = |anderson_depth| {
-            FilterReg::new(FilterRegConfig { w: 0.2, anderson_depth, ..Default::default() })
-                .unwrap()
-                .register(&RegistrationProblem::new(source.clone(), target.clone()))
-                .unwrap()
+            filterreg(FilterRegConfig { w: 0.2, anderson_depth, ..Default::default() }, &source, &target)
         };
         let (plain, mixed) = (run(0), run(5));
         let (dp, dm) = (errors(&plain.transform, &truth), errors(&mixed.transform, &truth));
@@ -212,10 +214,8 @@ fn anderson_mixing_reaches_the_plain_em_pose_in_fewer_iterations() {
             "case {case}: plain EM {} iterations, {:.4} deg; Anderson {} iterations, {:.4} deg",
             plain.iterations, dp.0, mixed.iterations, dm.0
         );
-        assert!(plain.converged && mixed.converged, "case {case}");
         // The same fixed point (to the tolerance's effect on the last digits).
-        assert!(errors(&plain.transform, &mixed.transform).0 < 0.01, "case {case}");
-        assert!(dm.0 <= dp.0 + 0.005, "case {case}: {} vs {} deg", dm.0, dp.0);
+        assert_same_fixed_point(&plain, &mixed, &truth, &format!("case {case}"));
         plain_iterations += plain.iterations;
         mixed_iterations += mixed.iterations;
     }
@@ -236,15 +236,16 @@ fn surface_sigma_reaches_the_plain_point_to_plane_pose_in_fewer_iterations() {
         let truth = random_transform(&mut rng, 30.0, 0.05);
         let target = corrupted(&source, &truth, 0.001, 0.1, 60 + case);
         let run = |surface_sigma| {
-            FilterReg::new(FilterRegConfig {
-                variant: FilterRegVariant::PointToPlane,
-                w: 0.2,
-                surface_sigma,
-                ..Default::default()
-            })
-            .unwrap()
-            .register(&RegistrationProblem::new(source.clone(), target.clone()))
-            .unwrap()
+            filterreg(
+                FilterRegConfig {
+                    variant: FilterRegVariant::PointToPlane,
+                    w: 0.2,
+                    surface_sigma,
+                    ..Default::default()
+                },
+                &source,
+                &target,
+            )
         };
         let (plain, surface) = (run(false), run(true));
         let (dp, ds) = (errors(&plain.transform, &truth), errors(&surface.transform, &truth));
@@ -252,10 +253,8 @@ fn surface_sigma_reaches_the_plain_point_to_plane_pose_in_fewer_iterations() {
             "case {case}: plain sigma {} iterations, {:.4} deg; surface sigma {} iterations, {:.4} deg",
             plain.iterations, dp.0, surface.iterations, ds.0
         );
-        assert!(plain.converged && surface.converged, "case {case}");
         // The same fixed point: sigma^2 settles where the EM estimate equals it.
-        assert!(errors(&plain.transform, &surface.transform).0 < 0.01, "case {case}");
-        assert!(ds.0 <= dp.0 + 0.005, "case {case}: {} vs {} deg", ds.0, dp.0);
+        assert_same_fixed_point(&plain, &surface, &truth, &format!("case {case}"));
         let (sp, ss) = (plain.sigma2.unwrap().sqrt(), surface.sigma2.unwrap().sqrt());
         assert!((sp - ss).abs() < 0.02 * sp, "case {case}: final sigma {ss} vs {sp}");
         plain_iterations += plain.iterations;
@@ -278,10 +277,7 @@ fn settling_subset_reaches_the_all_points_pose() {
         let target = corrupted(&source, &truth, 0.001, 0.1, 70 + case);
         for variant in [FilterRegVariant::PointToPoint, FilterRegVariant::PointToPlane] {
             let run = |settling_points| {
-                FilterReg::new(FilterRegConfig { variant, w: 0.2, settling_points, ..Default::default() })
-                    .unwrap()
-                    .register(&RegistrationProblem::new(source.clone(), target.clone()))
-                    .unwrap()
+                filterreg(FilterRegConfig { variant, w: 0.2, settling_points, ..Default::default() }, &source, &target)
             };
             let (all, subset) = (run(0), run(1000));
             let (da, ds) = (errors(&all.transform, &truth).0, errors(&subset.transform, &truth).0);
@@ -289,13 +285,11 @@ fn settling_subset_reaches_the_all_points_pose() {
                 "case {case} {variant:?}: every point {} iterations {da:.4} deg; subset first {} iterations {ds:.4} deg",
                 all.iterations, subset.iterations
             );
-            assert!(all.converged && subset.converged, "case {case} {variant:?}");
             // The routes differ (the subset's sums are not the cloud's)...
             let differs = all.history.iter().zip(&subset.history).any(|(a, b)| a.objective != b.objective);
             assert!(differs, "case {case} {variant:?}: the subset was not used");
             // ...the destinations do not.
-            assert!(errors(&all.transform, &subset.transform).0 < 0.01, "case {case} {variant:?}");
-            assert!(ds <= da + 0.005, "case {case} {variant:?}: {ds} vs {da} deg");
+            assert_same_fixed_point(&all, &subset, &truth, &format!("case {case} {variant:?}"));
         }
     }
 }
