@@ -290,25 +290,26 @@ impl NeighbourCache {
         Self { radius, built_at: queries.to_vec(), chunks }
     }
 
-    /// Whether the lists still cover radius `r` around every point of `queries` (the same points,
-    /// moved) without being much wider than needed (each candidate costs a distance evaluation).
-    fn covers(&self, queries: &[Point3], r: f64) -> bool {
-        self.radius <= CACHE_MAX_WIDTH * r && self.moved_less_than(queries, self.radius - r)
+    /// The largest squared distance a point of `queries` (the same points, moved) has moved since
+    /// the lists were gathered; `None` for other points.
+    fn moved2(&self, queries: &[Point3]) -> Option<f64> {
+        (queries.len() == self.built_at.len())
+            .then(|| queries.iter().zip(&self.built_at).map(|(q, b)| (q - b).norm_squared()).fold(0.0, f64::max))
     }
 
-    /// Whether every query moved less than `slack` (> 0) since the lists were gathered.
-    fn moved_less_than(&self, queries: &[Point3], slack: f64) -> bool {
-        slack > 0.0
-            && queries.len() == self.built_at.len()
-            && queries.iter().zip(&self.built_at).all(|(q, b)| (q - b).norm_squared() < slack * slack)
+    /// Whether the lists still cover radius `r` around every point, the points having moved by at
+    /// most `sqrt(moved2)`, without being much wider than needed (each candidate costs a distance
+    /// evaluation).
+    fn covers(&self, moved2: f64, r: f64) -> bool {
+        self.radius <= CACHE_MAX_WIDTH * r && within_slack(moved2, self.radius - r)
     }
 
     /// Lists of radius `radius` around `queries` cut from these wider ones, when they still hold
     /// every target point within `radius` of every query (the points moved less than the
     /// difference of the radii since the lists were gathered). No k-d tree search: sigma shrinks
     /// a few percent per iteration, and re-gathering was most of the exact E-step's time.
-    fn shrunk(&self, queries: &[Point3], values: &[f64], vd: usize, radius: f64) -> Option<Self> {
-        if !self.moved_less_than(queries, self.radius - radius) {
+    fn shrunk(&self, queries: &[Point3], moved2: f64, values: &[f64], vd: usize, radius: f64) -> Option<Self> {
+        if !within_slack(moved2, self.radius - radius) {
             return None;
         }
         let r2 = radius * radius;
@@ -335,6 +336,11 @@ impl NeighbourCache {
             .collect();
         Some(Self { radius, built_at: queries.to_vec(), chunks })
     }
+}
+
+/// Whether a move of `sqrt(moved2)` stays below `slack` (> 0).
+fn within_slack(moved2: f64, slack: f64) -> bool {
+    slack > 0.0 && moved2 < slack * slack
 }
 
 /// Sorts `list`, distinct indices below `n`, ascending: by comparisons when it is short, else by
@@ -382,8 +388,10 @@ impl ExactEStep<'_> {
     fn sums(&mut self, queries: &[Point3], values: &[f64], vd: usize, sigma: f64) -> Sums {
         let (index, target, cache) = (self.index, self.target, &mut self.cache);
         let r = 4.0 * sigma;
-        if !cache.as_ref().is_some_and(|c| c.covers(queries, r)) {
-            let shrunk = cache.as_ref().and_then(|c| c.shrunk(queries, values, vd, CACHE_MARGIN * r));
+        // How far the points moved since the lists were gathered: measured once, for both tests.
+        let held = cache.as_ref().and_then(|c| Some((c, c.moved2(queries)?)));
+        if !held.is_some_and(|(c, moved2)| c.covers(moved2, r)) {
+            let shrunk = held.and_then(|(c, moved2)| c.shrunk(queries, moved2, values, vd, CACHE_MARGIN * r));
             *cache = Some(shrunk.unwrap_or_else(|| NeighbourCache::build(index, target, queries, CACHE_MARGIN * r)));
         }
         let cache = cache.as_ref().expect("built above");
