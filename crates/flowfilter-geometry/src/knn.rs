@@ -44,22 +44,6 @@ impl KnnIndex {
         Some(Neighbour { index: r.item as usize, dist2: r.distance })
     }
 
-    /// The nearest indexed point if it lies within squared distance `max_dist2` (inclusive):
-    /// the same answer as [`KnnIndex::nearest`] filtered by the bound, found visiting less of the
-    /// tree when the bound is tight.
-    pub fn nearest_within(&self, p: &Point3, max_dist2: f64) -> Option<Neighbour> {
-        let tree = self.tree.as_ref()?;
-        // Widened by a few ulps so that a point exactly at the bound is kept.
-        let bound = max_dist2 * (1.0 + 4.0 * f64::EPSILON) + f64::MIN_POSITIVE;
-        tree.query(&[p.x, p.y, p.z])
-            .nearest_n::<SquaredEuclidean<f64>>(NonZero::<usize>::MIN)
-            .within(bound)
-            .execute()
-            .first()
-            .filter(|r| r.distance <= max_dist2)
-            .map(|r| Neighbour { index: r.item as usize, dist2: r.distance })
-    }
-
     /// All indexed points within `radius` (unordered).
     pub fn within(&self, p: &Point3, radius: f64) -> Vec<Neighbour> {
         let Some(tree) = self.tree.as_ref() else { return vec![] };
@@ -135,9 +119,6 @@ mod tests {
             brute.sort_by(|a, b| a.0.total_cmp(&b.0));
             assert_eq!(index.nearest(&q).unwrap().index, brute[0].1);
             // Bounded: found when the bound reaches it (exactly at the bound too), else none.
-            assert_eq!(index.nearest_within(&q, brute[0].0).map(|n| n.index), Some(brute[0].1));
-            assert_eq!(index.nearest_within(&q, brute[1].0 * 4.0).map(|n| n.index), Some(brute[0].1));
-            assert_eq!(index.nearest_within(&q, brute[0].0 * 0.99), None);
             let k: Vec<usize> = index.k_nearest(&q, 5).iter().map(|n| n.index).collect();
             assert_eq!(k, brute[..5].iter().map(|b| b.1).collect::<Vec<_>>());
             let mut w: Vec<usize> = index.within(&q, 0.3).iter().map(|n| n.index).collect();

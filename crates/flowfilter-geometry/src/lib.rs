@@ -11,6 +11,7 @@ pub mod fastmath;
 pub mod grid;
 pub mod kabsch;
 pub mod knn;
+pub mod neighbourhoods;
 pub mod radius_grid;
 pub mod rigid;
 pub mod se3;
@@ -19,6 +20,7 @@ pub use cloud::{CloudError, PointCloud};
 pub use grid::{DepthMap, Grid, GridSizeError, Mask, RawDepth, mask_bbox};
 pub use kabsch::{KabschError, weighted_kabsch};
 pub use knn::{KnnIndex, Neighbour, spatial_order};
+pub use neighbourhoods::Neighbourhoods;
 pub use radius_grid::RadiusGrid;
 pub use rigid::{RigidTransformError, matrix_from_pose, nearest_rotation, rigid_from_matrix, rotation_angle_deg};
 

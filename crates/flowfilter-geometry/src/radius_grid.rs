@@ -5,6 +5,10 @@
 //! descent and result collection.
 
 use crate::Point3;
+use rayon::prelude::*;
+
+/// Non-empty cells per parallel task of [`RadiusGrid::all_within`].
+const CELLS_PER_TASK: usize = 64;
 
 /// Grids with more cells than this are not built (see [`RadiusGrid::new`]).
 const MAX_CELLS: usize = 1 << 22;
@@ -46,6 +50,7 @@ impl RadiusGrid {
             }
             dims[a] = n as usize;
         }
+
         let cells = dims.iter().try_fold(1usize, |acc, &d| acc.checked_mul(d).filter(|&c| c <= MAX_CELLS))?;
         let cell_of = |p: &Point3| -> usize {
             let c = |a: usize| (((p[a] - lo[a]) / radius) as usize).min(dims[a] - 1);
@@ -68,6 +73,77 @@ impl RadiusGrid {
         }
         let coords = order.iter().map(|&i| points[i as usize].coords.into()).collect();
         Some(Self { origin: lo, radius, dims, starts, order, coords })
+    }
+
+    /// For every gridded point, the other points within the radius: `(slot, starts, members)`
+    /// where point `i`'s neighbours (indices into the slice the grid was built from, in no
+    /// particular order) are `members[starts[s]..starts[s + 1]]` with `s = slot[i]`. Built
+    /// cell by cell: the candidates of a cell's points are the same 3 x 3 x 3 cells, gathered
+    /// once into a contiguous block and tested against each point of the cell. `None` if the
+    /// lists would not fit `u32` offsets.
+    pub fn all_within(&self) -> Option<(Vec<u32>, Vec<u32>, Vec<u32>)> {
+        let nonempty: Vec<u32> =
+            (0..self.starts.len() - 1).filter(|&c| self.starts[c] < self.starts[c + 1]).map(|c| c as u32).collect();
+        let r2 = self.radius * self.radius;
+        let blocks: Vec<(Vec<u32>, Vec<u32>)> = nonempty
+            .par_chunks(CELLS_PER_TASK)
+            .map(|cells| {
+                let (mut counts, mut members) = (vec![], vec![]);
+                let (mut cand, mut cand_id) = (Vec::<[f64; 3]>::new(), Vec::<u32>::new());
+                let (mut hits, mut dist) = (Vec::<u32>::new(), Vec::<f64>::new());
+                for &c in cells {
+                    let c = c as usize;
+                    let (x, y, z) =
+                        (c % self.dims[0], (c / self.dims[0]) % self.dims[1], c / (self.dims[0] * self.dims[1]));
+                    cand.clear();
+                    cand_id.clear();
+                    for zz in z.saturating_sub(1)..=(z + 1).min(self.dims[2] - 1) {
+                        for yy in y.saturating_sub(1)..=(y + 1).min(self.dims[1] - 1) {
+                            let row = (zz * self.dims[1] + yy) * self.dims[0];
+                            let from = self.starts[row + x.saturating_sub(1)] as usize;
+                            let to = self.starts[row + (x + 1).min(self.dims[0] - 1) + 1] as usize;
+                            cand.extend_from_slice(&self.coords[from..to]);
+                            cand_id.extend_from_slice(&self.order[from..to]);
+                        }
+                    }
+                    for k in self.starts[c] as usize..self.starts[c + 1] as usize {
+                        let (q, me) = (self.coords[k], self.order[k]);
+                        // Branch-free compaction: every candidate is written, the count
+                        // advances only for the kept ones (a kept/dropped branch would be
+                        // mispredicted for a good share of them).
+                        hits.resize(cand.len(), 0);
+                        dist.clear();
+                        dist.extend(
+                            cand.iter().map(|p| (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)),
+                        );
+                        let mut n = 0;
+                        for (&d2, &id) in dist.iter().zip(&cand_id) {
+                            hits[n] = id;
+                            n += usize::from((d2 <= r2) & (id != me));
+                        }
+                        members.extend_from_slice(&hits[..n]);
+                        counts.push(n as u32);
+                    }
+                }
+                (counts, members)
+            })
+            .collect();
+        let total: usize = blocks.iter().map(|b| b.1.len()).sum();
+        u32::try_from(total).ok()?;
+        let mut slot = vec![0u32; self.order.len()];
+        for (k, &i) in self.order.iter().enumerate() {
+            slot[i as usize] = k as u32;
+        }
+        let mut starts = Vec::with_capacity(self.order.len() + 1);
+        let mut members = Vec::with_capacity(total);
+        starts.push(0u32);
+        for (counts, m) in blocks {
+            for n in counts {
+                starts.push(starts.last().copied().unwrap_or(0) + n);
+            }
+            members.extend_from_slice(&m);
+        }
+        Some((slot, starts, members))
     }
 
     /// The radius the grid answers for.

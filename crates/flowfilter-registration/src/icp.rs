@@ -4,7 +4,7 @@
 use crate::error::RegistrationError;
 use crate::evaluate::{RobustKernel, point_to_plane_step_by};
 use crate::problem::{IterationRecord, Registrar, Registration, RegistrationProblem, in_pool, validate_problem};
-use flowfilter_geometry::{KnnIndex, Point3, spatial_order, weighted_kabsch};
+use flowfilter_geometry::{KnnIndex, Neighbourhoods, Point3, Pose, spatial_order, weighted_kabsch};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -96,33 +96,13 @@ impl Icp {
         let cfg = &self.config;
         let pt2pl = cfg.variant == IcpVariant::PointToPlane;
         validate_problem(p, pt2pl.then_some("icp-pt2pl"))?;
-        let target = KnnIndex::new(&p.target.points);
+        let mut matcher = Matcher::new(&p.target.points, cfg.max_correspondence_distance);
         let normals = p.target.normals.as_deref().unwrap_or(&[]);
-        let max_d2 = cfg.max_correspondence_distance.powi(2);
         let mut t = p.init;
         // Source points in a spatially coherent order: consecutive queries share tree branches.
         let source: Vec<Point3> =
             spatial_order(&p.source.points).iter().map(|&i| p.source.points[i as usize]).collect();
-        // Correspondences of the current estimate: (moved source, target index, distance). The
-        // search is bounded by the correspondence gate and by the distance to the point's last
-        // partner (the nearest point is at most that far): the same answer, with less of the
-        // tree visited.
         let mut partner = vec![u32::MAX; source.len()];
-        let mut correspond = |t: &flowfilter_geometry::Pose| -> Vec<(Point3, usize, f64)> {
-            source
-                .par_iter()
-                .zip(partner.par_iter_mut())
-                .filter_map(|(s, last)| {
-                    let x = t * s;
-                    let n = match *last {
-                        u32::MAX => target.nearest(&x).filter(|n| n.dist2 <= max_d2),
-                        j => target.nearest_within(&x, (x - p.target.points[j as usize]).norm_squared().min(max_d2)),
-                    };
-                    *last = n.map_or(u32::MAX, |n| n.index as u32);
-                    n.map(|n| (x, n.index, n.dist2.sqrt()))
-                })
-                .collect()
-        };
         let stats = |c: &[(Point3, usize, f64)]| {
             if c.is_empty() {
                 (0.0, 0.0)
@@ -133,7 +113,7 @@ impl Icp {
                 )
             }
         };
-        let mut corr = correspond(&t);
+        let mut corr = matcher.pairs(&source, &mut partner, &t);
         let (mut fitness, mut rmse) = stats(&corr);
         let mut history = vec![];
         let mut warnings = vec![];
@@ -165,7 +145,8 @@ impl Icp {
             };
             t = delta * t;
             iterations = it + 1;
-            corr = correspond(&t);
+            matcher.prepare(&corr);
+            corr = matcher.pairs(&source, &mut partner, &t);
             let (f, r) = stats(&corr);
             history.push(IterationRecord { iteration: it, transform: t, objective: r });
             // Open3D's criteria, plus a vanishing update: on planar parts the pose can keep
@@ -194,5 +175,135 @@ impl Icp {
             history,
             warnings,
         })
+    }
+}
+
+/// Target points sampled to estimate the cloud's spacing.
+const SPACING_SAMPLES: usize = 64;
+
+/// The neighbourhoods' radius, in multiples of the 90th percentile of the current pair
+/// distances: once the pose settles, a point moves little between passes and the distance to
+/// its last partner is about its pair distance, so twice that (the certificate's need) plus a
+/// margin answers nine searches in ten from the lists.
+const LIST_RADIUS_PER_PAIR_DISTANCE: f64 = 2.2;
+
+/// The largest neighbourhood radius built, in target spacings: wider lists cost more to build
+/// and scan than the k-d tree searches they replace.
+const MAX_LIST_RADIUS_IN_SPACINGS: f64 = 4.0;
+
+/// ICP's correspondence search: each moved source point's nearest target point within the
+/// gate. A k-d tree answers from scratch; once the pairs are close (in target spacings) the
+/// target's neighbourhoods are built and most searches are answered from the list of the
+/// point's last partner instead (exact: see [`Neighbourhoods::nearest_from`]).
+struct Matcher<'a> {
+    target: &'a [Point3],
+    index: KnnIndex,
+    /// Median distance between neighbouring target points.
+    spacing: f64,
+    lists: Option<Neighbourhoods>,
+    max_d2: f64,
+}
+
+impl<'a> Matcher<'a> {
+    fn new(target: &'a [Point3], max_correspondence_distance: f64) -> Self {
+        let index = KnnIndex::new(target);
+        let spacing = typical_spacing(&index, target);
+        Self { target, index, spacing, lists: None, max_d2: max_correspondence_distance.powi(2) }
+    }
+
+    /// The pairs of `t * source` (moved source point, target index, distance), in source order,
+    /// for the points with a target point within the gate; `partner` holds each point's last
+    /// partner (`u32::MAX`: none) and is updated.
+    fn pairs(&self, source: &[Point3], partner: &mut [u32], t: &Pose) -> Vec<(Point3, usize, f64)> {
+        source
+            .par_iter()
+            .zip(partner.par_iter_mut())
+            .filter_map(|(s, last)| {
+                let x = t * s;
+                let listed = match *last {
+                    u32::MAX => None,
+                    j => {
+                        let d2 = (x - self.target[j as usize]).norm_squared();
+                        self.lists.as_ref().and_then(|l| l.nearest_from(self.target, &x, j as usize, d2))
+                    }
+                };
+                let n = listed.or_else(|| self.index.nearest(&x)).filter(|n| n.dist2 <= self.max_d2);
+                *last = n.map_or(u32::MAX, |n| n.index as u32);
+                n.map(|n| (x, n.index, n.dist2.sqrt()))
+            })
+            .collect()
+    }
+
+    /// Builds the neighbourhoods once the pairs `corr` are close enough, in target spacings, for
+    /// short lists to answer most of the next searches.
+    fn prepare(&mut self, corr: &[(Point3, usize, f64)]) {
+        if self.lists.is_some() || corr.is_empty() || self.spacing <= 0.0 {
+            return;
+        }
+        let mut d: Vec<f64> = corr.iter().map(|c| c.2).collect();
+        let at = (d.len() - 1) * 9 / 10;
+        let radius = LIST_RADIUS_PER_PAIR_DISTANCE * *d.select_nth_unstable_by(at, f64::total_cmp).1;
+        if radius <= MAX_LIST_RADIUS_IN_SPACINGS * self.spacing {
+            self.lists = Neighbourhoods::new(self.target, radius.max(self.spacing));
+        }
+    }
+}
+
+/// The median distance from a target point to its nearest other target point, over a strided
+/// sample (0 when the cloud has a single point).
+fn typical_spacing(index: &KnnIndex, points: &[Point3]) -> f64 {
+    let step = (points.len() / SPACING_SAMPLES).max(1);
+    let mut d: Vec<f64> =
+        points.iter().step_by(step).filter_map(|y| index.k_nearest(y, 2).get(1).map(|n| n.dist2.sqrt())).collect();
+    if d.is_empty() {
+        return 0.0;
+    }
+    let mid = d.len() / 2;
+    *d.select_nth_unstable_by(mid, f64::total_cmp).1
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Translation3, UnitQuaternion, Vector3};
+
+    /// A bumpy 10 cm patch, sampled on a jittered grid (`phase` moves the samples).
+    fn patch(n: usize, phase: f64) -> Vec<Point3> {
+        let side = (n as f64).sqrt() as usize;
+        (0..side * side)
+            .map(|i| {
+                let jitter = |k: f64| ((i as f64 + phase) * k).sin() * 0.3;
+                let u = ((i % side) as f64 + jitter(12.9898)) / side as f64;
+                let v = ((i / side) as f64 + jitter(78.233)) / side as f64;
+                Point3::new(0.1 * u, 0.1 * v, 0.015 * (9.0 * u).sin() * (7.0 * v).cos())
+            })
+            .collect()
+    }
+
+    #[test]
+    fn neighbourhood_answers_are_the_tree_answers() {
+        let target = patch(4000, 0.0);
+        let truth = Pose::from_parts(
+            Translation3::new(0.01, -0.02, 0.005),
+            UnitQuaternion::from_scaled_axis(Vector3::new(0.1, -0.25, 0.2)),
+        );
+        let source: Vec<Point3> = patch(3000, 0.5).iter().map(|p| truth.inverse() * p).collect();
+        let mut with_lists = Matcher::new(&target, 0.25);
+        let tree_only = Matcher::new(&target, 0.25);
+        let (mut last_a, mut last_b) = (vec![u32::MAX; source.len()], vec![u32::MAX; source.len()]);
+        // Poses approaching the truth, as ICP's estimates do, then settling around it.
+        let mut listed_passes = 0;
+        for k in 0..=16 {
+            let f = (k as f64 / 10.0).min(1.0);
+            let wobble = if k > 10 { 1e-4 * (k as f64).sin() } else { 0.0 };
+            let t = Pose::identity().lerp_slerp(&truth, f) * Translation3::new(wobble, -wobble, 0.0);
+            let a = with_lists.pairs(&source, &mut last_a, &t);
+            let b = tree_only.pairs(&source, &mut last_b, &t);
+            assert_eq!(a, b, "pass {k}");
+            listed_passes += usize::from(with_lists.lists.is_some());
+            with_lists.prepare(&a);
+        }
+        assert!(listed_passes >= 5, "the neighbourhoods answered {listed_passes} passes");
+        assert!(tree_only.lists.is_none());
     }
 }
