@@ -169,12 +169,16 @@ impl RadiusGrid {
             for y in range[1].0..=range[1].1 {
                 let row = (z * self.dims[1] + y) * self.dims[0];
                 let (from, to) = (self.starts[row + range[0].0] as usize, self.starts[row + range[0].1 + 1] as usize);
+                // Branch-free compaction: every candidate is written, the kept ones advance (a
+                // kept/dropped branch is mispredicted for a good share of the candidates).
+                let mut n = out.len();
+                out.resize(n + (to - from), 0);
                 for (c, &i) in self.coords[from..to].iter().zip(&self.order[from..to]) {
                     let d2 = (c[0] - q.x).powi(2) + (c[1] - q.y).powi(2) + (c[2] - q.z).powi(2);
-                    if d2 <= r2 {
-                        out.push(i);
-                    }
+                    out[n] = i;
+                    n += usize::from(d2 <= r2);
                 }
+                out.truncate(n);
             }
         }
     }

@@ -33,6 +33,9 @@ pub enum CpdEStep {
 /// Floor of sigma^2 (m^2): 10 micrometres, far below any sensor's noise.
 const SIGMA2_FLOOR: f64 = 1e-10;
 
+/// Observations per chunk of the E-step's order-fixed parallel sums.
+const E_STEP_CHUNK: usize = 1024;
+
 /// CPD parameters.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -102,11 +105,14 @@ fn e_step(ty: &[Point3], x: &[Point3], sigma2: f64, c: f64, radius: Option<f64>)
     let m = ty.len();
     let index = radius.map(|_| KnnIndex::new(ty));
     let inv = -0.5 / sigma2;
-    let (p1, px, pt1) = x
-        .par_iter()
-        .fold(
-            || (vec![0.0; m], vec![Vector3::zeros(); m], Vec::new()),
-            |(mut p1, mut px, mut pt1), xn| {
+    // Fixed chunks of observations, each summed sequentially, the partial sums then added in
+    // chunk order: the same bits whatever the thread count or scheduling (rayon's adaptive
+    // fold/reduce would group the additions differently from run to run).
+    let partials: Vec<(Vec<f64>, Vec<Vector3>, Vec<f64>)> = x
+        .par_chunks(E_STEP_CHUNK)
+        .map(|chunk| {
+            let (mut p1, mut px, mut pt1) = (vec![0.0; m], vec![Vector3::zeros(); m], Vec::with_capacity(chunk.len()));
+            for xn in chunk {
                 // Log-domain posteriors: stable when sigma is far below the point spacing.
                 let terms: Vec<(usize, f64)> = match (&index, radius) {
                     // Relative to the largest term: keep every component whose term is within
@@ -132,23 +138,19 @@ fn e_step(ty: &[Point3], x: &[Point3], sigma2: f64, c: f64, radius: Option<f64>)
                     }
                 }
                 pt1.push(row);
-                (p1, px, pt1)
-            },
-        )
-        .map(|(p1, px, pt1)| (p1, px, vec![pt1]))
-        .reduce(
-            || (vec![0.0; m], vec![Vector3::zeros(); m], Vec::new()),
-            |mut a, b| {
-                for k in 0..m {
-                    a.0[k] += b.0[k];
-                    a.1[k] += b.1[k];
-                }
-                a.2.extend(b.2);
-                a
-            },
-        );
-    // Rayon's fold/reduce keeps the order of the chunks, so concatenation restores target order.
-    EStep { p1, pt1: pt1.into_iter().flatten().collect(), px }
+            }
+            (p1, px, pt1)
+        })
+        .collect();
+    let mut partials = partials.into_iter();
+    let (mut p1, mut px, mut pt1) =
+        partials.next().unwrap_or_else(|| (vec![0.0; m], vec![Vector3::zeros(); m], vec![]));
+    for (b1, bx, bt) in partials {
+        p1.iter_mut().zip(&b1).for_each(|(a, b)| *a += b);
+        px.iter_mut().zip(&bx).for_each(|(a, b)| *a += b);
+        pt1.extend(bt);
+    }
+    EStep { p1, pt1, px }
 }
 
 impl Registrar for Cpd {

@@ -11,14 +11,30 @@ const DETERMINISTIC_CHUNK: usize = 512;
 /// Fitness (fraction of source points with a target point within `max_distance`) and the RMSE of
 /// those pairs, for the source moved by `transform` (as Open3D's `evaluate_registration`).
 pub fn evaluate(source: &[Point3], target: &KnnIndex, transform: &Pose, max_distance: f64) -> (f64, f64) {
+    evaluate_by(source, transform, max_distance, |_, q| target.nearest(q).map(|n| n.dist2))
+}
+
+/// [`evaluate`] with the squared distance from moved source point `i` (at `q`) to its nearest
+/// target point given by `nearest2(i, q)` (`None`: no target point).
+pub(crate) fn evaluate_by(
+    source: &[Point3],
+    transform: &Pose,
+    max_distance: f64,
+    nearest2: impl Fn(usize, &Point3) -> Option<f64> + Sync,
+) -> (f64, f64) {
     // Fixed chunks summed in order: the same bits whatever the thread count or scheduling.
     let (count, sum) = source
         .par_chunks(DETERMINISTIC_CHUNK)
-        .map(|chunk| {
+        .enumerate()
+        .map(|(c, chunk)| {
             chunk
                 .iter()
-                .filter_map(|p| target.nearest(&(transform * p)).filter(|n| n.dist2 <= max_distance * max_distance))
-                .fold((0usize, 0.0f64), |a, n| (a.0 + 1, a.1 + n.dist2))
+                .enumerate()
+                .filter_map(|(k, p)| {
+                    nearest2(c * DETERMINISTIC_CHUNK + k, &(transform * p))
+                        .filter(|d2| *d2 <= max_distance * max_distance)
+                })
+                .fold((0usize, 0.0f64), |a, d2| (a.0 + 1, a.1 + d2))
         })
         .collect::<Vec<_>>()
         .into_iter()

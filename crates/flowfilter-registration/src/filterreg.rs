@@ -15,7 +15,7 @@
 use crate::aggregate::Pyramid;
 use crate::anderson::Anderson;
 use crate::error::RegistrationError;
-use crate::evaluate::{evaluate, plane_or_point_step};
+use crate::evaluate::{evaluate, evaluate_by, plane_or_point_step};
 use crate::gmm::mean_pair_distance2;
 use crate::lattice::Lattice;
 use crate::problem::{
@@ -295,6 +295,17 @@ impl NeighbourCache {
     fn moved2(&self, queries: &[Point3]) -> Option<f64> {
         (queries.len() == self.built_at.len())
             .then(|| queries.iter().zip(&self.built_at).map(|(q, b)| (q - b).norm_squared()).fold(0.0, f64::max))
+    }
+
+    /// The squared distance from `q`, point `i` of the queries moved, to its nearest target
+    /// point, where `i`'s list certifies it: every target point within the list's radius less
+    /// the distance moved since the gathering is on the list, so a nearest candidate that close
+    /// is the nearest point. `None` otherwise (search the tree).
+    fn nearest2(&self, i: usize, q: &Point3, target: &[Point3]) -> Option<f64> {
+        let slack = self.radius - (q - self.built_at[i]).norm();
+        let list = self.chunks[i / CACHE_CHUNK].list(i % CACHE_CHUNK);
+        let best = list.iter().map(|&k| (target[k as usize] - q).norm_squared()).fold(f64::INFINITY, f64::min);
+        (slack > 0.0 && best <= slack * slack).then_some(best)
     }
 
     /// Whether the lists still cover radius `r` around every point, the points having moved by at
@@ -782,7 +793,15 @@ impl FilterReg {
                 warnings: vec!["FilterReg diverged to a non-finite pose; returning the initial pose".into()],
             });
         }
-        let (fitness, inlier_rmse) = evaluate(source, &index, &t, cfg.evaluation_distance);
+        // The last exact iteration's lists (when they were gathered for every point) answer
+        // most of the evaluation's nearest-neighbour searches.
+        let lists = exact.and_then(|e| e.cache).filter(|c| c.built_at.len() == source.len());
+        let (fitness, inlier_rmse) = match &lists {
+            Some(c) => evaluate_by(source, &t, cfg.evaluation_distance, |i, q| {
+                c.nearest2(i, q, target).or_else(|| index.nearest(q).map(|n| n.dist2))
+            }),
+            None => evaluate(source, &index, &t, cfg.evaluation_distance),
+        };
         Ok(Registration {
             transform: t,
             iterations,

@@ -6,7 +6,7 @@ use common::{bumpy_shape, corrupted, errors, random_transform};
 use flowfilter_geometry::{PointCloud, Pose};
 use flowfilter_registration::{
     FilterReg, FilterRegConfig, FilterRegEStep, FilterRegVariant, Icp, IcpVariant, METHOD_NAMES, Registrar,
-    Registration, RegistrationConfig, RegistrationProblem, registrar_by_name,
+    Registration, RegistrationConfig, RegistrationProblem, evaluate, registrar_by_name,
 };
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -291,5 +291,55 @@ fn settling_subset_reaches_the_all_points_pose() {
             // ...the destinations do not.
             assert_same_fixed_point(&all, &subset, &truth, &format!("case {case} {variant:?}"));
         }
+    }
+}
+
+#[test]
+fn every_backend_gives_the_same_bits_with_any_thread_count() {
+    // The parallel sums are order-fixed: how rayon splits the work must not change a bit.
+    let source = bumpy_shape(1500, 4);
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let truth = random_transform(&mut rng, 25.0, 0.05);
+    let problem = RegistrationProblem::new(source.clone(), corrupted(&source, &truth, 0.001, 0.1, 5));
+    let mut config = config();
+    config.cpd.w = 0.2;
+    config.filterreg.w = 0.2;
+    for name in METHOD_NAMES {
+        let reg = registrar_by_name(name, &config).unwrap();
+        let run = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            pool.install(|| reg.register(&problem).unwrap())
+        };
+        let (one, three) = (run(1), run(3));
+        println!("{name}: {:.3} deg, {} iterations", errors(&one.transform, &truth).0, one.iterations);
+        assert!(errors(&one.transform, &truth).0 < 1.0, "{name}: a meaningful run");
+        assert_eq!(one.transform.to_homogeneous(), three.transform.to_homogeneous(), "{name}: pose");
+        assert_eq!(
+            (one.iterations, one.fitness, one.inlier_rmse, one.sigma2),
+            (three.iterations, three.fitness, three.inlier_rmse, three.sigma2),
+            "{name}: iterations, fitness, RMSE, sigma^2"
+        );
+    }
+}
+
+#[test]
+fn filterreg_fitness_is_the_tree_evaluation_at_its_pose() {
+    // FilterReg finds the fitness's nearest points in its last exact iteration's neighbour lists
+    // where they certify them: the result must be the k-d tree evaluation's.
+    let clean = bumpy_shape(3000, 6);
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let truth = random_transform(&mut rng, 25.0, 0.05);
+    let target = corrupted(&clean, &truth, 0.001, 0.1, 9);
+    for variant in [FilterRegVariant::PointToPoint, FilterRegVariant::PointToPlane] {
+        let cfg = FilterRegConfig { variant, w: 0.2, ..FilterRegConfig::default() };
+        let r = filterreg(cfg.clone(), &clean, &target);
+        let index = flowfilter_geometry::KnnIndex::new(&target.points);
+        let (fitness, rmse) = evaluate(&clean.points, &index, &r.transform, cfg.evaluation_distance);
+        println!("{variant:?}: fitness {fitness}, RMSE {rmse:e} m");
+        assert!(fitness > 0.9 && rmse > 0.0, "{variant:?}: a meaningful evaluation");
+        // The same pairs; the sums differ only in their order (FilterReg visits the source in
+        // spatial order).
+        assert_eq!(r.fitness, fitness, "{variant:?}");
+        assert!((r.inlier_rmse - rmse).abs() <= 1e-12 * rmse, "{variant:?}: {} vs {rmse}", r.inlier_rmse);
     }
 }
