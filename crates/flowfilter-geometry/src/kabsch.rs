@@ -48,22 +48,28 @@ pub fn weighted_kabsch(sources: &[Point3], targets: &[Point3], weights: Option<&
     if targets.len() != n || wlen != n {
         return Err(KabschError::LengthMismatch { sources: n, targets: targets.len(), weights: wlen });
     }
-    let w = |i: usize| weights.map_or(1.0, |w| w[i]);
+    weighted_kabsch_by(n, |i| (sources[i], targets[i], weights.map_or(1.0, |w| w[i])))
+}
+
+/// [`weighted_kabsch`] over `n` pairs read through `pair(i) = (x_i, y_i, w_i)`: the pairs need
+/// not be gathered into slices first (the same sums in the same order, so the same result).
+/// `pair` is called twice per index.
+pub fn weighted_kabsch_by(n: usize, pair: impl Fn(usize) -> (Point3, Point3, f64)) -> Result<Pose, KabschError> {
     let mut wsum = 0.0;
     let mut cs = Vector3::zeros();
     let mut ct = Vector3::zeros();
     let mut used = 0usize;
     for i in 0..n {
-        let wi = w(i);
-        let finite = sources[i].coords.iter().chain(targets[i].coords.iter()).all(|v| v.is_finite());
+        let (x, y, wi) = pair(i);
+        let finite = x.coords.iter().chain(y.coords.iter()).all(|v| v.is_finite());
         if !finite || !wi.is_finite() || wi < 0.0 {
             return Err(KabschError::InvalidInput { index: i });
         }
         if wi > 0.0 {
             used += 1;
             wsum += wi;
-            cs += wi * sources[i].coords;
-            ct += wi * targets[i].coords;
+            cs += wi * x.coords;
+            ct += wi * y.coords;
         }
     }
     if used < 3 {
@@ -74,10 +80,10 @@ pub fn weighted_kabsch(sources: &[Point3], targets: &[Point3], weights: Option<&
     let mut h = Matrix3::zeros();
     let mut spread = 0.0;
     for i in 0..n {
-        let wi = w(i);
+        let (x, y, wi) = pair(i);
         if wi > 0.0 {
-            let a = sources[i].coords - cs;
-            let b = targets[i].coords - ct;
+            let a = x.coords - cs;
+            let b = y.coords - ct;
             h += wi * b * a.transpose();
             spread += wi * a.norm_squared();
         }
@@ -126,6 +132,21 @@ mod tests {
         w[3] = 0.0;
         let est = weighted_kabsch(&src, &dst, Some(&w)).unwrap();
         assert!((est.to_homogeneous() - truth.to_homogeneous()).abs().max() < 1e-10);
+    }
+
+    #[test]
+    fn accessor_form_is_the_slice_form() {
+        let truth = Pose::new(Vector3::new(0.05, -0.02, 0.1), Vector3::new(-0.3, 0.2, 0.4));
+        let src = cloud();
+        // Noisy targets and uneven weights: a non-trivial least-squares problem.
+        let dst: Vec<Point3> =
+            src.iter().enumerate().map(|(i, p)| truth * p + Vector3::repeat(0.01 * (i as f64 * 1.7).sin())).collect();
+        let w: Vec<f64> = (0..src.len()).map(|i| 0.5 + (i % 7) as f64).collect();
+        let sliced = weighted_kabsch(&src, &dst, Some(&w)).unwrap();
+        let by = weighted_kabsch_by(src.len(), |i| (src[i], dst[i], w[i])).unwrap();
+        assert_eq!(sliced.to_homogeneous(), by.to_homogeneous());
+        assert!((sliced * truth.inverse()).rotation.angle() < 0.05);
+        assert!(matches!(weighted_kabsch_by(2, |i| (src[i], dst[i], 1.0)), Err(KabschError::TooFew { found: 2 })));
     }
 
     #[test]

@@ -18,7 +18,7 @@ pub mod se3;
 
 pub use cloud::{CloudError, PointCloud};
 pub use grid::{DepthMap, Grid, GridSizeError, Mask, RawDepth, mask_bbox};
-pub use kabsch::{KabschError, weighted_kabsch};
+pub use kabsch::{KabschError, weighted_kabsch, weighted_kabsch_by};
 pub use knn::{KnnIndex, Neighbour, spatial_order};
 pub use neighbourhoods::Neighbourhoods;
 pub use radius_grid::RadiusGrid;

@@ -4,7 +4,7 @@
 use crate::error::RegistrationError;
 use crate::evaluate::{RobustKernel, point_to_plane_step_by};
 use crate::problem::{IterationRecord, Registrar, Registration, RegistrationProblem, in_pool, validate_problem};
-use flowfilter_geometry::{KnnIndex, Neighbourhoods, Point3, Pose, spatial_order, weighted_kabsch};
+use flowfilter_geometry::{KnnIndex, Neighbourhoods, Point3, Pose, spatial_order, weighted_kabsch_by};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -134,10 +134,11 @@ impl Icp {
                     (x, p.target.points[j], normals[j], cfg.kernel.weight(d))
                 })
             } else {
-                let x: Vec<Point3> = corr.iter().map(|c| c.0).collect();
-                let y: Vec<Point3> = corr.iter().map(|c| p.target.points[c.1]).collect();
-                let w: Vec<f64> = corr.iter().map(|c| cfg.kernel.weight(c.2)).collect();
-                weighted_kabsch(&x, &y, Some(&w)).ok()
+                weighted_kabsch_by(corr.len(), |i| {
+                    let (x, j, d) = corr[i];
+                    (x, p.target.points[j], cfg.kernel.weight(d))
+                })
+                .ok()
             };
             let Some(delta) = delta else {
                 warnings.push("the update is not determined (degenerate correspondences)".into());
