@@ -56,6 +56,18 @@ impl KnnIndex {
             .collect()
     }
 
+    /// The median, over a strided sample of about `samples` of `points` (the indexed points), of
+    /// the distance from a point to its `k`-th nearest indexed point, the point itself counting as
+    /// the first (`k = 2`: the nearest other point). A cloud's typical spacing at the scale of
+    /// `k` neighbours; `None` when there is nothing to sample.
+    pub fn median_neighbour_distance(&self, points: &[Point3], k: usize, samples: usize) -> Option<f64> {
+        let step = (points.len() / samples.max(1)).max(1);
+        let mut d: Vec<f64> =
+            points.iter().step_by(step).filter_map(|y| self.k_nearest(y, k).last().map(|n| n.dist2.sqrt())).collect();
+        let mid = d.len() / 2;
+        (!d.is_empty()).then(|| *d.select_nth_unstable_by(mid, f64::total_cmp).1)
+    }
+
     /// The `k` nearest indexed points, nearest first (fewer if the index is smaller).
     pub fn k_nearest(&self, p: &Point3, k: usize) -> Vec<Neighbour> {
         let (Some(tree), Some(k)) = (self.tree.as_ref(), NonZero::new(k.min(self.len))) else { return vec![] };
@@ -106,6 +118,20 @@ pub fn spatial_order(points: &[Point3]) -> Vec<u32> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn median_neighbour_distance_is_the_grid_spacing() {
+        // A 20 x 20 grid of spacing 2 mm: every point's nearest other point is 2 mm away.
+        let pts: Vec<Point3> =
+            (0..400).map(|i| Point3::new((i % 20) as f64 * 0.002, (i / 20) as f64 * 0.002, 0.0)).collect();
+        let index = KnnIndex::new(&pts);
+        let d = index.median_neighbour_distance(&pts, 2, 64).unwrap();
+        assert!((d - 0.002).abs() < 1e-12, "{d}");
+        // The 9th nearest (self, 4 edge neighbours, 4 diagonal ones) of an interior point: 2 mm * sqrt 2.
+        let d9 = index.median_neighbour_distance(&pts, 9, 64).unwrap();
+        assert!((d9 - 0.002 * 2f64.sqrt()).abs() < 1e-12, "{d9}");
+        assert!(KnnIndex::new(&[]).median_neighbour_distance(&[], 2, 64).is_none());
+    }
 
     #[test]
     fn matches_brute_force() {

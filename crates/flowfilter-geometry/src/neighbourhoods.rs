@@ -60,8 +60,8 @@ impl Neighbourhoods {
     /// The point of `points` (the cloud the lists were built from) nearest to `q`, given that
     /// point `from` lies at squared distance `from_dist2` from `q`; `None` when that distance is
     /// too large for the lists to certify the answer (`2 d` above the radius), in which case the
-    /// caller must search otherwise (e.g. [`crate::KnnIndex::nearest`]). Among points at exactly the same distance the first scanned is returned
-    /// (`from` first).
+    /// caller must search otherwise (e.g. [`crate::KnnIndex::nearest`]). Among points at exactly
+    /// the same distance the first scanned is returned (`from` first).
     pub fn nearest_from(&self, points: &[Point3], q: &Point3, from: usize, from_dist2: f64) -> Option<Neighbour> {
         if from_dist2.is_nan() || 4.0 * from_dist2 > self.radius * self.radius * (1.0 - MARGIN) {
             return None;

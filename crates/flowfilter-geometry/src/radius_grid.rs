@@ -50,7 +50,6 @@ impl RadiusGrid {
             }
             dims[a] = n as usize;
         }
-
         let cells = dims.iter().try_fold(1usize, |acc, &d| acc.checked_mul(d).filter(|&c| c <= MAX_CELLS))?;
         let cell_of = |p: &Point3| -> usize {
             let c = |a: usize| (((p[a] - lo[a]) / radius) as usize).min(dims[a] - 1);
@@ -90,7 +89,7 @@ impl RadiusGrid {
             .map(|cells| {
                 let (mut counts, mut members) = (vec![], vec![]);
                 let (mut cand, mut cand_id) = (Vec::<[f64; 3]>::new(), Vec::<u32>::new());
-                let (mut hits, mut dist) = (Vec::<u32>::new(), Vec::<f64>::new());
+                let mut hits = Vec::<u32>::new();
                 for &c in cells {
                     let c = c as usize;
                     let (x, y, z) =
@@ -112,12 +111,9 @@ impl RadiusGrid {
                         // advances only for the kept ones (a kept/dropped branch would be
                         // mispredicted for a good share of them).
                         hits.resize(cand.len(), 0);
-                        dist.clear();
-                        dist.extend(
-                            cand.iter().map(|p| (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)),
-                        );
                         let mut n = 0;
-                        for (&d2, &id) in dist.iter().zip(&cand_id) {
+                        for (p, &id) in cand.iter().zip(&cand_id) {
+                            let d2 = (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2);
                             hits[n] = id;
                             n += usize::from((d2 <= r2) & (id != me));
                         }

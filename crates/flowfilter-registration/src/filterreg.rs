@@ -303,9 +303,12 @@ impl NeighbourCache {
     /// is the nearest point. `None` otherwise (search the tree).
     fn nearest2(&self, i: usize, q: &Point3, target: &[Point3]) -> Option<f64> {
         let slack = self.radius - (q - self.built_at[i]).norm();
+        if slack <= 0.0 {
+            return None;
+        }
         let list = self.chunks[i / CACHE_CHUNK].list(i % CACHE_CHUNK);
         let best = list.iter().map(|&k| (target[k as usize] - q).norm_squared()).fold(f64::INFINITY, f64::min);
-        (slack > 0.0 && best <= slack * slack).then_some(best)
+        (best <= slack * slack).then_some(best)
     }
 
     /// Whether the lists still cover radius `r` around every point, the points having moved by at
@@ -591,16 +594,8 @@ impl FilterReg {
         // AUTO_NEIGHBOURS-th neighbour: the support radius below which exact sums are cheaper
         // than the lattice (Auto), and a quarter of it the point spacing (merging).
         let merging = cfg.merge_fraction > 0.0 && cfg.e_step == FilterRegEStep::Auto;
-        let support = (cfg.e_step == FilterRegEStep::Auto || merging).then(|| {
-            let step = (target.len() / 64).max(1);
-            let mut d: Vec<f64> = target
-                .iter()
-                .step_by(step)
-                .filter_map(|y| index.k_nearest(y, AUTO_NEIGHBOURS).last().map(|n| n.dist2.sqrt()))
-                .collect();
-            d.sort_by(f64::total_cmp);
-            d.get(d.len() / 2).copied().unwrap_or(f64::INFINITY)
-        });
+        let support = (cfg.e_step == FilterRegEStep::Auto || merging)
+            .then(|| index.median_neighbour_distance(target, AUTO_NEIGHBOURS, 64).unwrap_or(f64::INFINITY));
         let exact_below = support.filter(|_| cfg.e_step == FilterRegEStep::Auto);
         // Merged source (no values) and target for the wide-kernel lattice iterations.
         let pyramids = support.filter(|r| merging && r.is_finite() && *r > 0.0).map(|r| {

@@ -208,7 +208,7 @@ struct Matcher<'a> {
 impl<'a> Matcher<'a> {
     fn new(target: &'a [Point3], max_correspondence_distance: f64) -> Self {
         let index = KnnIndex::new(target);
-        let spacing = typical_spacing(&index, target);
+        let spacing = index.median_neighbour_distance(target, 2, SPACING_SAMPLES).unwrap_or(0.0);
         Self { target, index, spacing, lists: None, max_d2: max_correspondence_distance.powi(2) }
     }
 
@@ -248,19 +248,6 @@ impl<'a> Matcher<'a> {
             self.lists = Neighbourhoods::new(self.target, radius.max(self.spacing));
         }
     }
-}
-
-/// The median distance from a target point to its nearest other target point, over a strided
-/// sample (0 when the cloud has a single point).
-fn typical_spacing(index: &KnnIndex, points: &[Point3]) -> f64 {
-    let step = (points.len() / SPACING_SAMPLES).max(1);
-    let mut d: Vec<f64> =
-        points.iter().step_by(step).filter_map(|y| index.k_nearest(y, 2).get(1).map(|n| n.dist2.sqrt())).collect();
-    if d.is_empty() {
-        return 0.0;
-    }
-    let mid = d.len() / 2;
-    *d.select_nth_unstable_by(mid, f64::total_cmp).1
 }
 
 #[cfg(test)]
