@@ -5,6 +5,7 @@
 //! descent and result collection.
 
 use crate::Point3;
+use crate::fastmath::floor_i64;
 use rayon::prelude::*;
 
 /// Non-empty cells per parallel task of [`RadiusGrid::all_within`].
@@ -153,12 +154,14 @@ impl RadiusGrid {
         let r = self.radius;
         let mut range = [(0usize, 0usize); 3];
         for (a, rg) in range.iter_mut().enumerate() {
-            let lo = ((q[a] - r - self.origin[a]) / r).floor();
-            let hi = ((q[a] + r - self.origin[a]) / r).floor();
-            if hi < 0.0 || lo >= self.dims[a] as f64 || lo.is_nan() || hi.is_nan() {
+            // Cell coordinates of the query's box (no libm floor calls: this runs per query).
+            let lo = (q[a] - r - self.origin[a]) / r;
+            let hi = (q[a] + r - self.origin[a]) / r;
+            // Outside the grid (or NaN): nothing within the radius.
+            if !(hi >= 0.0 && lo < self.dims[a] as f64) {
                 return;
             }
-            *rg = (lo.max(0.0) as usize, (hi as usize).min(self.dims[a] - 1));
+            *rg = (floor_i64(lo).max(0) as usize, (floor_i64(hi) as usize).min(self.dims[a] - 1));
         }
         let r2 = r * r;
         for z in range[2].0..=range[2].1 {

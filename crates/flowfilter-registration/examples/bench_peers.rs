@@ -51,12 +51,12 @@ fn main() {
             match (peer["seconds"].as_f64(), peer["rotation_error_deg"].as_f64()) {
                 (Some(ps), Some(pd)) => {
                     println!(
-                        "| {n} | {method} | {secs:.3} | {ps:.3} | {:.1}x | {deg:.4} | {pd:.4} | {} |",
+                        "| {n} | {method} | {secs:.4} | {ps:.3} | {:.1}x | {deg:.4} | {pd:.4} | {} |",
                         ps / secs,
                         r.iterations
                     )
                 }
-                _ => println!("| {n} | {method} | {secs:.3} | not run | - | {deg:.4} | - | {} |", r.iterations),
+                _ => println!("| {n} | {method} | {secs:.4} | not run | - | {deg:.4} | - | {} |", r.iterations),
             }
         }
     }

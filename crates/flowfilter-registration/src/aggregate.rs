@@ -7,6 +7,7 @@
 //! the M-step visits) from thousands to hundreds. Levels double the voxel edge, so each is built
 //! from the one below by merging eight voxels.
 
+use flowfilter_geometry::fastmath::floor_i64;
 use flowfilter_geometry::{Point3, Vector3};
 
 /// One level: merged points with their point counts, spreads and summed values.
@@ -106,8 +107,7 @@ impl Pyramid {
     /// merges: construction stops once a level holds fewer than `min_points` centroids.
     /// `values` holds `vd` values per point (may be empty with `vd = 0`).
     pub fn new(points: &[Point3], values: &[f64], vd: usize, finest: f64, min_points: usize) -> Self {
-        let key =
-            |p: &Point3| [(p.x / finest).floor() as i64, (p.y / finest).floor() as i64, (p.z / finest).floor() as i64];
+        let key = |p: &Point3| [floor_i64(p.x / finest), floor_i64(p.y / finest), floor_i64(p.z / finest)];
         let ones = vec![1.0; points.len()];
         let zeros = vec![0.0; points.len()];
         let mut levels = vec![merge(finest, vd, points.iter().map(key).collect(), points, &ones, &zeros, values)];

@@ -21,7 +21,7 @@ use crate::lattice::Lattice;
 use crate::problem::{
     Correspondences, IterationRecord, Registrar, Registration, RegistrationProblem, in_pool, validate_problem,
 };
-use flowfilter_geometry::{KnnIndex, Point3, Pose, RadiusGrid, Vector3, spatial_order, weighted_kabsch};
+use flowfilter_geometry::{KnnIndex, Point3, Pose, RadiusGrid, Vector3, fastmath, spatial_order, weighted_kabsch};
 use nalgebra::{DVector, Translation3, UnitQuaternion};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -414,19 +414,37 @@ impl ExactEStep<'_> {
         out.par_chunks_mut(vd * CACHE_CHUNK)
             .zip(cache.chunks.par_iter())
             .zip(queries.par_chunks(CACHE_CHUNK))
-            .for_each(|((out, c), qs)| {
-                for ((i, q), acc) in qs.iter().enumerate().zip(out.chunks_exact_mut(vd)) {
-                    for &k in c.list(i) {
-                        let v = &values[k as usize * vd..(k as usize + 1) * vd];
-                        let d2 = dist2(v, q);
-                        if d2 <= r2 {
-                            let w = (d2 * inv).exp();
-                            acc.iter_mut().zip(v).for_each(|(a, vc)| *a += w * vc);
-                        }
-                    }
-                }
+            .for_each(|((out, c), qs)| match vd {
+                5 => kernel_sums::<5>(c, qs, values, inv, r2, out),
+                8 => kernel_sums::<8>(c, qs, values, inv, r2, out),
+                _ => unreachable!("target values rows hold 5 or 8 entries"),
             });
         unpack(&out, vd)
+    }
+}
+
+/// The exact sums of one chunk of points: `out` row `i` (`VD` entries) receives
+/// `sum_k exp(inv d2_ik) v_k` over the candidates `k` of point `i` within `sqrt(r2)` of
+/// `qs[i]`. The weights of a point's candidates are computed first, in one branch-free pass
+/// (the exponentials vectorise; a candidate beyond the support weighs exactly 0), then summed.
+fn kernel_sums<const VD: usize>(c: &ListChunk, qs: &[Point3], values: &[f64], inv: f64, r2: f64, out: &mut [f64]) {
+    let mut weights = Vec::new();
+    for ((i, q), acc) in qs.iter().enumerate().zip(out.chunks_exact_mut(VD)) {
+        let list = c.list(i);
+        weights.clear();
+        weights.extend(list.iter().map(|&k| dist2(&values[k as usize * VD..], q)));
+        for w in weights.iter_mut() {
+            let e = fastmath::exp(*w * inv);
+            *w = if *w <= r2 { e } else { 0.0 };
+        }
+        let mut sum = [0.0; VD];
+        for (&k, &w) in list.iter().zip(&weights) {
+            let v: &[f64; VD] = values[k as usize * VD..(k as usize + 1) * VD].try_into().expect("VD entries");
+            for (s, vc) in sum.iter_mut().zip(v) {
+                *s += w * vc;
+            }
+        }
+        acc.copy_from_slice(&sum);
     }
 }
 
@@ -651,10 +669,13 @@ impl FilterReg {
                 FilterRegEStep::Auto => {
                     // Once exact, stay exact (sigma rarely grows back; no flip-flopping). The exact
                     // sums cost the kernel's neighbour count, (4 sigma / r)^2 * AUTO_NEIGHBOURS
-                    // on a surface, per source point visited, the lattice the points of both
-                    // clouds: visiting a subset of the source moves the switch to wider kernels.
+                    // on a surface, per source point visited; the lattice costs about as much per
+                    // point of both clouds: the source points visited and the target (taken as
+                    // large as the whole source). With every point visited the switch comes at
+                    // (4 sigma / r)^2 = 1; visiting a share s of the source moves it to
+                    // (4 sigma / r)^2 = (s + 1) / (2 s), wider kernels.
                     let share = subset.as_ref().map_or(1.0, |(pts, _)| pts.len() as f64 / source.len() as f64);
-                    exact_phase |= exact_below.is_some_and(|r| (4.0 * sigma / r).powi(2) * share < 1.0);
+                    exact_phase |= exact_below.is_some_and(|r| (4.0 * sigma / r).powi(2) * share < 0.5 * (share + 1.0));
                     !exact_phase
                 }
             };

@@ -12,9 +12,9 @@
 use flowfilter_geometry::fastmath::floor_i64;
 use rayon::prelude::*;
 
-/// Open-addressing hash table from lattice keys (`d` integers) to vertex indices.
+/// Open-addressing hash table from lattice keys (`d` integers) to vertex indices. Every method
+/// takes `d`: the lattice's three-dimensional paths pass a constant, so the key loops unroll.
 struct KeyTable {
-    d: usize,
     keys: Vec<i32>,
     slots: Vec<u32>,
 }
@@ -22,7 +22,7 @@ struct KeyTable {
 const EMPTY: u32 = u32::MAX;
 
 /// Key equality as a plain loop (short keys: cheaper than the `memcmp` call of `==`).
-#[inline]
+#[inline(always)]
 fn same_key(a: &[i32], b: &[i32]) -> bool {
     a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x == y)
 }
@@ -30,15 +30,17 @@ fn same_key(a: &[i32], b: &[i32]) -> bool {
 impl KeyTable {
     fn new(d: usize, capacity: usize) -> Self {
         let n = (capacity * 2).next_power_of_two().max(16);
-        Self { d, keys: Vec::with_capacity(capacity * d), slots: vec![EMPTY; n] }
+        Self { keys: Vec::with_capacity(capacity * d), slots: vec![EMPTY; n] }
     }
 
-    fn len(&self) -> usize {
-        self.keys.len() / self.d
+    #[inline(always)]
+    fn len(&self, d: usize) -> usize {
+        self.keys.len() / d
     }
 
     /// A multiplicative (Fx-style) hash of the key: lattice keys are small integers, so a
     /// keyed cryptographic hash buys nothing here and costs most of the splat and slice time.
+    #[inline(always)]
     fn hash(key: &[i32]) -> usize {
         let mut h: u64 = 0;
         for &k in key {
@@ -47,11 +49,13 @@ impl KeyTable {
         (h ^ (h >> 29)) as usize
     }
 
-    fn key(&self, i: u32) -> &[i32] {
-        &self.keys[i as usize * self.d..(i as usize + 1) * self.d]
+    #[inline(always)]
+    fn key(&self, d: usize, i: u32) -> &[i32] {
+        &self.keys[i as usize * d..(i as usize + 1) * d]
     }
 
-    fn find(&self, key: &[i32]) -> Option<u32> {
+    #[inline(always)]
+    fn find(&self, d: usize, key: &[i32]) -> Option<u32> {
         let mask = self.slots.len() - 1;
         let mut s = Self::hash(key) & mask;
         loop {
@@ -59,39 +63,40 @@ impl KeyTable {
             if i == EMPTY {
                 return None;
             }
-            if same_key(self.key(i), key) {
+            if same_key(self.key(d, i), key) {
                 return Some(i);
             }
             s = (s + 1) & mask;
         }
     }
 
-    fn insert(&mut self, key: &[i32]) -> u32 {
-        if (self.len() + 1) * 2 > self.slots.len() {
-            self.grow();
+    #[inline(always)]
+    fn insert(&mut self, d: usize, key: &[i32]) -> u32 {
+        if (self.len(d) + 1) * 2 > self.slots.len() {
+            self.grow(d);
         }
         let mask = self.slots.len() - 1;
         let mut s = Self::hash(key) & mask;
         loop {
             let i = self.slots[s];
             if i == EMPTY {
-                let id = self.len() as u32;
+                let id = self.len(d) as u32;
                 self.keys.extend_from_slice(key);
                 self.slots[s] = id;
                 return id;
             }
-            if same_key(self.key(i), key) {
+            if same_key(self.key(d, i), key) {
                 return i;
             }
             s = (s + 1) & mask;
         }
     }
 
-    fn grow(&mut self) {
+    fn grow(&mut self, d: usize) {
         let n = self.slots.len() * 2;
         self.slots = vec![EMPTY; n];
-        for id in 0..self.len() as u32 {
-            let mut s = Self::hash(self.key(id)) & (n - 1);
+        for id in 0..self.len(d) as u32 {
+            let mut s = Self::hash(self.key(d, id)) & (n - 1);
             while self.slots[s] != EMPTY {
                 s = (s + 1) & (n - 1);
             }
@@ -220,6 +225,14 @@ impl Embedding {
     }
 }
 
+/// The dimension `d` as the constant `D` where one is given (the code instantiated for it
+/// unrolls its per-coordinate loops), else `d` (`D == 0`).
+#[inline(always)]
+fn dim<const D: usize>(d: usize) -> usize {
+    debug_assert!(D == 0 || D == d);
+    if D == 0 { d } else { D }
+}
+
 /// A permutohedral lattice holding blurred values.
 pub struct Lattice {
     d: usize,
@@ -234,6 +247,21 @@ impl Lattice {
     /// Gaussian's standard deviation) and blur. Panics if slice lengths disagree with `d`/`vd`.
     pub fn new(d: usize, positions: &[f64], vd: usize, values: &[f64]) -> Self {
         assert!(d >= 1 && positions.len().is_multiple_of(d) && values.len() == positions.len() / d * vd);
+        // Three dimensions (FilterReg's case) get their own copy with `d` a constant.
+        let mut lattice = match d {
+            3 => Self::splat::<3>(d, positions, vd, values),
+            _ => Self::splat::<0>(d, positions, vd, values),
+        };
+        match d {
+            3 => lattice.blur::<3>(),
+            _ => lattice.blur::<0>(),
+        }
+        lattice
+    }
+
+    /// The splatted (not yet blurred) lattice of dimension `d` (`D`: `d` as a constant, or 0).
+    fn splat<const D: usize>(d: usize, positions: &[f64], vd: usize, values: &[f64]) -> Self {
+        let d = dim::<D>(d);
         let n = positions.len() / d;
         let embedding = Embedding::new(d);
         // Simplices in parallel; the insertion (which numbers the vertices) stays sequential, in
@@ -253,32 +281,30 @@ impl Lattice {
             });
         let mut table = KeyTable::new(d, n * (d + 1) / 2 + 16);
         let mut vals: Vec<f64> = Vec::new();
-        for p in 0..n {
-            for r in 0..=d {
-                let at = (p * (d + 1) + r) * d;
-                let id = table.insert(&keys[at..at + d]) as usize;
+        for ((k, w), v) in keys.chunks_exact((d + 1) * d).zip(weights.chunks_exact(d + 1)).zip(values.chunks_exact(vd))
+        {
+            for (key, &wr) in k.chunks_exact(d).zip(w) {
+                let id = table.insert(d, key) as usize;
                 if vals.len() < (id + 1) * vd {
                     vals.resize((id + 1) * vd, 0.0);
                 }
-                let wr = weights[p * (d + 1) + r];
-                for c in 0..vd {
-                    vals[id * vd + c] += wr * values[p * vd + c];
+                for (acc, vc) in vals[id * vd..(id + 1) * vd].iter_mut().zip(v) {
+                    *acc += wr * vc;
                 }
             }
         }
-        let mut lattice = Self { d, vd, embedding, table, values: vals };
-        lattice.blur();
-        lattice
+        Self { d, vd, embedding, table, values: vals }
     }
 
     /// Number of lattice vertices.
     pub fn vertices(&self) -> usize {
-        self.table.len()
+        self.table.len(self.d)
     }
 
-    fn blur(&mut self) {
-        let (d, vd) = (self.d, self.vd);
-        let n = self.table.len();
+    /// Blurs the splatted values (`D`: `self.d` as a constant, or 0).
+    fn blur<const D: usize>(&mut self) {
+        let (d, vd) = (dim::<D>(self.d), self.vd);
+        let n = self.table.len(d);
         let table = &self.table;
         // Along each of the d + 1 lattice directions: [1 2 1] / 4 over the two neighbours
         // (missing vertices hold zero). Every vertex is independent within a pass.
@@ -290,7 +316,7 @@ impl Lattice {
             next.par_chunks_mut(vd * 256).enumerate().for_each(|(chunk, out)| {
                 let mut key = vec![0i32; d];
                 for (o, v) in out.chunks_exact_mut(vd).zip(chunk * 256..) {
-                    let base = table.key(v as u32);
+                    let base = table.key(d, v as u32);
                     let mut neighbour = |sign: i32| -> Option<u32> {
                         for i in 0..d {
                             key[i] = base[i] - sign;
@@ -298,7 +324,7 @@ impl Lattice {
                         if j < d {
                             key[j] = base[j] + sign * d as i32;
                         }
-                        table.find(&key)
+                        table.find(d, &key[..d])
                     };
                     let (a, b) = (neighbour(1), neighbour(-1));
                     for c in 0..vd {
@@ -319,18 +345,26 @@ impl Lattice {
 
     /// Interpolate the blurred values at `queries` (`d` per point) into `out` (`vd` per point).
     pub fn slice(&self, queries: &[f64], out: &mut [f64]) {
-        let (d, vd) = (self.d, self.vd);
-        assert!(queries.len().is_multiple_of(d) && out.len() == queries.len() / d * vd);
+        assert!(queries.len().is_multiple_of(self.d) && out.len() == queries.len() / self.d * self.vd);
+        match self.d {
+            3 => self.slice_in::<3>(queries, out),
+            _ => self.slice_in::<0>(queries, out),
+        }
+    }
+
+    /// [`Lattice::slice`] (`D`: `self.d` as a constant, or 0).
+    fn slice_in<const D: usize>(&self, queries: &[f64], out: &mut [f64]) {
+        let (d, vd) = (dim::<D>(self.d), self.vd);
         let mut scratch = Scratch::new(d);
         let (mut keys, mut weights) = (vec![0i32; (d + 1) * d], vec![0.0f64; d + 1]);
         for (q, o) in queries.chunks_exact(d).zip(out.chunks_exact_mut(vd)) {
             o.fill(0.0);
             self.embedding.simplex(q, &mut scratch, &mut keys, &mut weights);
-            for r in 0..=d {
-                if let Some(id) = self.table.find(&keys[r * d..(r + 1) * d]) {
+            for (key, w) in keys.chunks_exact(d).zip(&weights) {
+                if let Some(id) = self.table.find(d, key) {
                     let vals = &self.values[id as usize * vd..(id as usize + 1) * vd];
                     for (oc, v) in o.iter_mut().zip(vals) {
-                        *oc += weights[r] * v;
+                        *oc += w * v;
                     }
                 }
             }
