@@ -225,12 +225,12 @@ impl Embedding {
     }
 }
 
-/// The dimension `d` as the constant `D` where one is given (the code instantiated for it
-/// unrolls its per-coordinate loops), else `d` (`D == 0`).
+/// `n` as the constant `N` where one is given (the code instantiated for it unrolls its loops
+/// over coordinates or values), else `n` (`N == 0`).
 #[inline(always)]
-fn dim<const D: usize>(d: usize) -> usize {
-    debug_assert!(D == 0 || D == d);
-    if D == 0 { d } else { D }
+fn known<const N: usize>(n: usize) -> usize {
+    debug_assert!(N == 0 || N == n);
+    if N == 0 { n } else { N }
 }
 
 /// A permutohedral lattice holding blurred values.
@@ -247,21 +247,25 @@ impl Lattice {
     /// Gaussian's standard deviation) and blur. Panics if slice lengths disagree with `d`/`vd`.
     pub fn new(d: usize, positions: &[f64], vd: usize, values: &[f64]) -> Self {
         assert!(d >= 1 && positions.len().is_multiple_of(d) && values.len() == positions.len() / d * vd);
-        // Three dimensions (FilterReg's case) get their own copy with `d` a constant.
-        let mut lattice = match d {
-            3 => Self::splat::<3>(d, positions, vd, values),
-            _ => Self::splat::<0>(d, positions, vd, values),
+        // FilterReg's shapes (three dimensions, five or eight values) get their own copies with
+        // the sizes as constants.
+        let mut lattice = match (d, vd) {
+            (3, 5) => Self::splat::<3, 5>(d, positions, vd, values),
+            (3, 8) => Self::splat::<3, 8>(d, positions, vd, values),
+            _ => Self::splat::<0, 0>(d, positions, vd, values),
         };
-        match d {
-            3 => lattice.blur::<3>(),
-            _ => lattice.blur::<0>(),
+        match (d, vd) {
+            (3, 5) => lattice.blur::<3, 5>(),
+            (3, 8) => lattice.blur::<3, 8>(),
+            _ => lattice.blur::<0, 0>(),
         }
         lattice
     }
 
-    /// The splatted (not yet blurred) lattice of dimension `d` (`D`: `d` as a constant, or 0).
-    fn splat<const D: usize>(d: usize, positions: &[f64], vd: usize, values: &[f64]) -> Self {
-        let d = dim::<D>(d);
+    /// The splatted (not yet blurred) lattice of dimension `d` with `vd` values per point (`D`,
+    /// `VD`: the same as constants, or 0).
+    fn splat<const D: usize, const VD: usize>(d: usize, positions: &[f64], vd: usize, values: &[f64]) -> Self {
+        let (d, vd) = (known::<D>(d), known::<VD>(vd));
         let n = positions.len() / d;
         let embedding = Embedding::new(d);
         // Simplices in parallel; the insertion (which numbers the vertices) stays sequential, in
@@ -301,9 +305,9 @@ impl Lattice {
         self.table.len(self.d)
     }
 
-    /// Blurs the splatted values (`D`: `self.d` as a constant, or 0).
-    fn blur<const D: usize>(&mut self) {
-        let (d, vd) = (dim::<D>(self.d), self.vd);
+    /// Blurs the splatted values (`D`, `VD`: `self.d` and `self.vd` as constants, or 0).
+    fn blur<const D: usize, const VD: usize>(&mut self) {
+        let (d, vd) = (known::<D>(self.d), known::<VD>(self.vd));
         let n = self.table.len(d);
         let table = &self.table;
         // Along each of the d + 1 lattice directions: [1 2 1] / 4 over the two neighbours
@@ -346,15 +350,16 @@ impl Lattice {
     /// Interpolate the blurred values at `queries` (`d` per point) into `out` (`vd` per point).
     pub fn slice(&self, queries: &[f64], out: &mut [f64]) {
         assert!(queries.len().is_multiple_of(self.d) && out.len() == queries.len() / self.d * self.vd);
-        match self.d {
-            3 => self.slice_in::<3>(queries, out),
-            _ => self.slice_in::<0>(queries, out),
+        match (self.d, self.vd) {
+            (3, 5) => self.slice_in::<3, 5>(queries, out),
+            (3, 8) => self.slice_in::<3, 8>(queries, out),
+            _ => self.slice_in::<0, 0>(queries, out),
         }
     }
 
-    /// [`Lattice::slice`] (`D`: `self.d` as a constant, or 0).
-    fn slice_in<const D: usize>(&self, queries: &[f64], out: &mut [f64]) {
-        let (d, vd) = (dim::<D>(self.d), self.vd);
+    /// [`Lattice::slice`] (`D`, `VD`: `self.d` and `self.vd` as constants, or 0).
+    fn slice_in<const D: usize, const VD: usize>(&self, queries: &[f64], out: &mut [f64]) {
+        let (d, vd) = (known::<D>(self.d), known::<VD>(self.vd));
         let mut scratch = Scratch::new(d);
         let (mut keys, mut weights) = (vec![0i32; (d + 1) * d], vec![0.0f64; d + 1]);
         for (q, o) in queries.chunks_exact(d).zip(out.chunks_exact_mut(vd)) {
