@@ -81,25 +81,65 @@ fn merge(
 }
 
 /// Indices `0..keys.len()` sorted by `(key, index)`. Keys whose offsets from the smallest fit in
-/// 21 bits per axis (every cloud below two million voxels across) are packed into one `u64` and
-/// sorted with their index as plain pairs, several times faster than comparing `[i64; 3]` keys
-/// through the index; the order is the same either way.
+/// 64 bits together (each axis packed in as many bits as its range needs: every cloud below
+/// about two million voxels across) are packed into one `u64` and radix-sorted (stable, so equal
+/// keys keep their index order), several times faster than comparing `[i64; 3]` keys through the
+/// index; the order is the same either way.
 fn sorted_by_key(keys: &[[i64; 3]]) -> Vec<u32> {
-    const BITS: u32 = 21;
     let lo = keys.iter().fold([i64::MAX; 3], |m, k| [m[0].min(k[0]), m[1].min(k[1]), m[2].min(k[2])]);
-    let fits = keys.iter().all(|k| (0..3).all(|a| ((k[a] as i128) - (lo[a] as i128)) < (1i128 << BITS)));
-    if !fits {
+    let hi = keys.iter().fold([i64::MIN; 3], |m, k| [m[0].max(k[0]), m[1].max(k[1]), m[2].max(k[2])]);
+    // Bits each axis's offsets need (0 for an empty set or a constant axis).
+    let width = |a: usize| {
+        let range = (hi[a] as i128) - (lo[a] as i128);
+        if range <= 0 { 0 } else { 128 - range.leading_zeros() }
+    };
+    let w = [width(0), width(1), width(2)];
+    if w.iter().sum::<u32>() > 64 {
         let mut order: Vec<u32> = (0..keys.len() as u32).collect();
         order.sort_unstable_by_key(|&i| (keys[i as usize], i));
         return order;
     }
     // Lexicographic order of [k0, k1, k2] == numeric order of k0 | k1 | k2 (high to low bits).
     let pack = |k: &[i64; 3]| {
-        (((k[0] - lo[0]) as u64) << (2 * BITS)) | (((k[1] - lo[1]) as u64) << BITS) | (k[2] - lo[2]) as u64
+        let field = |a: usize| k[a].wrapping_sub(lo[a]) as u64;
+        // A shift by 64 only happens for an empty field (width 0, value 0).
+        let shifted = |a: usize, by: u32| field(a).checked_shl(by).unwrap_or(0);
+        shifted(0, w[1] + w[2]) | shifted(1, w[2]) | field(2)
     };
-    let mut pairs: Vec<(u64, u32)> = keys.iter().enumerate().map(|(i, k)| (pack(k), i as u32)).collect();
-    pairs.sort_unstable();
-    pairs.into_iter().map(|(_, i)| i).collect()
+    let packed: Vec<u64> = keys.iter().map(pack).collect();
+    radix_order(packed, w.iter().sum())
+}
+
+/// Digit width of [`radix_order`]'s passes.
+const RADIX_BITS: u32 = 11;
+
+/// `0..keys.len()` stably sorted by `keys` (values below `2^bits`): least-significant-digit
+/// radix sort, one counting pass per `RADIX_BITS` digit.
+fn radix_order(mut keys: Vec<u64>, bits: u32) -> Vec<u32> {
+    let n = keys.len();
+    let mut order: Vec<u32> = (0..n as u32).collect();
+    let (mut order_next, mut keys_next) = (vec![0u32; n], vec![0u64; n]);
+    let mask = (1u64 << RADIX_BITS) - 1;
+    let mut shift = 0;
+    while shift < bits {
+        let digit = |k: u64| ((k >> shift) & mask) as usize;
+        let mut start = vec![0usize; (1 << RADIX_BITS) + 1];
+        for &k in &keys {
+            start[digit(k) + 1] += 1;
+        }
+        for b in 0..1 << RADIX_BITS {
+            start[b + 1] += start[b];
+        }
+        for (&k, &i) in keys.iter().zip(&order) {
+            let at = &mut start[digit(k)];
+            (keys_next[*at], order_next[*at]) = (k, i);
+            *at += 1;
+        }
+        std::mem::swap(&mut keys, &mut keys_next);
+        std::mem::swap(&mut order, &mut order_next);
+        shift += RADIX_BITS;
+    }
+    order
 }
 
 impl Pyramid {
@@ -134,7 +174,8 @@ impl Pyramid {
 mod tests {
     use super::*;
 
-    /// The packed sort and the plain one agree, on small keys and on keys too far apart to pack.
+    /// The packed radix sort and the plain one agree, on small and medium keys and on keys too far
+    /// apart to pack.
     #[test]
     fn packed_key_sort_is_the_plain_sort() {
         let plain = |keys: &[[i64; 3]]| {
@@ -149,6 +190,16 @@ mod tests {
         };
         let small: Vec<[i64; 3]> = (0..3000).map(|_| [next(20), next(20), next(20)]).collect();
         assert_eq!(sorted_by_key(&small), plain(&small));
+        // Several radix passes (15 bits per axis), constant axes, no keys, one key.
+        let medium: Vec<[i64; 3]> = (0..3000).map(|_| [next(1 << 14), next(1 << 14), next(1 << 14)]).collect();
+        assert_eq!(sorted_by_key(&medium), plain(&medium));
+        let flat: Vec<[i64; 3]> = (0..500).map(|_| [next(3), 7, next(3)]).collect();
+        assert_eq!(sorted_by_key(&flat), plain(&flat));
+        assert!(sorted_by_key(&[]).is_empty());
+        assert_eq!(sorted_by_key(&[[5, -2, 9]]), vec![0]);
+        // 64 bits in all, one axis constant.
+        let full: Vec<[i64; 3]> = (0..300).map(|_| [4, next(1 << 31), next(1 << 31)]).collect();
+        assert_eq!(sorted_by_key(&full), plain(&full));
         let mut wide = small.clone();
         wide[17] = [1 << 40, -5, 3];
         wide[99] = [-(1 << 40), 2, 1 << 30];
