@@ -4,12 +4,15 @@
 //! surface scans (tens of points per query) this is several times cheaper than a k-d tree's
 //! descent and result collection.
 
-use crate::Point3;
 use crate::fastmath::floor_i64;
+use crate::{Neighbour, Point3};
 use rayon::prelude::*;
 
 /// Non-empty cells per parallel task of [`RadiusGrid::all_within`].
 const CELLS_PER_TASK: usize = 64;
+
+/// Cells per axis beyond which [`RadiusGrid::nearest_within`] hands a search back.
+const MAX_NEAREST_SPAN: i64 = 4;
 
 /// Grids with more cells than this are not built (see [`RadiusGrid::new`]).
 const MAX_CELLS: usize = 1 << 22;
@@ -143,6 +146,44 @@ impl RadiusGrid {
         Some((slot, starts, members))
     }
 
+    /// The gridded point nearest to `q`, given that point `from` (an index into the slice the
+    /// grid was built from) lies at squared distance `from_dist2` from `q`: the nearest point is
+    /// within that distance, so only the cells of the cube of half-side `sqrt(from_dist2)`
+    /// around `q` are scanned. `None` when that cube spans more than a few cells per axis (the
+    /// caller searches otherwise, e.g. with [`crate::KnnIndex::nearest`]). Among points at
+    /// exactly the same distance the first scanned is returned (`from` first). The cells' edge
+    /// is the grid's radius: choose it near the expected distances.
+    pub fn nearest_within(&self, q: &Point3, from: usize, from_dist2: f64) -> Option<Neighbour> {
+        let d = from_dist2.sqrt();
+        if !d.is_finite() {
+            return None;
+        }
+        let h = self.radius;
+        let mut range = [(0usize, 0usize); 3];
+        for (a, rg) in range.iter_mut().enumerate() {
+            let lo = floor_i64((q[a] - d - self.origin[a]) / h).max(0);
+            let hi = floor_i64((q[a] + d - self.origin[a]) / h).min(self.dims[a] as i64 - 1);
+            if hi < lo || hi - lo >= MAX_NEAREST_SPAN {
+                return None;
+            }
+            *rg = (lo as usize, hi as usize);
+        }
+        let mut best = Neighbour { index: from, dist2: from_dist2 };
+        for z in range[2].0..=range[2].1 {
+            for y in range[1].0..=range[1].1 {
+                let row = (z * self.dims[1] + y) * self.dims[0];
+                let (from, to) = (self.starts[row + range[0].0] as usize, self.starts[row + range[0].1 + 1] as usize);
+                for (c, &i) in self.coords[from..to].iter().zip(&self.order[from..to]) {
+                    let d2 = (q.x - c[0]).powi(2) + (q.y - c[1]).powi(2) + (q.z - c[2]).powi(2);
+                    if d2 < best.dist2 {
+                        best = Neighbour { index: i as usize, dist2: d2 };
+                    }
+                }
+            }
+        }
+        Some(best)
+    }
+
     /// The radius the grid answers for.
     pub fn radius(&self) -> f64 {
         self.radius
@@ -219,5 +260,40 @@ mod tests {
         assert!(RadiusGrid::new(&[Point3::new(f64::NAN, 0.0, 0.0)], 1.0).is_none());
         // A box needing far too many cells: the caller falls back to a k-d tree.
         assert!(RadiusGrid::new(&[Point3::origin(), Point3::new(1000.0, 1000.0, 1000.0)], 0.001).is_none());
+    }
+
+    /// Bounded nearest-point searches agree with brute force wherever they answer, from
+    /// partners near and far, and hand back searches whose cube is too wide.
+    #[test]
+    fn nearest_within_is_the_brute_force_nearest() {
+        let pts: Vec<Point3> = (0..3000)
+            .map(|i| {
+                let t = i as f64;
+                Point3::new((t * 0.731).sin() * 0.1, (t * 1.37).cos() * 0.1, 0.02 * (t * 0.19).sin())
+            })
+            .collect();
+        let grid = RadiusGrid::new(&pts, 0.01).unwrap();
+        let (mut answered, mut handed_back) = (0, 0);
+        for k in 0..400 {
+            let t = k as f64;
+            let q = Point3::new((t * 0.37).cos() * 0.11, (t * 0.91).sin() * 0.11, 0.03 * (t * 0.53).cos());
+            let brute = (0..pts.len())
+                .map(|i| Neighbour { index: i, dist2: (pts[i] - q).norm_squared() })
+                .min_by(|a, b| a.dist2.total_cmp(&b.dist2))
+                .unwrap();
+            // Partners: the nearest itself, a close point, a far one.
+            for from in [brute.index, (brute.index + 1) % pts.len(), (k * 7) % pts.len()] {
+                match grid.nearest_within(&q, from, (pts[from] - q).norm_squared()) {
+                    Some(n) => {
+                        assert_eq!(n.index, brute.index, "query {k} from {from}");
+                        assert_eq!(n.dist2, (pts[n.index] - q).norm_squared());
+                        answered += 1;
+                    }
+                    None => handed_back += 1,
+                }
+            }
+        }
+        assert!(answered > 400 && handed_back > 50, "{answered} answered, {handed_back} handed back");
+        assert!(grid.nearest_within(&Point3::origin(), 0, f64::NAN).is_none());
     }
 }

@@ -4,7 +4,7 @@
 use crate::error::RegistrationError;
 use crate::evaluate::{RobustKernel, point_to_plane_step_by};
 use crate::problem::{IterationRecord, Registrar, Registration, RegistrationProblem, in_pool, validate_problem};
-use flowfilter_geometry::{KnnIndex, Neighbourhoods, Point3, Pose, spatial_order, weighted_kabsch_by};
+use flowfilter_geometry::{KnnIndex, Neighbourhoods, Point3, Pose, RadiusGrid, spatial_order, weighted_kabsch_by};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -192,16 +192,26 @@ const LIST_RADIUS_PER_PAIR_DISTANCE: f64 = 2.2;
 /// and scan than the k-d tree searches they replace.
 const MAX_LIST_RADIUS_IN_SPACINGS: f64 = 4.0;
 
+/// Cell edge of the grid that answers searches from a partner up to a few cells away, in
+/// target spacings.
+const GRID_CELL_IN_SPACINGS: f64 = 4.0;
+
 /// ICP's correspondence search: each moved source point's nearest target point within the
-/// gate. A k-d tree answers from scratch; once the pairs are close (in target spacings) the
-/// target's neighbourhoods are built and most searches are answered from the list of the
-/// point's last partner instead (exact: see [`Neighbourhoods::nearest_from`]).
+/// gate. A k-d tree answers from scratch. A point whose last partner lies within a few grid
+/// cells is answered from the grid cells around it instead (the nearest point is no farther
+/// than the partner: [`RadiusGrid::nearest_within`]); once the pairs are close (in target
+/// spacings) the target's neighbourhoods are built and most searches are answered from the list
+/// of the point's last partner (exact: see [`Neighbourhoods::nearest_from`]). Every path gives
+/// the tree's answer.
 struct Matcher<'a> {
     target: &'a [Point3],
     index: KnnIndex,
     /// Median distance between neighbouring target points.
     spacing: f64,
     lists: Option<Neighbourhoods>,
+    /// The target in cells of [`GRID_CELL_IN_SPACINGS`] spacings, for searches from a partner
+    /// a few spacings away (before the lists exist, or beyond their reach).
+    grid: Option<RadiusGrid>,
     max_d2: f64,
 }
 
@@ -209,7 +219,8 @@ impl<'a> Matcher<'a> {
     fn new(target: &'a [Point3], max_correspondence_distance: f64) -> Self {
         let index = KnnIndex::new(target);
         let spacing = index.median_neighbour_distance(target, 2, SPACING_SAMPLES).unwrap_or(0.0);
-        Self { target, index, spacing, lists: None, max_d2: max_correspondence_distance.powi(2) }
+        let grid = RadiusGrid::new(target, GRID_CELL_IN_SPACINGS * spacing);
+        Self { target, index, spacing, lists: None, grid, max_d2: max_correspondence_distance.powi(2) }
     }
 
     /// The pairs of `t * source` (moved source point, target index, distance), in source order,
@@ -225,7 +236,8 @@ impl<'a> Matcher<'a> {
                     u32::MAX => None,
                     j => {
                         let d2 = (x - self.target[j as usize]).norm_squared();
-                        self.lists.as_ref().and_then(|l| l.nearest_from(self.target, &x, j as usize, d2))
+                        let lists = self.lists.as_ref().and_then(|l| l.nearest_from(self.target, &x, j as usize, d2));
+                        lists.or_else(|| self.grid.as_ref()?.nearest_within(&x, j as usize, d2))
                     }
                 };
                 let n = listed.or_else(|| self.index.nearest(&x)).filter(|n| n.dist2 <= self.max_d2);
@@ -277,7 +289,8 @@ mod tests {
         );
         let source: Vec<Point3> = patch(3000, 0.5).iter().map(|p| truth.inverse() * p).collect();
         let mut with_lists = Matcher::new(&target, 0.25);
-        let tree_only = Matcher::new(&target, 0.25);
+        let mut tree_only = Matcher::new(&target, 0.25);
+        tree_only.grid = None;
         let (mut last_a, mut last_b) = (vec![u32::MAX; source.len()], vec![u32::MAX; source.len()]);
         // Poses approaching the truth, as ICP's estimates do, then settling around it.
         let mut listed_passes = 0;
