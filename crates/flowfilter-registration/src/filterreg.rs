@@ -866,6 +866,40 @@ mod tests {
         }
     }
 
+    /// The exact E-step's sums are the brute-force Gaussian sums over every target point within
+    /// 4 sigma (libm's exp), with and without normals, to a few ulp.
+    #[test]
+    fn exact_sums_are_the_brute_force_sums() {
+        let (source, target) = (cloud(300, 3), cloud(900, 4));
+        let normals: Vec<Vector3> =
+            target.iter().map(|p| Vector3::new(p.x.sin(), p.y.cos(), 1.0 + p.z).normalize()).collect();
+        let sigma = 0.006;
+        let index = KnnIndex::new(&target);
+        for with_normals in [false, true] {
+            let (vd, values) = target_values(&target, with_normals.then_some(&normals[..]));
+            let mut e = ExactEStep { index: &index, target: &target, cache: None };
+            let got = e.sums(&source, &values, vd, sigma);
+            for (i, q) in source.iter().enumerate() {
+                let mut want = vec![0.0; vd];
+                for (k, y) in target.iter().enumerate() {
+                    let d2 = (y - q).norm_squared();
+                    if d2 <= 16.0 * sigma * sigma {
+                        let w = (-d2 / (2.0 * sigma * sigma)).exp();
+                        want.iter_mut().zip(&values[k * vd..(k + 1) * vd]).for_each(|(a, v)| *a += w * v);
+                    }
+                }
+                let scale = want[0].max(1e-300);
+                assert!((got.m0[i] - want[0]).abs() <= 1e-13 * scale, "m0[{i}]");
+                assert!((got.m1[i] - Vector3::new(want[1], want[2], want[3])).norm() <= 1e-13 * scale, "m1[{i}]");
+                assert!((got.m2[i] - want[4]).abs() <= 1e-13 * scale, "m2[{i}]");
+                if with_normals {
+                    assert!((got.mn[i] - Vector3::new(want[5], want[6], want[7])).norm() <= 1e-13 * scale, "mn[{i}]");
+                }
+            }
+            assert!(got.m0.iter().filter(|&&m| m > 0.0).count() > 200, "most points have neighbours");
+        }
+    }
+
     /// Sums from reused neighbour lists equal sums from a fresh k-d tree search, and lists are
     /// gathered again once the points have moved beyond their margin or sigma has shrunk.
     #[test]

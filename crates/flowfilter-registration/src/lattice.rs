@@ -491,6 +491,29 @@ mod tests {
         assert!(mean_rel < 0.25, "mean relative error {mean_rel}");
     }
 
+    /// The copies with FilterReg's shapes as constants (three dimensions, five or eight values)
+    /// give the general code's vertices, blurred values and slices to the bit.
+    #[test]
+    fn fixed_shape_copies_are_the_general_code() {
+        let mut seed = 9;
+        let n = 700;
+        let pos: Vec<f64> = (0..n * 3).map(|_| lcg(&mut seed) * 8.0).collect();
+        let queries: Vec<f64> = (0..60 * 3).map(|_| 1.0 + lcg(&mut seed) * 6.0).collect();
+        for vd in [5, 8] {
+            let vals: Vec<f64> = (0..n * vd).map(|_| lcg(&mut seed) - 0.3).collect();
+            let fixed = Lattice::new(3, &pos, vd, &vals);
+            let mut general = Lattice::splat::<0, 0>(3, &pos, vd, &vals);
+            general.blur::<0, 0>();
+            assert_eq!(fixed.table.keys, general.table.keys, "vd = {vd}");
+            assert_eq!(fixed.values, general.values, "vd = {vd}");
+            let (mut a, mut b) = (vec![0.0; 60 * vd], vec![0.0; 60 * vd]);
+            fixed.slice(&queries, &mut a);
+            general.slice_in::<0, 0>(&queries, &mut b);
+            assert_eq!(a, b, "vd = {vd}");
+            assert!(a.iter().any(|&v| v != 0.0));
+        }
+    }
+
     #[test]
     fn works_in_other_dimensions() {
         for d in [1usize, 2, 5] {
