@@ -110,9 +110,8 @@ pub fn spatial_order(points: &[Point3]) -> Vec<u32> {
         };
         spread3(q(0)) | (spread3(q(1)) << 1) | (spread3(q(2)) << 2)
     };
-    let mut keyed: Vec<(u32, u32)> = points.iter().enumerate().map(|(i, p)| (code(p), i as u32)).collect();
-    keyed.sort_unstable();
-    keyed.into_iter().map(|(_, i)| i).collect()
+    // Ties (equal codes) in index order, as a sort of (code, index) pairs would give.
+    crate::radix_order(points.iter().map(|p| u64::from(code(p))).collect(), 32)
 }
 
 #[cfg(test)]

@@ -13,6 +13,7 @@ pub mod kabsch;
 pub mod knn;
 pub mod neighbourhoods;
 pub mod radius_grid;
+pub mod radix;
 pub mod rigid;
 pub mod se3;
 
@@ -22,6 +23,7 @@ pub use kabsch::{KabschError, weighted_kabsch, weighted_kabsch_by};
 pub use knn::{KnnIndex, Neighbour, spatial_order};
 pub use neighbourhoods::Neighbourhoods;
 pub use radius_grid::RadiusGrid;
+pub use radix::radix_order;
 pub use rigid::{RigidTransformError, matrix_from_pose, nearest_rotation, rigid_from_matrix, rotation_angle_deg};
 
 /// A rigid transform in SE(3), mapping points of one frame into another.

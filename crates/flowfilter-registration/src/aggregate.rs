@@ -8,7 +8,7 @@
 //! from the one below by merging eight voxels.
 
 use flowfilter_geometry::fastmath::floor_i64;
-use flowfilter_geometry::{Point3, Vector3};
+use flowfilter_geometry::{Point3, Vector3, radix_order};
 
 /// One level: merged points with their point counts, spreads and summed values.
 #[derive(Debug, Clone)]
@@ -108,38 +108,6 @@ fn sorted_by_key(keys: &[[i64; 3]]) -> Vec<u32> {
     };
     let packed: Vec<u64> = keys.iter().map(pack).collect();
     radix_order(packed, w.iter().sum())
-}
-
-/// Digit width of [`radix_order`]'s passes.
-const RADIX_BITS: u32 = 11;
-
-/// `0..keys.len()` stably sorted by `keys` (values below `2^bits`): least-significant-digit
-/// radix sort, one counting pass per `RADIX_BITS` digit.
-fn radix_order(mut keys: Vec<u64>, bits: u32) -> Vec<u32> {
-    let n = keys.len();
-    let mut order: Vec<u32> = (0..n as u32).collect();
-    let (mut order_next, mut keys_next) = (vec![0u32; n], vec![0u64; n]);
-    let mask = (1u64 << RADIX_BITS) - 1;
-    let mut shift = 0;
-    while shift < bits {
-        let digit = |k: u64| ((k >> shift) & mask) as usize;
-        let mut start = vec![0usize; (1 << RADIX_BITS) + 1];
-        for &k in &keys {
-            start[digit(k) + 1] += 1;
-        }
-        for b in 0..1 << RADIX_BITS {
-            start[b + 1] += start[b];
-        }
-        for (&k, &i) in keys.iter().zip(&order) {
-            let at = &mut start[digit(k)];
-            (keys_next[*at], order_next[*at]) = (k, i);
-            *at += 1;
-        }
-        std::mem::swap(&mut keys, &mut keys_next);
-        std::mem::swap(&mut order, &mut order_next);
-        shift += RADIX_BITS;
-    }
-    order
 }
 
 impl Pyramid {

@@ -601,8 +601,10 @@ impl FilterReg {
         validate_problem(p, pt2pl.then_some("filterreg-pt2pl"))?;
         // Both clouds in a spatially coherent order: the neighbours of a point, and the points
         // queried one after the other, then sit close together in memory.
-        let source = &permuted(&p.source.points, &spatial_order(&p.source.points));
-        let target_order = spatial_order(&p.target.points);
+        // (Independent set-up steps run side by side.)
+        let (source_order, target_order) =
+            rayon::join(|| spatial_order(&p.source.points), || spatial_order(&p.target.points));
+        let source = &permuted(&p.source.points, &source_order);
         let target = &permuted(&p.target.points, &target_order);
         let normals: Option<Vec<Vector3>> =
             p.target.normals.as_deref().filter(|_| pt2pl).map(|n| permuted(n, &target_order));
@@ -618,9 +620,9 @@ impl FilterReg {
         // Merged source (no values) and target for the wide-kernel lattice iterations.
         let pyramids = support.filter(|r| merging && r.is_finite() && *r > 0.0).map(|r| {
             let finest = r / 4.0;
-            (
-                Pyramid::new(source, &[], 0, finest, MERGED_MIN_POINTS),
-                Pyramid::new(target, &values, vd, finest, MERGED_MIN_POINTS),
+            rayon::join(
+                || Pyramid::new(source, &[], 0, finest, MERGED_MIN_POINTS),
+                || Pyramid::new(target, &values, vd, finest, MERGED_MIN_POINTS),
             )
         });
         let mut exact =
