@@ -7,12 +7,13 @@
 use crate::fastmath::floor_i64;
 use crate::{Neighbour, Point3};
 use rayon::prelude::*;
+use std::ops::Range;
 
 /// Non-empty cells per parallel task of [`RadiusGrid::all_within`].
 const CELLS_PER_TASK: usize = 64;
 
 /// Cells per axis beyond which [`RadiusGrid::nearest_within`] hands a search back.
-const MAX_NEAREST_SPAN: i64 = 4;
+const MAX_NEAREST_SPAN: usize = 4;
 
 /// Grids with more cells than this are not built (see [`RadiusGrid::new`]).
 const MAX_CELLS: usize = 1 << 22;
@@ -100,24 +101,20 @@ impl RadiusGrid {
                         (c % self.dims[0], (c / self.dims[0]) % self.dims[1], c / (self.dims[0] * self.dims[1]));
                     cand.clear();
                     cand_id.clear();
-                    for zz in z.saturating_sub(1)..=(z + 1).min(self.dims[2] - 1) {
-                        for yy in y.saturating_sub(1)..=(y + 1).min(self.dims[1] - 1) {
-                            let row = (zz * self.dims[1] + yy) * self.dims[0];
-                            let from = self.starts[row + x.saturating_sub(1)] as usize;
-                            let to = self.starts[row + (x + 1).min(self.dims[0] - 1) + 1] as usize;
-                            cand.extend_from_slice(&self.coords[from..to]);
-                            cand_id.extend_from_slice(&self.order[from..to]);
-                        }
-                    }
+                    let around = |v: usize, a: usize| (v.saturating_sub(1), (v + 1).min(self.dims[a] - 1));
+                    self.for_each_run([around(x, 0), around(y, 1), around(z, 2)], |run| {
+                        cand.extend_from_slice(&self.coords[run.clone()]);
+                        cand_id.extend_from_slice(&self.order[run]);
+                    });
                     for k in self.starts[c] as usize..self.starts[c + 1] as usize {
-                        let (q, me) = (self.coords[k], self.order[k]);
+                        let (q, me) = (Point3::from(self.coords[k]), self.order[k]);
                         // Branch-free compaction: every candidate is written, the count
                         // advances only for the kept ones (a kept/dropped branch would be
                         // mispredicted for a good share of them).
                         hits.resize(cand.len(), 0);
                         let mut n = 0;
                         for (p, &id) in cand.iter().zip(&cand_id) {
-                            let d2 = (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2);
+                            let d2 = dist2(p, &q);
                             hits[n] = id;
                             n += usize::from((d2 <= r2) & (id != me));
                         }
@@ -154,27 +151,15 @@ impl RadiusGrid {
     /// exactly the same distance the first scanned is returned (`from` first). The cells' edge
     /// is the grid's radius: choose it near the expected distances.
     pub fn nearest_within(&self, q: &Point3, from: usize, from_dist2: f64) -> Option<Neighbour> {
-        let d = from_dist2.sqrt();
-        if !d.is_finite() {
-            return None;
-        }
-        let h = self.radius;
-        let mut range = [(0usize, 0usize); 3];
-        for (a, rg) in range.iter_mut().enumerate() {
-            let lo = floor_i64((q[a] - d - self.origin[a]) / h).max(0);
-            let hi = floor_i64((q[a] + d - self.origin[a]) / h).min(self.dims[a] as i64 - 1);
-            if hi < lo || hi - lo >= MAX_NEAREST_SPAN {
-                return None;
-            }
-            *rg = (lo as usize, hi as usize);
-        }
+        let cells = self.cell_box(q, from_dist2.sqrt(), MAX_NEAREST_SPAN)?;
         let mut best = Neighbour { index: from, dist2: from_dist2 };
-        for z in range[2].0..=range[2].1 {
-            for y in range[1].0..=range[1].1 {
+        let [(x0, x1), (y0, y1), (z0, z1)] = cells;
+        for z in z0..=z1 {
+            for y in y0..=y1 {
                 let row = (z * self.dims[1] + y) * self.dims[0];
-                let (from, to) = (self.starts[row + range[0].0] as usize, self.starts[row + range[0].1 + 1] as usize);
-                for (c, &i) in self.coords[from..to].iter().zip(&self.order[from..to]) {
-                    let d2 = (q.x - c[0]).powi(2) + (q.y - c[1]).powi(2) + (q.z - c[2]).powi(2);
+                let run = self.starts[row + x0] as usize..self.starts[row + x1 + 1] as usize;
+                for (c, &i) in self.coords[run.clone()].iter().zip(&self.order[run]) {
+                    let d2 = dist2(c, q);
                     if d2 < best.dist2 {
                         best = Neighbour { index: i as usize, dist2: d2 };
                     }
@@ -192,36 +177,64 @@ impl RadiusGrid {
     /// Appends to `out` the indices of all points within the grid's radius of `q` (in no
     /// particular order).
     pub fn within(&self, q: &Point3, out: &mut Vec<u32>) {
-        let r = self.radius;
-        let mut range = [(0usize, 0usize); 3];
-        for (a, rg) in range.iter_mut().enumerate() {
-            // Cell coordinates of the query's box (no libm floor calls: this runs per query).
-            let lo = (q[a] - r - self.origin[a]) / r;
-            let hi = (q[a] + r - self.origin[a]) / r;
-            // Outside the grid (or NaN): nothing within the radius.
-            if !(hi >= 0.0 && lo < self.dims[a] as f64) {
-                return;
+        // A cube of half-side the cell edge spans at most 3 cells per axis.
+        let Some(cells) = self.cell_box(q, self.radius, usize::MAX) else { return };
+        let r2 = self.radius * self.radius;
+        self.for_each_run(cells, |run| {
+            // Branch-free compaction: every candidate is written, the kept ones advance (a
+            // kept/dropped branch is mispredicted for a good share of the candidates).
+            let mut n = out.len();
+            out.resize(n + run.len(), 0);
+            for (c, &i) in self.coords[run.clone()].iter().zip(&self.order[run]) {
+                out[n] = i;
+                n += usize::from(dist2(c, q) <= r2);
             }
-            *rg = (floor_i64(lo).max(0) as usize, (floor_i64(hi) as usize).min(self.dims[a] - 1));
+            out.truncate(n);
+        });
+    }
+
+    /// Per axis, the first and last cell coordinates of the cells meeting the cube of half-side
+    /// `half` around `q`; `None` when the cube misses the grid (or is NaN) or spans more than
+    /// `max_span` cells along an axis (checked axis by axis, so a wide cube is handed back
+    /// early). No libm floor calls: this runs per query.
+    #[inline(always)]
+    fn cell_box(&self, q: &Point3, half: f64, max_span: usize) -> Option<[(usize, usize); 3]> {
+        let mut cells = [(0usize, 0usize); 3];
+        for (a, c) in cells.iter_mut().enumerate() {
+            let lo = (q[a] - half - self.origin[a]) / self.radius;
+            let hi = (q[a] + half - self.origin[a]) / self.radius;
+            if lo.is_nan() || hi.is_nan() {
+                return None;
+            }
+            let (lo, hi) = (floor_i64(lo).max(0), floor_i64(hi).min(self.dims[a] as i64 - 1));
+            // hi < lo: the cube lies beyond the grid's first or last cell along this axis.
+            if hi < lo || (hi - lo) as usize >= max_span {
+                return None;
+            }
+            *c = (lo as usize, hi as usize);
         }
-        let r2 = r * r;
-        for z in range[2].0..=range[2].1 {
-            for y in range[1].0..=range[1].1 {
+        Some(cells)
+    }
+
+    /// Calls `f` with the runs of `coords` and `order` holding the points of the cells `cells`
+    /// (first and last cell coordinate per axis): one contiguous run per row of cells along the
+    /// first axis. (Plain loops: an iterator chain here costs a fifth more instructions in ICP.)
+    #[inline(always)]
+    fn for_each_run(&self, cells: [(usize, usize); 3], mut f: impl FnMut(Range<usize>)) {
+        let [(x0, x1), (y0, y1), (z0, z1)] = cells;
+        for z in z0..=z1 {
+            for y in y0..=y1 {
                 let row = (z * self.dims[1] + y) * self.dims[0];
-                let (from, to) = (self.starts[row + range[0].0] as usize, self.starts[row + range[0].1 + 1] as usize);
-                // Branch-free compaction: every candidate is written, the kept ones advance (a
-                // kept/dropped branch is mispredicted for a good share of the candidates).
-                let mut n = out.len();
-                out.resize(n + (to - from), 0);
-                for (c, &i) in self.coords[from..to].iter().zip(&self.order[from..to]) {
-                    let d2 = (c[0] - q.x).powi(2) + (c[1] - q.y).powi(2) + (c[2] - q.z).powi(2);
-                    out[n] = i;
-                    n += usize::from(d2 <= r2);
-                }
-                out.truncate(n);
+                f(self.starts[row + x0] as usize..self.starts[row + x1 + 1] as usize);
             }
         }
     }
+}
+
+/// Squared distance between a gridded point and `q`.
+#[inline]
+fn dist2(c: &[f64; 3], q: &Point3) -> f64 {
+    (c[0] - q.x).powi(2) + (c[1] - q.y).powi(2) + (c[2] - q.z).powi(2)
 }
 
 #[cfg(test)]
