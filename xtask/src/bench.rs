@@ -7,7 +7,7 @@ use anyhow::{Context, bail};
 use clap::Args;
 use flowfilter_bigbird::{BigBirdObject, FrameId, SensorId};
 use flowfilter_eval::{PoseErrors, mean_median};
-use flowfilter_pipeline::{Pipeline, PipelineConfig, PreparedFrame, StageTimes, load_bigbird_frame};
+use flowfilter_pipeline::{Pipeline, PipelineConfig, PipelineWarning, PreparedFrame, StageTimes, load_bigbird_frame};
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -151,7 +151,7 @@ pub struct PairResult {
     /// Per-stage times (the two frames' depth stages included).
     pub stage_ms: Option<StageTimes>,
     /// Warnings of the pipeline (fallbacks taken).
-    pub warnings: Vec<String>,
+    pub warnings: Vec<PipelineWarning>,
     /// The stage that failed and why.
     pub failure: Option<String>,
 }
@@ -256,7 +256,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         let obj = match BigBirdObject::open(dir) {
             Ok(o) => o,
             Err(e) => {
-                eprintln!("skipping object {name}: {e}");
+                tracing::warn!(object = %name, error = %e, "skipping object");
                 skipped.push(format!("{name}: {e}"));
                 continue;
             }

@@ -14,6 +14,8 @@
 //! HDF5 is read with `hdf5-reader` (old and new file formats) and written with `hdf5-pure`;
 //! no system library is involved.
 
+#![warn(missing_docs)]
+
 mod calibration;
 mod error;
 mod h5;

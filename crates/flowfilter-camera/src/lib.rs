@@ -11,6 +11,8 @@
 //! - [`RgbdSensor`]: a depth camera and a colour camera calibrated against each other, with the
 //!   raw-depth scale; maps depth pixels into the colour image.
 
+#![warn(missing_docs)]
+
 mod distortion;
 mod error;
 mod intrinsics;

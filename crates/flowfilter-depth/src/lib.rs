@@ -13,6 +13,8 @@
 //! - [`ply`]: PLY import/export (ASCII and binary little-endian).
 //! - [`DepthStage`]: the whole stage, configured by [`DepthConfig`] (serde/TOML).
 
+#![warn(missing_docs)]
+
 pub mod cloud;
 mod config;
 mod error;

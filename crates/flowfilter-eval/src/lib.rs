@@ -8,6 +8,8 @@
 //!   point moved by the truth (symmetric objects are not penalised).
 //! - [`PoseErrors`]: all of them for one estimate, with the success test (< 2 deg and < 1 cm).
 
+#![warn(missing_docs)]
+
 use flowfilter_geometry::{KnnIndex, Point3, Pose};
 use serde::{Deserialize, Serialize};
 

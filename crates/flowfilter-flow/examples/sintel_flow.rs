@@ -1,6 +1,6 @@
 //! EPE and time of the dense estimators on the Sintel pairs of `../shared/data/sintel`:
 //! `cargo run --release -p flowfilter-flow [--features onnx] --example sintel_flow [-- REPEATS]`
-//! (with `onnx`: also our network, fixtures/models/ffnet.onnx).
+//! (with `onnx`: also our network, crates/flowfilter-flow/models/ffnet.onnx).
 
 use flowfilter_flow::dis::{Dis, DisParams, SearchGradients};
 use flowfilter_flow::lk::to_gray;

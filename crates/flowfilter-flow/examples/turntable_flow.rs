@@ -4,7 +4,7 @@
 //! `cargo run --release -p flowfilter-flow [--features onnx] --example turntable_flow [-- STEPS] [CAMERAS] [OBJECTS]`
 //! (defaults `3,9,15`, `NP1,NP3,NP5` and every object; base angle 0). DIS runs with
 //! central-difference search gradients, as the pipeline configures it. With the `onnx` feature the
-//! table has a column for our network (`net`, fixtures/models/ffnet.onnx).
+//! table has a column for our network (`net`, crates/flowfilter-flow/models/ffnet.onnx).
 
 use flowfilter_bigbird::{FrameId, SensorId};
 use flowfilter_flow::dis::{Dis, DisParams, SearchGradients};

@@ -4,7 +4,7 @@
 use crate::estimator::{FlowError, FlowEstimator, forward_backward_sparse};
 use crate::lk::{Gray, IDENTITY_WARP, WindowWarp};
 use flowfilter_camera::{CameraModel, RayTable};
-use flowfilter_geometry::{DepthMap, Mask, Point3, Pose, mask_bbox};
+use flowfilter_geometry::{Correspondences, DepthMap, Mask, Point3, Pose, mask_bbox};
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
 
@@ -20,15 +20,12 @@ pub struct FlowView<'a> {
     pub mask: &'a Mask,
 }
 
-/// Weighted 3-D pairs `model[i] <-> target[i]` (colour camera frames of the two views).
+/// Flow correspondences with what it took to find them.
 #[derive(Debug, Clone, Default)]
 pub struct FlowPairs {
-    /// Points in the model frame.
-    pub model: Vec<Point3>,
-    /// Corresponding points in the target frame.
-    pub target: Vec<Point3>,
-    /// Weights in [0, 1].
-    pub weights: Vec<f64>,
+    /// Weighted 3-D pairs (`source`: model-frame points, `target`: target-frame points, both in
+    /// the colour camera's frame; weights in [0, 1]).
+    pub pairs: Correspondences,
     /// Pixels tracked, before any rejection.
     pub tracked: usize,
     /// Seconds spent estimating flow (forward and backward), the rest being geometry.
@@ -250,9 +247,9 @@ pub fn flow_correspondences_guided(
                     .map(|q| predicted_warp(&g, rays, model_depth, model_mask, q[0] as usize, q[1] as usize))
                     .collect()
             });
-            let f = match &warps {
-                Some(w) => estimator.sparse_warped(&ga, &gb, &local, &guesses, w, Some(&ma))?,
-                None => estimator.sparse_guided(&ga, &gb, &local, &guesses, Some(&ma))?,
+            let f = match (&warps, estimator.window_matcher()) {
+                (Some(w), Some(m)) => m.sparse_warped(&ga, &gb, &local, &guesses, w, Some(&ma))?,
+                _ => estimator.sparse_guided(&ga, &gb, &local, &guesses, Some(&ma))?,
             };
             // The backward track starts from the forward result reversed, through the inverse warps.
             let back: Vec<[f32; 2]> =
@@ -262,10 +259,10 @@ pub fn flow_correspondences_guided(
     };
     let moved_local: Vec<[f32; 2]> =
         local.iter().zip(&forward).map(|(q, f)| f.map_or(*q, |f| [q[0] + f[0], q[1] + f[1]])).collect();
-    let backward = match &backward_guess {
-        None => estimator.sparse(&gb, &ga, &moved_local, Some(&mb))?,
-        Some((b, None)) => estimator.sparse_guided(&gb, &ga, &moved_local, b, Some(&mb))?,
-        Some((b, Some(warps))) => estimator.sparse_warped(&gb, &ga, &moved_local, b, warps, Some(&mb))?,
+    let backward = match (&backward_guess, estimator.window_matcher()) {
+        (None, _) => estimator.sparse(&gb, &ga, &moved_local, Some(&mb))?,
+        (Some((b, Some(warps))), Some(m)) => m.sparse_warped(&gb, &ga, &moved_local, b, warps, Some(&mb))?,
+        (Some((b, _)), _) => estimator.sparse_guided(&gb, &ga, &moved_local, b, Some(&mb))?,
     };
     let moved: Vec<[f32; 2]> = moved_local.iter().map(|q| [q[0] + shift[0], q[1] + shift[1]]).collect();
     let flow_seconds = t0.elapsed().as_secs_f64();
@@ -294,17 +291,18 @@ pub fn flow_correspondences_guided(
         let ry = r0[1] + (r2[1] - r0[1]) * fy;
         let t = Point3::new(f64::from(rx) * zt, f64::from(ry) * zt, zt);
         dz.push(t.z - a.z);
-        pairs.model.push(a);
-        pairs.target.push(t);
+        pairs.pairs.source.push(a);
+        pairs.pairs.target.push(t);
     }
     // Depth-change outliers under a Gaussian fit of the flowed depth changes (eqs. 9-11 on Z_f).
     if dz.len() >= 3 {
         let n = dz.len() as f64;
         let mean = dz.iter().sum::<f64>() / n;
         let sd = (dz.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / n).sqrt().max(1e-4);
-        pairs.weights = dz.iter().map(|d| if (d - mean).abs() <= p.depth_k_sigma * sd { 1.0 } else { 0.0 }).collect();
+        pairs.pairs.weights =
+            dz.iter().map(|d| if (d - mean).abs() <= p.depth_k_sigma * sd { 1.0 } else { 0.0 }).collect();
     } else {
-        pairs.weights = vec![1.0; dz.len()];
+        pairs.pairs.weights = vec![1.0; dz.len()];
     }
     Ok(pairs)
 }

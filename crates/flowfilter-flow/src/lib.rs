@@ -7,6 +7,8 @@
 //! - [`viz`]: the Middlebury colour-wheel visualisation.
 //! - [`FlowEstimator`]: the estimator seam ([`LucasKanade`], [`dis::Dis`]), with typed [`FlowError`]s.
 
+#![warn(missing_docs)]
+
 mod buffers;
 pub mod correspondences;
 pub mod dis;
@@ -19,9 +21,11 @@ pub mod metrics;
 pub mod net;
 #[cfg(feature = "onnx")]
 pub mod onnx;
+mod registry;
 pub mod sintel;
 pub mod viz;
 
-pub use estimator::{FlowError, FlowEstimator, LucasKanade};
+pub use estimator::{FlowError, FlowEstimator, LucasKanade, WindowMatcher};
 pub use field::FlowField;
 pub use flo::FloError;
+pub use registry::{FLOW_ESTIMATOR_NAMES, check_estimator_name, flow_estimator_by_name};

@@ -76,8 +76,9 @@ impl BoxViews {
 
 /// The kept pairs' sorted 3-D errors against the true motion, and their indices.
 fn kept_errors(pairs: &FlowPairs, truth: &Pose) -> (Vec<usize>, Vec<f64>) {
-    let kept: Vec<usize> = (0..pairs.model.len()).filter(|&i| pairs.weights[i] > 0.0).collect();
-    let mut errors: Vec<f64> = kept.iter().map(|&i| (truth * pairs.model[i] - pairs.target[i]).norm()).collect();
+    let kept: Vec<usize> = (0..pairs.pairs.len()).filter(|&i| pairs.pairs.weights[i] > 0.0).collect();
+    let mut errors: Vec<f64> =
+        kept.iter().map(|&i| (truth * pairs.pairs.source[i] - pairs.pairs.target[i]).norm()).collect();
     errors.sort_by(f64::total_cmp);
     (kept, errors)
 }
@@ -107,8 +108,8 @@ fn warped_windows_follow_a_turn_that_translated_windows_fall_short_of() {
         let pairs =
             views.pairs(&CorrespondenceParams { warp_windows, ..CorrespondenceParams::default() }, Some(&guess));
         let (kept, errors) = kept_errors(&pairs, &truth);
-        let src: Vec<_> = kept.iter().map(|&i| pairs.model[i]).collect();
-        let dst: Vec<_> = kept.iter().map(|&i| pairs.target[i]).collect();
+        let src: Vec<_> = kept.iter().map(|&i| pairs.pairs.source[i]).collect();
+        let dst: Vec<_> = kept.iter().map(|&i| pairs.pairs.target[i]).collect();
         let pose = weighted_kabsch(&src, &dst, None).unwrap();
         let angle_error = (pose.rotation.angle() - truth.rotation.angle()).abs().to_degrees();
         (kept.len(), errors[errors.len() / 2], angle_error)

@@ -116,7 +116,7 @@ fn contracts_that_do_not_match_the_network_are_named_errors() {
     assert!(matches!(net.dense(&a, &Gray::filled(10, 10, 0.5), None), Err(FlowError::SizeMismatch { .. })));
 }
 
-/// The shipped network (`fixtures/models/ffnet.onnx`, embedded as `net`) on its fixture pair (a
+/// The shipped network (`crates/flowfilter-flow/models/ffnet.onnx`, embedded as `net`) on its fixture pair (a
 /// held-out object at the network's 640x512 working size, written by
 /// `tools/train-flow/reference.py`): tract reproduces onnxruntime's output, and the flow is as
 /// accurate against the exact flow as when the reference was recorded.

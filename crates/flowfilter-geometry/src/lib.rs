@@ -2,11 +2,14 @@
 //!
 //! Every stage crate speaks in these types: [`Pose`] (a rigid transform in SE(3), an alias of
 //! nalgebra's `Isometry3<f64>`), [`PointCloud`] (points with optional normals, colours and the
-//! pixel each point came from), the validation of 4x4 matrices read from files
+//! pixel each point came from), [`Correspondences`] (weighted 3-D point pairs), the validation of 4x4 matrices read from files
 //! ([`rigid_from_matrix`]), twist exponential/logarithm for Gauss-Newton on SE(3)
 //! ([`se3`]) and the weighted Kabsch/Umeyama solver ([`kabsch`]).
 
+#![warn(missing_docs)]
+
 pub mod cloud;
+pub mod correspondences;
 pub mod fastmath;
 pub mod grid;
 pub mod kabsch;
@@ -18,6 +21,7 @@ pub mod rigid;
 pub mod se3;
 
 pub use cloud::{CloudError, PointCloud};
+pub use correspondences::{CorrespondenceError, Correspondences};
 pub use grid::{DepthMap, Grid, GridSizeError, Mask, RawDepth, mask_bbox};
 pub use kabsch::{KabschError, weighted_kabsch, weighted_kabsch_by};
 pub use knn::{KnnIndex, Neighbour, spatial_order};

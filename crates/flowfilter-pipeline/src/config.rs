@@ -3,10 +3,10 @@
 
 use crate::error::PipelineError;
 use flowfilter_depth::DepthConfig;
-use flowfilter_flow::LucasKanade;
 use flowfilter_flow::correspondences::CorrespondenceParams;
 use flowfilter_flow::dis::{DisParams, SearchGradients};
-use flowfilter_registration::{FLOW_METHOD_NAMES, RegistrationConfig, registrar_by_name};
+use flowfilter_flow::{FlowError, FlowEstimator, LucasKanade, flow_estimator_by_name};
+use flowfilter_registration::{RegistrationConfig, registrar_by_name};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -21,6 +21,16 @@ pub struct CloudPrepConfig {
 impl Default for CloudPrepConfig {
     fn default() -> Self {
         Self { voxel_m: 0.004 }
+    }
+}
+
+impl FlowStageConfig {
+    /// The configured flow estimator (for ONNX estimators: the model, loaded).
+    ///
+    /// # Errors
+    /// As [`flowfilter_flow::flow_estimator_by_name`].
+    pub fn estimator(&self) -> Result<Box<dyn FlowEstimator>, FlowError> {
+        flow_estimator_by_name(&self.estimator, &self.lk, &self.dis)
     }
 }
 
@@ -48,10 +58,9 @@ impl Default for FlowStageConfig {
         Self {
             estimator: "lk".into(),
             guided: true,
-            // A 9-pixel window (OpenCV's 21 matches a turning surface short of its motion;
-            // bench mean error 3.30 deg at 21, 2.11 at 9). A `[flow.lk]` table's omitted keys
-            // take the tracker's own defaults.
-            lk: LucasKanade { window: 9, ..LucasKanade::default() },
+            // A 9-pixel window (see `LucasKanade::turntable`). A `[flow.lk]` table's omitted
+            // keys take the tracker's own defaults.
+            lk: LucasKanade::turntable(),
             // Central-difference patch search: better than the presets' OpenCV-like damped steps
             // on turntable pairs (mean EPE 1.46 against 1.62).
             dis: DisParams { search_gradients: SearchGradients::Central, ..DisParams::default() },
@@ -111,14 +120,27 @@ impl PipelineConfig {
         toml::to_string(self).expect("the configuration serialises")
     }
 
-    /// Whether the chosen method consumes flow correspondences.
+    /// Whether the chosen method consumes flow correspondences (its registrar says so; `false`
+    /// for an unknown method).
     pub fn uses_flow(&self) -> bool {
-        FLOW_METHOD_NAMES.contains(&self.method.as_str())
+        registrar_by_name(&self.method, &self.registration).is_ok_and(|r| r.uses_correspondences())
     }
 
-    /// Check values that serde cannot: names and ranges of every stage.
+    /// Check values that serde cannot: names and ranges of every stage. Nothing costly is
+    /// built (an ONNX model is not loaded).
+    ///
+    /// # Errors
+    /// A message naming the key or table at fault.
     pub fn validate(&self) -> Result<(), String> {
         registrar_by_name(&self.method, &self.registration).map_err(|e| format!("key 'method': {e}"))?;
+        flowfilter_flow::check_estimator_name(&self.flow.estimator)
+            .map_err(|e| format!("key 'flow.estimator': {e}"))?;
+        self.validate_stages()
+    }
+
+    /// [`PipelineConfig::validate`] without the names of the method and the flow estimator
+    /// (checked when they are built).
+    pub(crate) fn validate_stages(&self) -> Result<(), String> {
         self.depth.validate().map_err(|e| format!("table [depth]: {e}"))?;
         if !(self.cloud.voxel_m >= 0.0 && self.cloud.voxel_m.is_finite()) {
             return Err(format!("key 'cloud.voxel_m' must be >= 0, found {}", self.cloud.voxel_m));
@@ -126,7 +148,6 @@ impl PipelineConfig {
         self.flow.lk.validate().map_err(|e| format!("table [flow.lk]: {e}"))?;
         self.flow.dis.validate().map_err(|e| format!("table [flow.dis]: {e}"))?;
         self.flow.correspondences.validate().map_err(|e| format!("table [flow.correspondences]: {e}"))?;
-        crate::stages::flow_estimator_by_name(&self.flow).map_err(|e| format!("table [flow]: {e}"))?;
         Ok(())
     }
 }

@@ -1,7 +1,7 @@
 //! The pipeline's result and its JSON schema (`flowfilter estimate --json`).
 //!
-//! Schema `flowfilter estimate v1` (all lengths in metres, angles in degrees, times in ms):
-//! - `schema`: the string `"flowfilter estimate v1"`;
+//! Schema `flowfilter estimate v2` (all lengths in metres, angles in degrees, times in ms):
+//! - `schema`: the string `"flowfilter estimate v2"`;
 //! - `method`, `flow_estimator` (null when the method uses no flow), `model`, `target` (frame labels);
 //! - `transform`: the 4x4 row-major matrix `T` with `target ~ T * model` (colour camera frame);
 //! - `rotation_angle_deg`, `rotation_axis` (unit, `[0,0,0]` for no rotation), `translation_m`;
@@ -9,16 +9,19 @@
 //!   `model_points`, `target_points`;
 //! - `correspondences` (null without flow): `tracked`, `consistent`, `inliers`, `guided`;
 //! - `stage_ms`: `depth_model`, `depth_target`, `flow`, `correspondences`, `registration`, `total`;
-//! - `warnings`: strings (a fallback taken, flow that failed);
+//! - `warnings`: objects `{code, message}` (a fallback taken, flow that failed; the codes are
+//!   those of [`crate::PipelineWarning::code`]);
 //! - `ground_truth` (null when unknown): `transform` and `errors` (`angle_error_deg`,
 //!   `geodesic_error_deg`, `translation_error_m`, `add_s_m`, `success`).
 
+use crate::warning::PipelineWarning;
 use flowfilter_eval::PoseErrors;
 use flowfilter_geometry::{Point3, Pose};
+use flowfilter_registration::Registration;
 use serde::Serialize;
 
 /// The schema tag of [`Estimate`]'s JSON.
-pub const ESTIMATE_SCHEMA: &str = "flowfilter estimate v1";
+pub const ESTIMATE_SCHEMA: &str = "flowfilter estimate v2";
 
 /// What the registration backend reported.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -37,6 +40,21 @@ pub struct RegistrationSummary {
     pub model_points: usize,
     /// Points of the target cloud.
     pub target_points: usize,
+}
+
+impl RegistrationSummary {
+    /// The summary of `r`, a registration of clouds of `model_points` and `target_points`.
+    pub fn new(r: &Registration, model_points: usize, target_points: usize) -> Self {
+        Self {
+            iterations: r.iterations,
+            converged: r.converged,
+            fitness: r.fitness,
+            inlier_rmse_m: r.inlier_rmse,
+            sigma2: r.sigma2,
+            model_points,
+            target_points,
+        }
+    }
 }
 
 /// How many flow correspondences survived each check.
@@ -106,7 +124,7 @@ pub struct Estimate {
     /// Time per stage.
     pub stage_ms: StageTimes,
     /// Conditions the caller should know about.
-    pub warnings: Vec<String>,
+    pub warnings: Vec<PipelineWarning>,
     /// Ground truth, when known.
     pub ground_truth: Option<GroundTruth>,
     /// The estimate as a pose.

@@ -12,18 +12,42 @@
 //! warning (a fallback taken, flow that failed). Configuration comes from TOML
 //! ([`PipelineConfig::from_file`]; the commented files in the repository's `configs/`).
 
+#![warn(missing_docs)]
+
 mod config;
 mod error;
 mod estimate;
 mod frame;
 mod pipeline;
 mod stages;
+mod warning;
 
 pub use config::{CloudPrepConfig, FlowStageConfig, PipelineConfig};
 pub use error::PipelineError;
-pub use estimate::{CorrespondenceSummary, ESTIMATE_SCHEMA, Estimate, GroundTruth, RegistrationSummary, StageTimes};
+pub use estimate::{
+    CorrespondenceSummary, ESTIMATE_SCHEMA, Estimate, GroundTruth, RegistrationSummary, StageTimes, matrix_rows,
+};
 pub use frame::{RgbdFrame, load_bigbird_frame};
 pub use pipeline::Pipeline;
-pub use stages::{
-    CorrespondenceFinder, DepthPreparer, FlowCorrespondenceFinder, FramePreparer, PreparedFrame, flow_estimator_by_name,
+pub use stages::{CorrespondenceFinder, DepthPreparer, FlowCorrespondenceFinder, FramePreparer, PreparedFrame};
+pub use warning::PipelineWarning;
+
+// What the stage traits' signatures speak, so that a custom stage needs no other import.
+pub use flowfilter_camera::{RayTable, RgbdSensor};
+pub use flowfilter_depth::DepthConfig;
+pub use flowfilter_flow::correspondences::{CorrespondenceParams, FlowPairs, FlowView};
+pub use flowfilter_flow::lk::Gray;
+pub use flowfilter_flow::{FlowError, FlowEstimator};
+pub use flowfilter_geometry::{Correspondences, DepthMap, Mask, Point3, PointCloud, Pose, RawDepth};
+pub use flowfilter_registration::{
+    Registrar, Registration, RegistrationError, RegistrationProblem, RegistrationWarning,
 };
+
+// The stage crates themselves, for everything else they offer.
+pub use flowfilter_bigbird as bigbird;
+pub use flowfilter_camera as camera;
+pub use flowfilter_depth as depth;
+pub use flowfilter_eval as eval;
+pub use flowfilter_flow as flow;
+pub use flowfilter_geometry as geometry;
+pub use flowfilter_registration as registration;

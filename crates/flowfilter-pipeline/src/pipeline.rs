@@ -4,16 +4,19 @@ use crate::config::PipelineConfig;
 use crate::error::PipelineError;
 use crate::estimate::{CorrespondenceSummary, ESTIMATE_SCHEMA, Estimate, RegistrationSummary, StageTimes, matrix_rows};
 use crate::frame::RgbdFrame;
-use crate::stages::{
-    CorrespondenceFinder, DepthPreparer, FlowCorrespondenceFinder, FramePreparer, PreparedFrame, flow_estimator_by_name,
-};
-use flowfilter_flow::correspondences::FlowPairs;
-use flowfilter_registration::{
-    Correspondences, FilterReg, Registrar, RegistrationProblem, ransac_kabsch, registrar_by_name,
-};
+use crate::stages::{CorrespondenceFinder, DepthPreparer, FlowCorrespondenceFinder, FramePreparer, PreparedFrame};
+use crate::warning::PipelineWarning;
+use flowfilter_registration::{Registrar, Registration, RegistrationProblem, registrar_by_name};
 use std::time::Instant;
 
 /// Two RGB-D frames in, a relative pose out.
+///
+/// ```
+/// use flowfilter_pipeline::{Pipeline, PipelineConfig};
+/// let pipeline = Pipeline::from_config(PipelineConfig::default())?;
+/// assert_eq!(pipeline.method(), "flowfilter");
+/// # Ok::<(), flowfilter_pipeline::PipelineError>(())
+/// ```
 pub struct Pipeline {
     config: PipelineConfig,
     preparer: Box<dyn FramePreparer>,
@@ -21,24 +24,52 @@ pub struct Pipeline {
     registrar: Box<dyn Registrar>,
 }
 
+/// The correspondence stage's candidate sets, in the order handed to the registrar.
+struct FoundSets {
+    /// Per set: pixels tracked, pairs found, pairs with a positive weight.
+    counts: Vec<(usize, usize, usize)>,
+    /// Seconds spent in flow estimation.
+    flow_seconds: f64,
+}
+
 impl Pipeline {
-    /// The default stages, configured (the correspondence stage only for methods that use flow).
+    /// The default stages, configured: the correspondence stage only for a registrar that
+    /// uses correspondences. Each stage is built once.
+    ///
+    /// # Errors
+    /// [`PipelineError::Config`] for a value out of range or an unknown name,
+    /// [`PipelineError::Flow`] when the flow estimator cannot be made (an ONNX model that does
+    /// not load).
     pub fn from_config(config: PipelineConfig) -> Result<Self, PipelineError> {
-        config.validate().map_err(|message| PipelineError::Config { path: "<configuration>".into(), message })?;
+        let invalid = |message| PipelineError::Config { path: "<configuration>".into(), message };
+        config.validate_stages().map_err(invalid)?;
+        flowfilter_flow::check_estimator_name(&config.flow.estimator)
+            .map_err(|e| invalid(format!("key 'flow.estimator': {e}")))?;
+        let registrar = registrar_by_name(&config.method, &config.registration)
+            .map_err(|e| invalid(format!("key 'method': {e}")))?;
         let preparer = Box::new(DepthPreparer::new(config.depth.clone(), config.cloud.clone())?);
-        let finder: Option<Box<dyn CorrespondenceFinder>> = if config.uses_flow() {
-            Some(Box::new(FlowCorrespondenceFinder::new(
-                flow_estimator_by_name(&config.flow)?,
-                config.flow.correspondences.clone(),
-            )))
+        let finder: Option<Box<dyn CorrespondenceFinder>> = if registrar.uses_correspondences() {
+            Some(Box::new(FlowCorrespondenceFinder::new(config.flow.estimator()?, config.flow.correspondences.clone())))
         } else {
             None
         };
-        let registrar = registrar_by_name(&config.method, &config.registration)?;
         Ok(Self { config, preparer, finder, registrar })
     }
 
-    /// A pipeline from custom stages (the configuration is kept for reference).
+    /// A pipeline from custom stages. The configuration is kept for reference and for the
+    /// policy it sets (`flow.guided`); the stages' own parameters are theirs. Without a
+    /// `finder` the registrar gets no correspondences.
+    ///
+    /// ```
+    /// use flowfilter_pipeline::{DepthPreparer, Pipeline, PipelineConfig};
+    /// use flowfilter_pipeline::registration::{RegistrationConfig, registrar_by_name};
+    /// let config = PipelineConfig::default();
+    /// let preparer = DepthPreparer::new(config.depth.clone(), config.cloud.clone())?;
+    /// let icp = registrar_by_name("icp-pt2pl", &RegistrationConfig::default())?;
+    /// let pipeline = Pipeline::with_stages(config, Box::new(preparer), None, icp);
+    /// assert_eq!(pipeline.method(), "icp-pt2pl");
+    /// # Ok::<(), flowfilter_pipeline::PipelineError>(())
+    /// ```
     pub fn with_stages(
         config: PipelineConfig,
         preparer: Box<dyn FramePreparer>,
@@ -46,6 +77,11 @@ impl Pipeline {
         registrar: Box<dyn Registrar>,
     ) -> Self {
         Self { config, preparer, finder, registrar }
+    }
+
+    /// The correspondence stage, when the registrar reads correspondences.
+    fn finder(&self) -> Option<&dyn CorrespondenceFinder> {
+        self.finder.as_deref().filter(|_| self.registrar.uses_correspondences())
     }
 
     /// The configuration.
@@ -59,11 +95,39 @@ impl Pipeline {
     }
 
     /// Run the frame stage on one frame (reusable across many pairs).
+    ///
+    /// # Errors
+    /// As the preparer's [`FramePreparer::prepare`].
     pub fn prepare(&self, frame: &RgbdFrame) -> Result<PreparedFrame, PipelineError> {
         self.preparer.prepare(frame)
     }
 
     /// Estimate `T` with `target ~ T * model` from two frames.
+    ///
+    /// # Errors
+    /// [`PipelineError::Depth`] when a frame cannot be prepared (sizes that disagree, no depth
+    /// inside the mask), [`PipelineError::Registration`] when the clouds cannot be registered.
+    /// A failed flow stage is not an error: the estimate carries a
+    /// [`PipelineWarning::FlowFailed`] and comes from the clouds alone.
+    ///
+    /// ```
+    /// use flowfilter_bigbird::SensorId;
+    /// use flowfilter_pipeline::{Pipeline, PipelineConfig, RgbdFrame};
+    /// use flowfilter_synth::{Rig, Scene, procedural, render_frame};
+    ///
+    /// // A synthesised box on a turntable, seen by one camera before and after a 10-degree turn.
+    /// let (rig, sensor) = (Rig::bigbird_like(), SensorId::new(3).unwrap());
+    /// let scene = Scene::new(procedural("box", 1)?.placed_on_table(0.01, -0.005), 1);
+    /// let frame = |angle| {
+    ///     let f = render_frame(&scene, &rig, sensor, angle, None, 7);
+    ///     let sensor = rig.sensors[&sensor].rgbd;
+    ///     RgbdFrame { label: format!("NP3_{angle}"), color: f.color, depth: f.raw_depth, mask: f.mask, sensor }
+    /// };
+    /// let pipeline = Pipeline::from_config(PipelineConfig::default())?;
+    /// let estimate = pipeline.estimate(&frame(0), &frame(10))?;
+    /// assert!((estimate.rotation_angle_deg - 10.0).abs() < 1.0, "{}", estimate.rotation_angle_deg);
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
     pub fn estimate(&self, model: &RgbdFrame, target: &RgbdFrame) -> Result<Estimate, PipelineError> {
         let t0 = Instant::now();
         let a = self.prepare(model)?;
@@ -73,101 +137,119 @@ impl Pipeline {
         Ok(e)
     }
 
-    /// Flow pairs: unguided, and (when configured) guided by a geometric registration; the set
-    /// whose largest rigid consensus is bigger wins. Returns the pairs, whether they are the
-    /// guided ones, and the seconds spent in flow estimation.
-    fn find_pairs(
-        &self,
-        finder: &dyn CorrespondenceFinder,
-        model: &PreparedFrame,
-        target: &PreparedFrame,
-    ) -> Result<(FlowPairs, bool, f64), PipelineError> {
-        let plain = finder.find(model, target)?;
-        if !self.config.flow.guided {
-            let s = plain.flow_seconds;
-            return Ok((plain, false, s));
-        }
-        let ff = &self.config.registration.flowfilter;
-        let mut geo_cfg = ff.filterreg.clone();
-        geo_cfg.correspondence_weight = 0.0;
-        let geometric =
-            FilterReg::new(geo_cfg)?.register(&RegistrationProblem::new(model.cloud.clone(), target.cloud.clone()))?;
-        let guided = finder.find_guided(model, target, &geometric.transform)?;
-        let seconds = plain.flow_seconds + guided.flow_seconds;
-        let consensus = |p: &FlowPairs| {
-            let c = Correspondences { source: p.model.clone(), target: p.target.clone(), weights: p.weights.clone() };
-            ransac_kabsch(&c, ff.ransac_iterations, ff.inlier_threshold_m, ff.min_inliers, ff.seed)
-                .map_or(0, |(_, inl)| inl.iter().filter(|b| **b).count())
-        };
-        Ok(if consensus(&guided) > consensus(&plain) { (guided, true, seconds) } else { (plain, false, seconds) })
-    }
-
     /// Estimate from frames already prepared (their preparation times are reported).
+    ///
+    /// # Errors
+    /// [`PipelineError::Registration`] when the clouds cannot be registered.
     pub fn estimate_prepared(&self, model: &PreparedFrame, target: &PreparedFrame) -> Result<Estimate, PipelineError> {
         let t0 = Instant::now();
         let mut times =
             StageTimes { depth_model: model.seconds * 1e3, depth_target: target.seconds * 1e3, ..Default::default() };
         let mut warnings = vec![];
         let mut problem = RegistrationProblem::new(model.cloud.clone(), target.cloud.clone());
-        let mut summary = None;
-        if let Some(finder) = &self.finder {
-            if model.sensor.color != target.sensor.color || model.gray.dims() != target.gray.dims() {
-                warnings.push(format!(
-                    "flow skipped: frames {} and {} come from different colour cameras or image sizes",
-                    model.label, target.label
-                ));
-            } else {
-                let tf = Instant::now();
-                match self.find_pairs(finder.as_ref(), model, target) {
-                    Ok((pairs, guided, flow_seconds)) => {
-                        let all = tf.elapsed().as_secs_f64();
-                        times.flow = flow_seconds * 1e3;
-                        times.correspondences = (all - flow_seconds).max(0.0) * 1e3;
-                        let inliers = pairs.weights.iter().filter(|w| **w > 0.0).count();
-                        summary = Some(CorrespondenceSummary {
-                            tracked: pairs.tracked,
-                            consistent: pairs.model.len(),
-                            inliers,
-                            guided,
-                        });
-                        problem.correspondences =
-                            Some(Correspondences { source: pairs.model, target: pairs.target, weights: pairs.weights });
-                    }
-                    Err(e) => warnings.push(format!("flow failed: {e}")),
-                }
+        let found = self.finder().and_then(|finder| {
+            let tf = Instant::now();
+            let found = self.correspondence_stage(finder, model, target, &mut problem, &mut warnings);
+            if let Some(f) = &found {
+                times.flow = f.flow_seconds * 1e3;
+                times.correspondences = (tf.elapsed().as_secs_f64() - f.flow_seconds).max(0.0) * 1e3;
             }
-        }
+            found
+        });
         let tr = Instant::now();
         let reg = self.registrar.register(&problem)?;
         times.registration = tr.elapsed().as_secs_f64() * 1e3;
         times.total = times.depth_model + times.depth_target + t0.elapsed().as_secs_f64() * 1e3;
-        warnings.extend(reg.warnings.iter().cloned());
+        let summary = found.map(|f| correspondence_summary(&f, &reg));
+        warnings.extend(reg.warnings.iter().cloned().map(PipelineWarning::from));
+        Ok(self.assemble(model, target, reg, summary, times, warnings))
+    }
+
+    /// The correspondence stage, its failures turned into warnings: `None` when it did not run.
+    fn correspondence_stage(
+        &self,
+        finder: &dyn CorrespondenceFinder,
+        model: &PreparedFrame,
+        target: &PreparedFrame,
+        problem: &mut RegistrationProblem,
+        warnings: &mut Vec<PipelineWarning>,
+    ) -> Option<FoundSets> {
+        if model.sensor.color != target.sensor.color || model.gray.dims() != target.gray.dims() {
+            warnings.push(PipelineWarning::FlowSkipped { model: model.label.clone(), target: target.label.clone() });
+            return None;
+        }
+        match self.find_correspondences(finder, model, target, problem) {
+            Ok(found) => Some(found),
+            Err(e) => {
+                (problem.correspondences, problem.alternative_correspondences, problem.prior) = (None, vec![], None);
+                warnings.push(PipelineWarning::FlowFailed { message: e.to_string() });
+                None
+            }
+        }
+    }
+
+    /// The candidate sets of correspondences, put into `problem`: the plain search and, when
+    /// `flow.guided` is set and the registrar offers a [`Registrar::prior`], the search guided
+    /// by it (the prior is handed back to the registrar, which picks the set).
+    fn find_correspondences(
+        &self,
+        finder: &dyn CorrespondenceFinder,
+        model: &PreparedFrame,
+        target: &PreparedFrame,
+        problem: &mut RegistrationProblem,
+    ) -> Result<FoundSets, PipelineError> {
+        let mut sets = vec![finder.find(model, target)?];
+        if self.config.flow.guided
+            && let Some(prior) = self.registrar.prior(problem)?
+        {
+            sets.push(finder.find_guided(model, target, &prior.transform)?);
+            problem.prior = Some(prior);
+        }
+        let found = FoundSets {
+            counts: sets.iter().map(|s| (s.tracked, s.pairs.len(), s.pairs.usable())).collect(),
+            flow_seconds: sets.iter().map(|s| s.flow_seconds).sum(),
+        };
+        let mut pairs = sets.into_iter().map(|s| s.pairs);
+        problem.correspondences = pairs.next();
+        problem.alternative_correspondences = pairs.collect();
+        Ok(found)
+    }
+
+    /// The estimate from the registration and what the stages reported.
+    fn assemble(
+        &self,
+        model: &PreparedFrame,
+        target: &PreparedFrame,
+        reg: Registration,
+        correspondences: Option<CorrespondenceSummary>,
+        stage_ms: StageTimes,
+        warnings: Vec<PipelineWarning>,
+    ) -> Estimate {
         let (axis, angle) = reg.transform.rotation.axis_angle().map_or(([0.0; 3], 0.0), |(a, t)| ([a.x, a.y, a.z], t));
         let t = reg.transform.translation.vector;
-        Ok(Estimate {
+        Estimate {
             schema: ESTIMATE_SCHEMA,
             method: self.registrar.name().to_string(),
-            flow_estimator: self.finder.as_ref().map(|f| f.name().to_string()),
+            flow_estimator: self.finder().map(|f| f.name().to_string()),
             model: model.label.clone(),
             target: target.label.clone(),
             transform: matrix_rows(&reg.transform),
             rotation_angle_deg: angle.to_degrees(),
             rotation_axis: axis,
             translation_m: [t.x, t.y, t.z],
-            registration: RegistrationSummary {
-                iterations: reg.iterations,
-                converged: reg.converged,
-                fitness: reg.fitness,
-                inlier_rmse_m: reg.inlier_rmse,
-                sigma2: reg.sigma2,
-                model_points: model.cloud.len(),
-                target_points: target.cloud.len(),
-            },
-            correspondences: summary,
-            stage_ms: times,
+            registration: RegistrationSummary::new(&reg, model.cloud.len(), target.cloud.len()),
+            correspondences,
+            stage_ms,
             warnings,
             ground_truth: None,
             pose: reg.transform,
-        })
+        }
     }
+}
+
+/// The counts of the set the registrar used (the first when it does not say).
+fn correspondence_summary(found: &FoundSets, reg: &Registration) -> CorrespondenceSummary {
+    let set = reg.correspondence_set.filter(|&k| k < found.counts.len()).unwrap_or(0);
+    let (tracked, consistent, inliers) = found.counts[set];
+    CorrespondenceSummary { tracked, consistent, inliers, guided: set > 0 }
 }

@@ -1,18 +1,17 @@
 //! The pipeline's seams: frame preparation and correspondence search, each a trait with the
 //! project's default implementation.
 
-use crate::config::{CloudPrepConfig, FlowStageConfig};
+use crate::config::CloudPrepConfig;
 use crate::error::PipelineError;
 use crate::frame::RgbdFrame;
 use flowfilter_camera::{RayTable, RgbdSensor};
 use flowfilter_depth::cloud::voxel_downsample;
 use flowfilter_depth::{DepthConfig, DepthStage};
+use flowfilter_flow::FlowEstimator;
 use flowfilter_flow::correspondences::{
     CorrespondenceParams, FlowGuide, FlowPairs, FlowView, flow_correspondences, flow_correspondences_guided,
 };
-use flowfilter_flow::dis::Dis;
 use flowfilter_flow::lk::{Gray, to_gray};
-use flowfilter_flow::{FlowError, FlowEstimator};
 use flowfilter_geometry::{DepthMap, Mask, PointCloud, Pose};
 use std::sync::Arc;
 use std::time::Instant;
@@ -50,6 +49,10 @@ impl PreparedFrame {
 /// Turns an RGB-D frame into a [`PreparedFrame`].
 pub trait FramePreparer: Send + Sync {
     /// Prepare one frame.
+    ///
+    /// # Errors
+    /// [`PipelineError::Depth`] (or another variant for custom preparers) when the frame
+    /// cannot be used.
     fn prepare(&self, frame: &RgbdFrame) -> Result<PreparedFrame, PipelineError>;
 }
 
@@ -61,6 +64,9 @@ pub struct DepthPreparer {
 
 impl DepthPreparer {
     /// A preparer with these stage configurations.
+    ///
+    /// # Errors
+    /// [`PipelineError::Depth`] when the depth configuration is out of range.
     pub fn new(depth: DepthConfig, cloud: CloudPrepConfig) -> Result<Self, PipelineError> {
         let stage = DepthStage::new(depth).map_err(|source| PipelineError::Depth { frame: "config".into(), source })?;
         Ok(Self { stage, cloud })
@@ -96,9 +102,16 @@ pub trait CorrespondenceFinder: Send + Sync {
     /// A short name (the flow estimator's).
     fn name(&self) -> &str;
     /// The pairs, model frame to target frame.
+    ///
+    /// # Errors
+    /// Whatever keeps the search from running ([`PipelineError::Flow`] for the default finder).
+    /// The pipeline turns it into a [`crate::PipelineWarning::FlowFailed`].
     fn find(&self, model: &PreparedFrame, target: &PreparedFrame) -> Result<FlowPairs, PipelineError>;
     /// The pairs, searched around a predicted motion `guide` (`P_target ~ guide * P_model`).
     /// Finders that cannot use a prediction (the default) ignore it.
+    ///
+    /// # Errors
+    /// As [`CorrespondenceFinder::find`].
     fn find_guided(
         &self,
         model: &PreparedFrame,
@@ -148,29 +161,5 @@ impl CorrespondenceFinder for FlowCorrespondenceFinder {
             &self.params,
             Some(guide),
         )?)
-    }
-}
-
-/// Names accepted by [`flow_estimator_by_name`].
-pub const FLOW_ESTIMATOR_NAMES: [&str; 2] = ["lk", "dis"];
-
-/// The flow estimator named in the configuration.
-pub fn flow_estimator_by_name(config: &FlowStageConfig) -> Result<Box<dyn FlowEstimator>, FlowError> {
-    match config.estimator.as_str() {
-        "lk" => {
-            config.lk.validate()?;
-            Ok(Box::new(config.lk.clone()))
-        }
-        "dis" => Ok(Box::new(Dis::new(config.dis.clone())?)),
-        #[cfg(feature = "onnx")]
-        "net" => Ok(Box::new(flowfilter_flow::net::ffnet()?)),
-        #[cfg(feature = "onnx")]
-        other if other.starts_with("onnx:") => {
-            Ok(Box::new(flowfilter_flow::onnx::OnnxFlow::load(std::path::Path::new(&other["onnx:".len()..]))?))
-        }
-        other => Err(FlowError::Config(format!(
-            "unknown estimator '{other}' (available: {}, and net (our network) or onnx:MODEL.onnx in builds with the `onnx` feature)",
-            FLOW_ESTIMATOR_NAMES.join(", ")
-        ))),
     }
 }

@@ -6,6 +6,7 @@ use crate::error::RegistrationError;
 use crate::evaluate::evaluate;
 use crate::gmm::{mean_pair_distance2, outlier_term};
 use crate::problem::{IterationRecord, Registrar, Registration, RegistrationProblem, in_pool, validate_problem};
+use crate::warning::RegistrationWarning;
 use flowfilter_geometry::{KnnIndex, Point3, Pose, Vector3, nearest_rotation};
 use nalgebra::{Matrix3, Translation3, UnitQuaternion};
 use rayon::prelude::*;
@@ -192,7 +193,7 @@ impl Cpd {
             let e = e_step(&ty, x, sigma2, c, radius_sigmas.map(|r| r * sigma2.sqrt()));
             let np: f64 = e.p1.iter().sum();
             if np < 1e-9 {
-                warnings.push("no target point is explained by the mixture: CPD diverged".into());
+                warnings.push(RegistrationWarning::NothingExplained);
                 break;
             }
             let mu_x = x.iter().zip(&e.pt1).fold(Vector3::zeros(), |a, (p, w)| a + *w * p.coords) / np;
@@ -243,6 +244,7 @@ impl Cpd {
             scale: cfg.estimate_scale.then_some(scale),
             history,
             warnings,
+            correspondence_set: None,
         })
     }
 }

@@ -40,8 +40,8 @@ pub enum RegistrationError {
         which: &'static str,
     },
     /// The correspondences are malformed.
-    #[error("correspondences: {0}")]
-    BadCorrespondences(String),
+    #[error(transparent)]
+    BadCorrespondences(#[from] flowfilter_geometry::CorrespondenceError),
     /// A configuration value is out of range, or a method name is unknown.
     #[error("registration config: {0}")]
     Config(String),

@@ -21,6 +21,7 @@ use crate::lattice::Lattice;
 use crate::problem::{
     Correspondences, IterationRecord, Registrar, Registration, RegistrationProblem, in_pool, validate_problem,
 };
+use crate::warning::RegistrationWarning;
 use flowfilter_geometry::{KnnIndex, Point3, Pose, RadiusGrid, Vector3, fastmath, spatial_order, weighted_kabsch};
 use nalgebra::{DVector, Translation3, UnitQuaternion};
 use rayon::prelude::*;
@@ -707,7 +708,7 @@ impl FilterReg {
             // implementation does): c = w / (1 - w) * N / M, independent of sigma.
             let c = if cfg.w > 0.0 { cfg.w / (1.0 - cfg.w) * target.len() as f64 / source.len() as f64 } else { 0.0 };
             let Some(delta) = m_step(cfg, &x, counts, &sums, c, corr.map(|k| (k, &t))) else {
-                warnings.push(format!("no source point is near the target at sigma = {sigma:.4} m: FilterReg stopped"));
+                warnings.push(RegistrationWarning::NothingNear { sigma_m: sigma });
                 break;
             };
             let g = delta * t;
@@ -808,7 +809,8 @@ impl FilterReg {
                 sigma2: Some(sigma2),
                 scale: None,
                 history,
-                warnings: vec!["FilterReg diverged to a non-finite pose; returning the initial pose".into()],
+                warnings: vec![RegistrationWarning::Diverged { method: "FilterReg" }],
+                correspondence_set: None,
             });
         }
         // The last exact iteration's lists (when they were gathered for every point) answer
@@ -830,6 +832,7 @@ impl FilterReg {
             scale: None,
             history,
             warnings,
+            correspondence_set: None,
         })
     }
 }

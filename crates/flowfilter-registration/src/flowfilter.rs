@@ -11,6 +11,7 @@ use crate::evaluate::visible_residual;
 use crate::filterreg::{FilterReg, FilterRegConfig};
 use crate::icp::{Icp, IcpConfig, IcpVariant};
 use crate::problem::{Correspondences, Registrar, Registration, RegistrationProblem, in_pool, validate_problem};
+use crate::warning::RegistrationWarning;
 use flowfilter_geometry::{KnnIndex, Point3, Pose, weighted_kabsch};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -227,20 +228,87 @@ impl Registrar for FlowFilter {
     fn register(&self, p: &RegistrationProblem) -> Result<Registration, RegistrationError> {
         in_pool(|| self.solve_and_polish(p))
     }
+
+    fn uses_correspondences(&self) -> bool {
+        true
+    }
+
+    /// FilterReg from the initial pose without the flow term: the motion that guided tracking
+    /// starts from, and one of the geometric check's alternatives (reused when handed back).
+    fn prior(&self, p: &RegistrationProblem) -> Result<Option<Registration>, RegistrationError> {
+        validate_problem(p, None)?;
+        self.geometric_from_init(p).map(Some)
+    }
 }
 
-impl FlowFilter {
-    /// [`Registrar::register`]'s body, run on a pool thread.
-    fn solve_and_polish(&self, p: &RegistrationProblem) -> Result<Registration, RegistrationError> {
-        let (r, flow_used) = self.solve(p)?;
-        // Without trusted flow the result is plain FilterReg, as documented: no polish.
-        if flow_used { self.polish(p, r) } else { Ok(r) }
+/// The candidate set of correspondences Flow Filter uses, with its RANSAC consensus.
+struct FlowConsensus<'a> {
+    /// Which set (see `RegistrationProblem::alternative_correspondences`).
+    index: usize,
+    /// The pairs.
+    pairs: &'a Correspondences,
+    /// RANSAC's pose and inlier flags (`None`: no hypothesis with enough inliers).
+    ransac: Option<(Pose, Vec<bool>)>,
+}
+
+impl FlowConsensus<'_> {
+    /// Pairs that agree with the RANSAC pose.
+    fn agreeing(&self) -> usize {
+        self.ransac.as_ref().map_or(0, |(_, inliers)| inliers.iter().filter(|b| **b).count())
     }
 }
 
 impl FlowFilter {
+    /// [`Registrar::register`]'s body, run on a pool thread: choose the correspondences, solve,
+    /// polish.
+    fn solve_and_polish(&self, p: &RegistrationProblem) -> Result<Registration, RegistrationError> {
+        validate_problem(p, None)?;
+        let chosen = self.consensus(p);
+        let (mut r, flow_used) = self.solve(p, chosen.as_ref())?;
+        // Without trusted flow the result is plain FilterReg, as documented: no polish.
+        if flow_used {
+            r = self.polish(p, chosen.as_ref().map(|c| c.pairs), r)?;
+        }
+        r.correspondence_set = chosen.map(|c| c.index);
+        Ok(r)
+    }
+
+    /// The candidate set whose largest rigid consensus (RANSAC inliers) is biggest; the first
+    /// on ties. `None` without correspondences.
+    fn consensus<'a>(&self, p: &'a RegistrationProblem) -> Option<FlowConsensus<'a>> {
+        let cfg = &self.config;
+        let mut best: Option<FlowConsensus<'a>> = None;
+        for (index, pairs) in p.correspondence_sets().into_iter().enumerate() {
+            let ransac = ransac_kabsch(pairs, cfg.ransac_iterations, cfg.inlier_threshold_m, cfg.min_inliers, cfg.seed);
+            let candidate = FlowConsensus { index, pairs, ransac };
+            if best.as_ref().is_none_or(|b| candidate.agreeing() > b.agreeing()) {
+                best = Some(candidate);
+            }
+        }
+        best
+    }
+
+    /// FilterReg from the problem's initial pose on the clouds alone (the problem's prior when
+    /// it carries one).
+    fn geometric_from_init(&self, p: &RegistrationProblem) -> Result<Registration, RegistrationError> {
+        if let Some(prior) = &p.prior {
+            return Ok(prior.clone());
+        }
+        FilterReg::new(self.geometric_config())?.register(&p.geometry_only())
+    }
+
+    /// The FilterReg configuration without the correspondence term.
+    fn geometric_config(&self) -> FilterRegConfig {
+        FilterRegConfig { correspondence_weight: 0.0, ..self.config.filterreg.clone() }
+    }
+
     /// Point-to-plane ICP from `r` with a short gate (see `polish_distance_m`); warnings kept.
-    fn polish(&self, p: &RegistrationProblem, r: Registration) -> Result<Registration, RegistrationError> {
+    fn polish(
+        &self,
+        p: &RegistrationProblem,
+        pairs: Option<&Correspondences>,
+        r: Registration,
+    ) -> Result<Registration, RegistrationError> {
         let d = self.config.polish_distance_m;
         if d <= 0.0 || self.config.mode == FlowFilterMode::FlowOnly || p.target.normals.is_none() {
             return Ok(r);
@@ -251,21 +319,11 @@ impl FlowFilter {
             max_iterations: 30,
             ..IcpConfig::default()
         })?;
-        let mut plain = RegistrationProblem::new(p.source.clone(), p.target.clone()).with_init(r.transform);
-        plain.correspondences = None;
-        let q = icp.register(&plain)?;
+        let q = icp.register(&p.geometry_only().with_init(r.transform))?;
         // The polish must not undo what the flow decided (a slide along a symmetry): the flow
         // pairs' median residual may not grow by more than half of itself and the slack.
-        if let Some(c) = p.correspondences.as_ref().filter(|c| c.weights.iter().any(|w| *w > 0.0)) {
-            let median = |t: &Pose| {
-                let mut d: Vec<f64> = (0..c.len())
-                    .filter(|&i| c.weights[i] > 0.0)
-                    .map(|i| (t * c.source[i] - c.target[i]).norm())
-                    .collect();
-                d.sort_by(f64::total_cmp);
-                d[d.len() / 2]
-            };
-            let (before, after) = (median(&r.transform), median(&q.transform));
+        if let Some(c) = pairs.filter(|c| c.weights.iter().any(|w| *w > 0.0)) {
+            let (before, after) = (median_residual(c, &r.transform), median_residual(c, &q.transform));
             if !self.config.polish_agrees_with_flow(before, after) {
                 return Ok(r);
             }
@@ -274,130 +332,193 @@ impl FlowFilter {
     }
 
     /// Flow Filter before the polish, and whether trusted flow was used.
-    fn solve(&self, p: &RegistrationProblem) -> Result<(Registration, bool), RegistrationError> {
-        validate_problem(p, None)?;
+    fn solve(
+        &self,
+        p: &RegistrationProblem,
+        chosen: Option<&FlowConsensus<'_>>,
+    ) -> Result<(Registration, bool), RegistrationError> {
         let cfg = &self.config;
-        let usable = p.correspondences.as_ref().map_or(0, |c| c.weights.iter().filter(|w| **w > 0.0).count());
-        let flow = p.correspondences.as_ref().and_then(|c| {
-            ransac_kabsch(c, cfg.ransac_iterations, cfg.inlier_threshold_m, cfg.min_inliers, cfg.seed)
-                .map(|(pose, inl)| (c, pose, inl))
-        });
-        let agreeing = flow.as_ref().map_or(0, |f| f.2.iter().filter(|b| **b).count());
-        let trusted = flow.is_some() && agreeing as f64 >= cfg.min_inlier_fraction * usable as f64;
-        let Some((corr, pose, inliers)) = flow.filter(|_| trusted) else {
-            // No usable flow: plain FilterReg, flagged.
-            let mut r = FilterReg::new(cfg.filterreg.clone())?.register(p)?;
-            r.warnings.push(format!(
-                "too few consistent flow correspondences ({agreeing} of {usable} agree on a rigid motion; \
-                 needed {} and {:.0}%): Flow Filter fell back to FilterReg",
-                cfg.min_inliers,
-                cfg.min_inlier_fraction * 100.0
-            ));
-            return Ok((r, false));
+        let usable = chosen.map_or(0, |c| c.pairs.usable());
+        let agreeing = chosen.map_or(0, FlowConsensus::agreeing);
+        let trusted = agreeing as f64 >= cfg.min_inlier_fraction * usable as f64;
+        let flow = chosen.and_then(|c| c.ransac.as_ref().map(|(pose, inliers)| (c.pairs, *pose, inliers)));
+        let Some((pairs, pose, inliers)) = flow.filter(|_| trusted) else {
+            return Ok((self.fallback(p, chosen.map(|c| c.pairs), agreeing, usable)?, false));
         };
-        let n_in = agreeing;
         if cfg.mode == FlowFilterMode::FlowOnly {
-            let (fitness, inlier_rmse) = (n_in as f64 / corr.len() as f64, 0.0);
-            return Ok((
-                Registration {
-                    transform: pose,
-                    iterations: 1,
-                    converged: true,
-                    fitness,
-                    inlier_rmse,
-                    sigma2: None,
-                    scale: None,
-                    history: vec![],
-                    warnings: vec![],
-                },
-                true,
-            ));
+            return Ok((flow_only(pose, agreeing, pairs.len()), true));
         }
+        let flow_result = self.filterreg_from_flow(p, pairs, pose, inliers)?;
+        if !cfg.geometric_check {
+            return Ok((flow_result, true));
+        }
+        Ok((self.verify(p, pose, flow_result)?, true))
+    }
+
+    /// No trusted flow: plain FilterReg on the problem, flagged.
+    fn fallback(
+        &self,
+        p: &RegistrationProblem,
+        pairs: Option<&Correspondences>,
+        agreeing: usize,
+        usable: usize,
+    ) -> Result<Registration, RegistrationError> {
+        let mut problem = p.geometry_only();
+        problem.correspondences = pairs.cloned();
+        let mut r = FilterReg::new(self.config.filterreg.clone())?.register(&problem)?;
+        r.warnings.push(RegistrationWarning::FlowFallback {
+            agreeing,
+            usable,
+            min_inliers: self.config.min_inliers,
+            min_fraction: self.config.min_inlier_fraction,
+        });
+        Ok(r)
+    }
+
+    /// FilterReg started from the flow pose, with the correspondence term on the RANSAC inliers
+    /// (joint mode) or without it (init-only mode).
+    fn filterreg_from_flow(
+        &self,
+        p: &RegistrationProblem,
+        pairs: &Correspondences,
+        pose: Pose,
+        inliers: &[bool],
+    ) -> Result<Registration, RegistrationError> {
+        let cfg = &self.config;
         let mut fr_cfg = cfg.filterreg.clone();
-        let mut problem = p.clone().with_init(pose);
+        let mut problem = p.geometry_only().with_init(pose);
         if cfg.mode == FlowFilterMode::Joint {
             fr_cfg.correspondence_weight = cfg.correspondence_weight;
             problem.correspondences = Some(Correspondences {
-                source: corr.source.clone(),
-                target: corr.target.clone(),
-                weights: (0..corr.len()).map(|i| if inliers[i] { corr.weights[i] } else { 0.0 }).collect(),
+                source: pairs.source.clone(),
+                target: pairs.target.clone(),
+                weights: (0..pairs.len()).map(|i| if inliers[i] { pairs.weights[i] } else { 0.0 }).collect(),
             });
-        } else {
-            problem.correspondences = None;
         }
         // Start sigma at the scale of the flow pose's residual mismatch rather than the
         // all-pairs spread: the initial pose is already close.
         fr_cfg.init_sigma2.get_or_insert(1e-4);
-        let flow_result = FilterReg::new(fr_cfg.clone())?.register(&problem)?;
-        if !cfg.geometric_check {
-            return Ok((flow_result, true));
-        }
-        // Geometric verification against flow-free alternatives.
+        FilterReg::new(fr_cfg)?.register(&problem)
+    }
+
+    /// Geometric verification of the flow result against flow-free alternatives: the motion
+    /// check first, then the fit check.
+    fn verify(
+        &self,
+        p: &RegistrationProblem,
+        pose: Pose,
+        flow_result: Registration,
+    ) -> Result<Registration, RegistrationError> {
+        let cfg = &self.config;
         let index = KnnIndex::new(&p.target.points);
         let normals = p.source.normals.as_deref();
         let score = |r: &Registration| {
             visible_residual(&p.source.points, normals, &index, &r.transform, cfg.geometric_tau_m, 0.3)
         };
-        let mut plain_cfg = cfg.filterreg.clone();
-        plain_cfg.correspondence_weight = 0.0;
-        let mut plain = p.clone();
-        plain.correspondences = None;
-        let from_init = FilterReg::new(plain_cfg.clone())?.register(&plain)?;
+        let from_init = self.geometric_from_init(p)?;
+        let s_flow = score(&flow_result);
+        if cfg.motion_margin_deg >= 0.0
+            && let Some(r) = self.motion_check(p, &from_init, &flow_result, s_flow, &score)?
+        {
+            return Ok(r);
+        }
         let mut alternatives = vec![("FilterReg from the initial pose", from_init)];
         if cfg.mode == FlowFilterMode::Joint {
-            let mut local_cfg = plain_cfg;
+            let mut local_cfg = self.geometric_config();
             local_cfg.init_sigma2.get_or_insert(1e-4);
-            let local = FilterReg::new(local_cfg)?.register(&plain.clone().with_init(pose))?;
+            let local = FilterReg::new(local_cfg)?.register(&p.geometry_only().with_init(pose))?;
             alternatives.push(("FilterReg from the flow pose without the flow term", local));
         }
-        let s_flow = score(&flow_result);
+        Ok(self.fit_check(alternatives, flow_result, s_flow, &score))
+    }
+
+    /// The motion check (see [`FlowFilterConfig::motion_margin_deg`]): the geometric
+    /// registration from the initial pose (FilterReg, and point-to-plane ICP) that qualifies
+    /// and moved furthest, if any.
+    fn motion_check(
+        &self,
+        p: &RegistrationProblem,
+        from_init: &Registration,
+        flow_result: &Registration,
+        s_flow: f64,
+        score: &dyn Fn(&Registration) -> f64,
+    ) -> Result<Option<Registration>, RegistrationError> {
+        let cfg = &self.config;
         let angle = |r: &Registration| (p.init.inverse() * r.transform).rotation.angle().to_degrees();
-        if cfg.motion_margin_deg >= 0.0 {
-            // Geometric registrations from the initial pose: FilterReg, and point-to-plane ICP
-            // (its hard gate holds on to small asymmetric features, such as a mug's handle,
-            // that the GMM's wide kernels average away).
-            let mut from_init = vec![(alternatives[0].0, alternatives[0].1.clone())];
-            if cfg.motion_icp_distance_m > 0.0 && p.target.normals.is_some() {
-                let icp = Icp::new(IcpConfig {
-                    variant: IcpVariant::PointToPlane,
-                    max_correspondence_distance: cfg.motion_icp_distance_m,
-                    max_iterations: 50,
-                    ..IcpConfig::default()
-                })?;
-                from_init.push(("point-to-plane ICP from the initial pose", icp.register(&plain)?));
-            }
-            let flow_moved = angle(&flow_result);
-            let candidate = from_init
-                .into_iter()
-                .map(|(name, r)| (score(&r), angle(&r), name, r))
-                .filter(|(s, moved, _, _)| cfg.motion_wins((*s, *moved), (s_flow, flow_moved)))
-                .max_by(|a, b| a.1.total_cmp(&b.1));
-            if let Some((s, moved, name, mut r)) = candidate {
-                r.warnings.push(format!(
-                    "motion check: {name} moved {moved:.1} deg from the initial pose and fits the clouds as well \
-                     (mean residual {:.2} mm) as the flow result, which moved {flow_moved:.1} deg ({:.2} mm): \
-                     kept the former (the flow tracked a pattern that does not move with the surface)",
-                    s * 1e3,
-                    s_flow * 1e3
-                ));
-                return Ok((r, true));
-            }
+        // Point-to-plane ICP's hard gate holds on to small asymmetric features, such as a mug's
+        // handle, that the GMM's wide kernels average away.
+        let mut candidates = vec![("FilterReg from the initial pose", from_init.clone())];
+        if cfg.motion_icp_distance_m > 0.0 && p.target.normals.is_some() {
+            let icp = Icp::new(IcpConfig {
+                variant: IcpVariant::PointToPlane,
+                max_correspondence_distance: cfg.motion_icp_distance_m,
+                max_iterations: 50,
+                ..IcpConfig::default()
+            })?;
+            candidates.push(("point-to-plane ICP from the initial pose", icp.register(&p.geometry_only())?));
         }
+        let flow_moved = angle(flow_result);
+        let winner = candidates
+            .into_iter()
+            .map(|(name, r)| (score(&r), angle(&r), name, r))
+            .filter(|(s, moved, _, _)| cfg.motion_wins((*s, *moved), (s_flow, flow_moved)))
+            .max_by(|a, b| a.1.total_cmp(&b.1));
+        Ok(winner.map(|(s, moved, kept, mut r)| {
+            r.warnings.push(RegistrationWarning::MotionCheck {
+                kept,
+                moved_deg: moved,
+                residual_m: s,
+                flow_moved_deg: flow_moved,
+                flow_residual_m: s_flow,
+            });
+            r
+        }))
+    }
+
+    /// The fit check: the best-fitting alternative replaces the flow result only when it fits
+    /// clearly better (by the margin and the ratio).
+    fn fit_check(
+        &self,
+        alternatives: Vec<(&'static str, Registration)>,
+        flow_result: Registration,
+        s_flow: f64,
+        score: &dyn Fn(&Registration) -> f64,
+    ) -> Registration {
+        let cfg = &self.config;
         let best = alternatives
             .into_iter()
             .map(|(name, r)| (score(&r), name, r))
             .min_by(|a, b| a.0.total_cmp(&b.0))
-            .expect("two alternatives");
+            .expect("at least one alternative");
         if best.0 + cfg.geometric_margin_m < s_flow && best.0 * cfg.geometric_ratio < s_flow {
-            let (s, name, mut r) = best;
-            r.warnings.push(format!(
-                "geometric check: the flow result fits the clouds worse (mean residual {:.2} mm) than {name} \
-                 ({:.2} mm); kept the latter",
-                s_flow * 1e3,
-                s * 1e3
-            ));
-            return Ok((r, true));
+            let (s, kept, mut r) = best;
+            r.warnings.push(RegistrationWarning::GeometricCheck { kept, residual_m: s, flow_residual_m: s_flow });
+            return r;
         }
-        Ok((flow_result, true))
+        flow_result
     }
+}
+
+/// The flow-only mode's result: the RANSAC pose itself.
+fn flow_only(pose: Pose, agreeing: usize, pairs: usize) -> Registration {
+    Registration {
+        transform: pose,
+        iterations: 1,
+        converged: true,
+        fitness: agreeing as f64 / pairs as f64,
+        inlier_rmse: 0.0,
+        sigma2: None,
+        scale: None,
+        history: vec![],
+        warnings: vec![],
+        correspondence_set: None,
+    }
+}
+
+/// Median distance `|T a_j - b_j|` over the pairs with a positive weight.
+fn median_residual(c: &Correspondences, t: &Pose) -> f64 {
+    let mut d: Vec<f64> =
+        (0..c.len()).filter(|&i| c.weights[i] > 0.0).map(|i| (t * c.source[i] - c.target[i]).norm()).collect();
+    d.sort_by(f64::total_cmp);
+    d[d.len() / 2]
 }

@@ -4,6 +4,7 @@
 use crate::error::RegistrationError;
 use crate::evaluate::{RobustKernel, point_to_plane_step_by};
 use crate::problem::{IterationRecord, Registrar, Registration, RegistrationProblem, in_pool, validate_problem};
+use crate::warning::RegistrationWarning;
 use flowfilter_geometry::{KnnIndex, Neighbourhoods, Point3, Pose, RadiusGrid, spatial_order, weighted_kabsch_by};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -121,11 +122,10 @@ impl Icp {
         let mut iterations = 0;
         for it in 0..cfg.max_iterations {
             if corr.len() < 3 {
-                warnings.push(format!(
-                    "only {} correspondences within {} m: ICP cannot continue",
-                    corr.len(),
-                    cfg.max_correspondence_distance
-                ));
+                warnings.push(RegistrationWarning::TooFewPairs {
+                    found: corr.len(),
+                    max_distance_m: cfg.max_correspondence_distance,
+                });
                 break;
             }
             let delta = if pt2pl {
@@ -141,7 +141,7 @@ impl Icp {
                 .ok()
             };
             let Some(delta) = delta else {
-                warnings.push("the update is not determined (degenerate correspondences)".into());
+                warnings.push(RegistrationWarning::DegenerateUpdate);
                 break;
             };
             t = delta * t;
@@ -175,6 +175,7 @@ impl Icp {
             scale: None,
             history,
             warnings,
+            correspondence_set: None,
         })
     }
 }

@@ -2,6 +2,8 @@
 //! point-to-plane), rigid CPD and FilterReg (permutohedral-lattice E-step), each configured by a
 //! serde struct and selectable by name with [`registrar_by_name`].
 
+#![warn(missing_docs)]
+
 mod aggregate;
 mod anderson;
 mod cpd;
@@ -14,6 +16,7 @@ mod icp;
 pub mod lattice;
 mod problem;
 mod registry;
+mod warning;
 
 pub use cpd::{Cpd, CpdConfig, CpdEStep};
 pub use error::RegistrationError;
@@ -25,4 +28,5 @@ pub use icp::{Icp, IcpConfig, IcpVariant};
 pub use problem::{
     Correspondences, IterationRecord, Registrar, Registration, RegistrationProblem, validate_cloud, validate_problem,
 };
-pub use registry::{FLOW_METHOD_NAMES, METHOD_NAMES, RegistrationConfig, registrar_by_name};
+pub use registry::{METHOD_NAMES, RegistrationConfig, registrar_by_name};
+pub use warning::RegistrationWarning;

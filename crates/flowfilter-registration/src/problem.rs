@@ -1,52 +1,10 @@
 //! The registration problem, its result, and the trait every backend implements.
 
 use crate::error::RegistrationError;
-use flowfilter_geometry::{Point3, PointCloud, Pose};
+use crate::warning::RegistrationWarning;
+pub use flowfilter_geometry::Correspondences;
+use flowfilter_geometry::{PointCloud, Pose};
 use serde::Serialize;
-
-/// Weighted 3-D/3-D correspondences `source_i <-> target_i` (e.g. from optical flow).
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct Correspondences {
-    /// Points in the source frame.
-    pub source: Vec<Point3>,
-    /// Corresponding points in the target frame.
-    pub target: Vec<Point3>,
-    /// Non-negative weights.
-    pub weights: Vec<f64>,
-}
-
-impl Correspondences {
-    /// Number of pairs.
-    pub fn len(&self) -> usize {
-        self.source.len()
-    }
-
-    /// Whether there is no pair.
-    pub fn is_empty(&self) -> bool {
-        self.source.is_empty()
-    }
-
-    /// Check lengths, finiteness and weights.
-    pub fn validate(&self) -> Result<(), RegistrationError> {
-        if self.target.len() != self.source.len() || self.weights.len() != self.source.len() {
-            return Err(RegistrationError::BadCorrespondences(format!(
-                "{} sources, {} targets, {} weights",
-                self.source.len(),
-                self.target.len(),
-                self.weights.len()
-            )));
-        }
-        for i in 0..self.len() {
-            let finite = self.source[i].coords.iter().chain(self.target[i].coords.iter()).all(|v| v.is_finite());
-            if !finite || !self.weights[i].is_finite() || self.weights[i] < 0.0 {
-                return Err(RegistrationError::BadCorrespondences(format!(
-                    "pair {i} is not finite or has a negative weight"
-                )));
-            }
-        }
-        Ok(())
-    }
-}
 
 /// What to register: `target ~ T * source`.
 #[derive(Debug, Clone)]
@@ -57,20 +15,54 @@ pub struct RegistrationProblem {
     pub target: PointCloud,
     /// Initial estimate of `T`.
     pub init: Pose,
-    /// Optional weighted correspondences (used by Flow Filter).
+    /// Optional weighted correspondences, read by backends whose
+    /// [`Registrar::uses_correspondences`] is true (Flow Filter) and ignored by the others.
     pub correspondences: Option<Correspondences>,
+    /// Further candidate sets of correspondences (e.g. flow tracked from a predicted motion as
+    /// well as without one). A backend that uses correspondences picks one set among
+    /// `correspondences` (set 0) and these (sets 1, 2, ...) and reports its pick in
+    /// [`Registration::correspondence_set`].
+    pub alternative_correspondences: Vec<Correspondences>,
+    /// The backend's own [`Registrar::prior`] of this problem (same clouds, same initial pose),
+    /// handed back so that the backend does not compute it a second time. Only the backend
+    /// that computed it may be given it.
+    pub prior: Option<Registration>,
 }
 
 impl RegistrationProblem {
     /// A problem from identity, without correspondences.
     pub fn new(source: PointCloud, target: PointCloud) -> Self {
-        Self { source, target, init: Pose::identity(), correspondences: None }
+        Self {
+            source,
+            target,
+            init: Pose::identity(),
+            correspondences: None,
+            alternative_correspondences: vec![],
+            prior: None,
+        }
     }
 
     /// Set the initial pose.
     pub fn with_init(mut self, init: Pose) -> Self {
         self.init = init;
         self
+    }
+
+    /// Set the correspondences.
+    pub fn with_correspondences(mut self, correspondences: Correspondences) -> Self {
+        self.correspondences = Some(correspondences);
+        self
+    }
+
+    /// The same clouds and initial pose, without correspondences or prior: what a geometric
+    /// backend run inside another one sees.
+    pub fn geometry_only(&self) -> Self {
+        Self::new(self.source.clone(), self.target.clone()).with_init(self.init)
+    }
+
+    /// The candidate sets of correspondences in order (set 0 first); empty without any.
+    pub fn correspondence_sets(&self) -> Vec<&Correspondences> {
+        self.correspondences.iter().chain(self.alternative_correspondences.iter()).collect()
     }
 }
 
@@ -106,15 +98,66 @@ pub struct Registration {
     /// Per-iteration history.
     pub history: Vec<IterationRecord>,
     /// Conditions the caller should know about (e.g. a fallback taken).
-    pub warnings: Vec<String>,
+    pub warnings: Vec<RegistrationWarning>,
+    /// Which candidate set of correspondences the backend used (see
+    /// [`RegistrationProblem::alternative_correspondences`]); `None` when it used none.
+    pub correspondence_set: Option<usize>,
 }
 
 /// A rigid registration backend.
+///
+/// ```
+/// use flowfilter_geometry::{Point3, PointCloud, Pose};
+/// use flowfilter_registration::{Registrar, RegistrationConfig, RegistrationProblem, registrar_by_name};
+/// use nalgebra::{Translation3, UnitQuaternion};
+///
+/// // A small curved patch and the same patch moved by a known transform.
+/// let points: Vec<Point3> = (0..400)
+///     .map(|i| {
+///         let (u, v) = ((i % 20) as f64 * 0.005, (i / 20) as f64 * 0.005);
+///         Point3::new(u, v, 0.5 + 4.0 * (u - 0.05) * (u - 0.05) + 2.0 * v * v)
+///     })
+///     .collect();
+/// let truth = Pose::from_parts(Translation3::new(0.004, -0.002, 0.003), UnitQuaternion::from_euler_angles(0.03, -0.02, 0.04));
+/// let moved: Vec<Point3> = points.iter().map(|p| truth * p).collect();
+/// let problem = RegistrationProblem::new(PointCloud::from_points(points), PointCloud::from_points(moved));
+///
+/// let icp = registrar_by_name("icp-pt2pt", &RegistrationConfig::default())?;
+/// let result = icp.register(&problem)?;
+/// let error = (result.transform.inverse() * truth).rotation.angle().to_degrees();
+/// assert!(error < 0.1, "rotation error {error} deg");
+/// # Ok::<(), flowfilter_registration::RegistrationError>(())
+/// ```
 pub trait Registrar: Send + Sync {
     /// The backend's name (as accepted by [`crate::registrar_by_name`]).
     fn name(&self) -> &str;
+
     /// Estimate `T` with `target ~ T * source`.
+    ///
+    /// # Errors
+    /// [`RegistrationError`] when the problem cannot be registered: an empty, too small,
+    /// non-finite or degenerate cloud, missing normals where the method needs them, malformed
+    /// correspondences or a non-finite initial pose. Conditions that still give a pose (a
+    /// fallback, an early stop) are [`Registration::warnings`] instead.
     fn register(&self, problem: &RegistrationProblem) -> Result<Registration, RegistrationError>;
+
+    /// Whether the backend reads [`RegistrationProblem::correspondences`]: callers skip the
+    /// (costly) correspondence search for backends that do not.
+    fn uses_correspondences(&self) -> bool {
+        false
+    }
+
+    /// A registration of the clouds alone from the initial pose, computed before any
+    /// correspondence exists, that a caller may use to predict the motion for its
+    /// correspondence search and then hand back in [`RegistrationProblem::prior`]. Backends
+    /// without such a step (the default) return `None`.
+    ///
+    /// # Errors
+    /// As [`Registrar::register`].
+    fn prior(&self, problem: &RegistrationProblem) -> Result<Option<Registration>, RegistrationError> {
+        let _ = problem;
+        Ok(None)
+    }
 }
 
 /// Validate one cloud: non-empty, at least 3 points, finite, not collinear; normals finite and
@@ -164,7 +207,7 @@ pub fn validate_problem(
 ) -> Result<(), RegistrationError> {
     validate_cloud(&p.source, "source", None)?;
     validate_cloud(&p.target, "target", target_normals)?;
-    if let Some(c) = &p.correspondences {
+    for c in p.correspondence_sets() {
         c.validate()?;
     }
     if !p.init.to_homogeneous().iter().all(|v| v.is_finite()) {

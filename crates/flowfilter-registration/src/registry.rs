@@ -8,11 +8,19 @@ use crate::icp::{Icp, IcpConfig, IcpVariant};
 use crate::problem::Registrar;
 use serde::{Deserialize, Serialize};
 
-/// Names accepted by [`registrar_by_name`].
-pub const METHOD_NAMES: [&str; 5] = ["icp-pt2pt", "icp-pt2pl", "cpd", "filterreg-pt2pt", "filterreg-pt2pl"];
-
-/// Flow Filter names (they need flow correspondences in the problem).
-pub const FLOW_METHOD_NAMES: [&str; 3] = ["flowfilter", "flowfilter-init-only", "flowfilter-flow-only"];
+/// Names accepted by [`registrar_by_name`] (besides the aliases `icp` for `icp-pt2pt` and
+/// `filterreg` for `filterreg-pt2pt`). Whether a backend reads correspondences is its own
+/// [`Registrar::uses_correspondences`].
+pub const METHOD_NAMES: [&str; 8] = [
+    "icp-pt2pt",
+    "icp-pt2pl",
+    "cpd",
+    "filterreg-pt2pt",
+    "filterreg-pt2pl",
+    "flowfilter",
+    "flowfilter-init-only",
+    "flowfilter-flow-only",
+];
 
 /// Parameters of every backend (the variant fields are set from the method name).
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
@@ -29,6 +37,21 @@ pub struct RegistrationConfig {
 }
 
 /// The backend called `name`, configured by `config`.
+///
+/// # Errors
+/// [`RegistrationError::Config`] for an unknown name (the message lists [`METHOD_NAMES`]) or
+/// parameters out of range.
+///
+/// ```
+/// use flowfilter_registration::{RegistrationConfig, registrar_by_name};
+/// let config = RegistrationConfig::default();
+/// let filterreg = registrar_by_name("filterreg-pt2pl", &config)?;
+/// assert_eq!(filterreg.name(), "filterreg-pt2pl");
+/// assert!(!filterreg.uses_correspondences());
+/// assert!(registrar_by_name("flowfilter", &config)?.uses_correspondences());
+/// assert!(registrar_by_name("ndt", &config).is_err());
+/// # Ok::<(), flowfilter_registration::RegistrationError>(())
+/// ```
 pub fn registrar_by_name(name: &str, config: &RegistrationConfig) -> Result<Box<dyn Registrar>, RegistrationError> {
     Ok(match name {
         "icp-pt2pt" | "icp" => {
@@ -54,9 +77,8 @@ pub fn registrar_by_name(name: &str, config: &RegistrationConfig) -> Result<Box<
         }
         other => {
             return Err(RegistrationError::Config(format!(
-                "unknown method '{other}' (available: {}, {})",
-                METHOD_NAMES.join(", "),
-                FLOW_METHOD_NAMES.join(", ")
+                "unknown method '{other}' (available: {})",
+                METHOD_NAMES.join(", ")
             )));
         }
     })

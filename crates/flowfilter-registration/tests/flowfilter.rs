@@ -6,7 +6,7 @@ mod common;
 use flowfilter_geometry::{Point3, PointCloud, Pose, Vector3};
 use flowfilter_registration::{
     Correspondences, FlowFilter, FlowFilterConfig, FlowFilterMode, Registrar, RegistrationConfig, RegistrationProblem,
-    registrar_by_name,
+    RegistrationWarning, registrar_by_name,
 };
 
 /// A partial cylinder (the visible half of a can), radius 3.4 cm, height 10 cm.
@@ -63,7 +63,7 @@ fn without_flow_it_falls_back_to_filterreg_and_says_so() {
         .unwrap()
         .register(&RegistrationProblem::new(source, target))
         .unwrap();
-    assert!(r.warnings.iter().any(|w| w.contains("fell back to FilterReg")), "{:?}", r.warnings);
+    assert!(r.warnings.iter().any(|w| matches!(w, RegistrationWarning::FlowFallback { .. })), "{:?}", r.warnings);
 }
 
 /// A rotation of `deg` about `axis` through `centre`.
@@ -106,7 +106,11 @@ fn geometry_overrules_flow_that_contradicts_it() {
     );
     assert!(err(&unchecked.transform) > 5.0, "the wrong flow should mislead the unchecked method");
     assert!(err(&checked.transform) < 0.5, "{} deg", err(&checked.transform));
-    assert!(checked.warnings.iter().any(|w| w.contains("geometric check")), "{:?}", checked.warnings);
+    assert!(
+        checked.warnings.iter().any(|w| matches!(w, RegistrationWarning::GeometricCheck { .. })),
+        "{:?}",
+        checked.warnings
+    );
     // Flow that agrees with the geometry passes the check untouched.
     let good: Correspondences = Correspondences {
         source: c.source.clone(),
@@ -158,7 +162,11 @@ fn geometry_that_moves_overrules_flow_that_stands_still() {
     );
     assert!(err(&unchecked.transform) > 5.0, "the static flow should hold the method back without the check");
     assert!(err(&checked.transform) < 0.5, "{} deg", err(&checked.transform));
-    assert!(checked.warnings.iter().any(|w| w.contains("motion check")), "{:?}", checked.warnings);
+    assert!(
+        checked.warnings.iter().any(|w| matches!(w, RegistrationWarning::MotionCheck { .. })),
+        "{:?}",
+        checked.warnings
+    );
 }
 
 #[test]
@@ -184,7 +192,10 @@ fn the_motion_check_also_asks_point_to_plane_icp() {
     );
     assert!(err(&without_icp.transform) > 5.0, "{} deg", err(&without_icp.transform));
     assert!(err(&with_icp.transform) < 0.5, "{} deg", err(&with_icp.transform));
-    assert!(with_icp.warnings.iter().any(|w| w.contains("point-to-plane ICP from the initial pose")));
+    assert!(with_icp.warnings.iter().any(|w| matches!(
+        w,
+        RegistrationWarning::MotionCheck { kept: "point-to-plane ICP from the initial pose", .. }
+    )));
 }
 
 #[test]

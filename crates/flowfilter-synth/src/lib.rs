@@ -9,6 +9,8 @@
 //! - [`true_flow`]: exact optical flow between any two colour views, with occlusion.
 //! - [`write_capture`]: a whole capture in the BigBIRD layout through `flowfilter-bigbird`.
 
+#![warn(missing_docs)]
+
 mod capture;
 mod error;
 mod mesh;

@@ -25,14 +25,13 @@ pub struct EstimateArgs {
     /// Turntable angle of the target frame (degrees).
     #[arg(long)]
     pub to: u32,
-    /// Registration method: flowfilter, filterreg, cpd, icp, or any backend name
-    /// (overrides the configuration's `method`).
-    #[arg(long)]
+    /// Registration method (overrides the configuration's `method`).
+    #[arg(long, value_parser = crate::method_parser())]
     pub method: Option<String>,
     /// Pipeline configuration (TOML; see configs/). Default: configs/flowfilter.toml's values.
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Print the estimate as JSON (schema "flowfilter estimate v1").
+    /// Print the estimate as JSON (schema "flowfilter estimate v2").
     #[arg(long)]
     pub json: bool,
     /// Write model.ply, target.ply and aligned.ply (the registration clouds) to this directory.

@@ -5,9 +5,8 @@ use clap::Args;
 use flowfilter_flow::dis::DisParams;
 use flowfilter_flow::lk::to_gray;
 use flowfilter_flow::metrics::epe;
-use flowfilter_flow::{FlowEstimator, flo, viz};
+use flowfilter_flow::{FlowEstimator, LucasKanade, flo, flow_estimator_by_name, viz};
 use flowfilter_geometry::Mask;
-use flowfilter_pipeline::{FlowStageConfig, flow_estimator_by_name};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
@@ -41,8 +40,8 @@ pub struct FlowArgs {
     pub viz: Option<PathBuf>,
 }
 
-/// The estimator named on the command line: the pipeline's names (lk, dis, net, onnx:MODEL)
-/// plus the DIS presets, resolved by the pipeline's `flow_estimator_by_name`.
+/// The estimator named on the command line: the registry's names (lk, dis, net, onnx:MODEL)
+/// plus the DIS presets; LK with the pipeline's 9-pixel window.
 fn estimator(name: &str) -> anyhow::Result<Box<dyn FlowEstimator>> {
     let (estimator, dis) = match name {
         "dis-medium" => ("dis", DisParams::medium()),
@@ -54,8 +53,7 @@ fn estimator(name: &str) -> anyhow::Result<Box<dyn FlowEstimator>> {
     if estimator.starts_with("onnx:") || estimator == "net" {
         bail!("--method {estimator}: ONNX networks need a build with the `onnx` feature (cargo build --features onnx)")
     }
-    let config = FlowStageConfig { estimator: estimator.into(), dis, ..FlowStageConfig::default() };
-    flow_estimator_by_name(&config)
+    flow_estimator_by_name(estimator, &LucasKanade::turntable(), &dis)
         .with_context(|| format!("--method {name} (also: dis-medium, dis-fast, dis-ultrafast)"))
 }
 

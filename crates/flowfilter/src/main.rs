@@ -34,6 +34,14 @@ enum Command {
     TruthFlow(truth_flow::TruthFlowArgs),
 }
 
+/// `--method` of `register` and `estimate`: the registration backends' names (checked and
+/// listed by clap), with the aliases `icp` and `filterreg`.
+fn method_parser() -> clap::builder::PossibleValuesParser {
+    clap::builder::PossibleValuesParser::new(
+        flowfilter_registration::METHOD_NAMES.iter().copied().chain(["icp", "filterreg"]),
+    )
+}
+
 fn main() -> ExitCode {
     tracing_subscriber::fmt()
         .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn".into()))

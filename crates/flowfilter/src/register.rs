@@ -3,8 +3,9 @@
 use anyhow::{Context, bail};
 use clap::Args;
 use flowfilter_depth::ply::read_ply;
-use flowfilter_geometry::{Pose, rigid_from_matrix, rotation_angle_deg};
-use flowfilter_registration::{METHOD_NAMES, RegistrationConfig, RegistrationProblem, registrar_by_name};
+use flowfilter_geometry::{Pose, rigid_from_matrix};
+use flowfilter_pipeline::{PipelineConfig, RegistrationSummary, matrix_rows};
+use flowfilter_registration::{RegistrationConfig, RegistrationProblem, registrar_by_name};
 use nalgebra::Matrix4;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -19,16 +20,20 @@ pub struct RegisterArgs {
     /// The cloud to align to (PLY; normals needed for the point-to-plane methods).
     #[arg(long)]
     pub target: PathBuf,
-    /// icp-pt2pt, icp-pt2pl, cpd, filterreg-pt2pt or filterreg-pt2pl.
-    #[arg(long, default_value = "filterreg-pt2pt")]
-    pub method: String,
+    /// The backend (default: the configuration file's `method` when it has one, else
+    /// filterreg-pt2pt). The Flow Filter methods need flow correspondences, which PLY clouds do
+    /// not carry: they fall back to FilterReg with a warning.
+    #[arg(long, value_parser = crate::method_parser())]
+    pub method: Option<String>,
     /// Initial 4x4 transform: a text file with 16 numbers, row-major.
     #[arg(long)]
     pub init: Option<PathBuf>,
-    /// Backend parameters: a TOML file with [icp], [cpd] and [filterreg] tables.
+    /// Backend parameters (TOML): a pipeline configuration such as configs/icp.toml (its
+    /// [registration.*] tables and `method`), or a file of bare [icp], [cpd], [filterreg] and
+    /// [flowfilter] tables.
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Print the result as JSON.
+    /// Print the result as JSON (schema "flowfilter register v1").
     #[arg(long)]
     pub json: bool,
 }
@@ -47,36 +52,52 @@ fn read_matrix(path: &Path) -> anyhow::Result<Pose> {
         .with_context(|| format!("{}: not a rigid transform", path.display()))
 }
 
+/// The schema tag of `register --json`.
+pub const REGISTER_SCHEMA: &str = "flowfilter register v1";
+
+/// The backend parameters and, for a pipeline configuration, its method.
+fn read_config(path: &Path) -> anyhow::Result<(RegistrationConfig, Option<String>)> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let table: toml::Table = toml::from_str(&text).with_context(|| format!("{}: not a TOML file", path.display()))?;
+    if table.contains_key("registration") || table.contains_key("method") {
+        let config = PipelineConfig::from_toml_str(&text, path)?;
+        return Ok((config.registration, Some(config.method)));
+    }
+    let config = toml::from_str(&text).with_context(|| {
+        format!("{}: invalid registration config (tables [icp], [cpd], [filterreg], [flowfilter])", path.display())
+    })?;
+    Ok((config, None))
+}
+
 /// Run `register`.
 pub fn run(args: &RegisterArgs) -> anyhow::Result<ExitCode> {
-    let config: RegistrationConfig = match &args.config {
-        Some(p) => {
-            let text = std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
-            toml::from_str(&text).with_context(|| format!("{}: invalid registration config", p.display()))?
-        }
-        None => RegistrationConfig::default(),
+    let (config, config_method) = match &args.config {
+        Some(p) => read_config(p)?,
+        None => (RegistrationConfig::default(), None),
     };
-    let registrar = registrar_by_name(&args.method, &config)
-        .with_context(|| format!("--method must be one of {}", METHOD_NAMES.join(", ")))?;
+    let method = args.method.clone().or(config_method).unwrap_or_else(|| "filterreg-pt2pt".into());
+    let registrar = registrar_by_name(&method, &config).context("--method / --config")?;
     let source = read_ply(&args.source)?;
     let target = read_ply(&args.target)?;
     let init = args.init.as_deref().map(read_matrix).transpose()?.unwrap_or_else(Pose::identity);
+    let (model_points, target_points) = (source.len(), target.len());
     let start = Instant::now();
     let r = registrar.register(&RegistrationProblem::new(source, target).with_init(init))?;
-    let secs = start.elapsed().as_secs_f64();
-    let m = r.transform.to_homogeneous();
-    let rows: Vec<[f64; 4]> = (0..4).map(|i| [m[(i, 0)], m[(i, 1)], m[(i, 2)], m[(i, 3)]]).collect();
+    let ms = start.elapsed().as_secs_f64() * 1e3;
+    let rows = matrix_rows(&r.transform);
+    let (axis, angle) = r.transform.rotation.axis_angle().map_or(([0.0; 3], 0.0), |(a, t)| ([a.x, a.y, a.z], t));
+    let t = r.transform.translation.vector;
     if args.json {
+        // The names of `estimate --json` for the same quantities.
         let out = serde_json::json!({
+            "schema": REGISTER_SCHEMA,
             "method": registrar.name(),
             "transform": rows,
-            "rotation_deg": rotation_angle_deg(&r.transform),
-            "iterations": r.iterations,
-            "converged": r.converged,
-            "fitness": r.fitness,
-            "inlier_rmse": r.inlier_rmse,
-            "sigma2": r.sigma2,
-            "seconds": secs,
+            "rotation_angle_deg": angle.to_degrees(),
+            "rotation_axis": axis,
+            "translation_m": [t.x, t.y, t.z],
+            "registration": RegistrationSummary::new(&r, model_points, target_points),
+            "stage_ms": { "registration": ms, "total": ms },
             "warnings": r.warnings,
         });
         println!("{}", serde_json::to_string_pretty(&out)?);
@@ -87,12 +108,12 @@ pub fn run(args: &RegisterArgs) -> anyhow::Result<ExitCode> {
         }
         println!(
             "rotation {:.4} deg, {} iterations, converged: {}, fitness {:.4}, inlier RMSE {:.3} mm, {:.1} ms",
-            rotation_angle_deg(&r.transform),
+            angle.to_degrees(),
             r.iterations,
             r.converged,
             r.fitness,
             r.inlier_rmse * 1e3,
-            secs * 1e3
+            ms
         );
         for w in &r.warnings {
             eprintln!("warning: {w}");

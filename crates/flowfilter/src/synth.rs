@@ -19,8 +19,8 @@ pub struct ObjectArgs {
     /// A textured, triangulated OBJ (with MTL and diffuse texture), in metres, z up.
     #[arg(long)]
     pub mesh: Option<PathBuf>,
-    /// A procedural object: box, can or bottle.
-    #[arg(long)]
+    /// A procedural object.
+    #[arg(long, value_parser = clap::builder::PossibleValuesParser::new(flowfilter_synth::PROCEDURAL_NAMES))]
     pub procedural: Option<String>,
     /// Seed of all randomness (textures of procedural objects, noise).
     #[arg(long, default_value_t = 0)]

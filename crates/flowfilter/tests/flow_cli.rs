@@ -181,5 +181,5 @@ fn method_net_runs_the_shipped_network_or_names_the_feature() {
 }
 
 /// Bound on the network's EPE for the 3-degree box pair above (0.45 px when the model was
-/// trained; DIS-medium: 0.24 px; see fixtures/models/MODEL_CARD.md).
+/// trained; DIS-medium: 0.24 px; see crates/flowfilter-flow/models/MODEL_CARD.md).
 const NET_EPE_BOUND: f64 = 1.0;

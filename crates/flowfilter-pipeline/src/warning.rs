@@ -1,0 +1,66 @@
+//! [`PipelineWarning`]: degradations of the pipeline that still give an estimate.
+
+use flowfilter_registration::RegistrationWarning;
+use serde::ser::{Serialize, SerializeMap, Serializer};
+use std::fmt;
+
+/// Something the caller should know about an estimate.
+///
+/// `Display` gives the message; [`PipelineWarning::code`] a stable snake-case name. Serialized
+/// (`estimate --json`) as `{"code": ..., "message": ...}`.
+#[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
+pub enum PipelineWarning {
+    /// Flow was not estimated: the two frames come from different colour cameras or image sizes.
+    FlowSkipped {
+        /// The model frame's label.
+        model: String,
+        /// The target frame's label.
+        target: String,
+    },
+    /// The correspondence search failed; the registration ran without correspondences.
+    FlowFailed {
+        /// Why.
+        message: String,
+    },
+    /// The registration backend's warning.
+    Registration(RegistrationWarning),
+}
+
+impl PipelineWarning {
+    /// A stable snake-case name of the condition (the registration's own for its warnings).
+    pub fn code(&self) -> &'static str {
+        match self {
+            Self::FlowSkipped { .. } => "flow_skipped",
+            Self::FlowFailed { .. } => "flow_failed",
+            Self::Registration(w) => w.code(),
+        }
+    }
+}
+
+impl From<RegistrationWarning> for PipelineWarning {
+    fn from(w: RegistrationWarning) -> Self {
+        Self::Registration(w)
+    }
+}
+
+impl fmt::Display for PipelineWarning {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::FlowSkipped { model, target } => {
+                write!(f, "flow skipped: frames {model} and {target} come from different colour cameras or image sizes")
+            }
+            Self::FlowFailed { message } => write!(f, "flow failed: {message}"),
+            Self::Registration(w) => w.fmt(f),
+        }
+    }
+}
+
+impl Serialize for PipelineWarning {
+    fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        let mut map = serializer.serialize_map(Some(2))?;
+        map.serialize_entry("code", self.code())?;
+        map.serialize_entry("message", &self.to_string())?;
+        map.end()
+    }
+}
