@@ -185,70 +185,19 @@ fn timestamp() -> String {
 const FULL_PROTOCOL: &str = include_str!("../../configs/bench/full.toml");
 const QUICK_PROTOCOL: &str = include_str!("../../configs/bench/quick.toml");
 
-/// Run the benchmark.
+/// Run the benchmark: the protocol, one pipeline per method, the objects, then per object its
+/// frames (prepared once per group of methods) and its pairs.
 pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
-    let mut protocol = match &args.protocol {
-        Some(p) => Protocol::from_toml(
-            &std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
-            &p.display().to_string(),
-        )?,
-        None if args.quick => Protocol::from_toml(QUICK_PROTOCOL, "configs/bench/quick.toml")?,
-        None => Protocol::from_toml(FULL_PROTOCOL, "configs/bench/full.toml")?,
-    };
-    if let Some(m) = &args.methods {
-        protocol.methods = m.clone();
-    }
+    let protocol = load_protocol(args)?;
     let cameras = protocol.sensors().map_err(anyhow::Error::msg)?;
     let configs = protocol.method_configs(args.voxel)?;
     let pipelines: Vec<Pipeline> = configs
         .iter()
         .map(|c| Pipeline::from_config(c.clone()).with_context(|| format!("method '{}'", c.method)))
         .collect::<anyhow::Result<_>>()?;
-    // Methods whose depth and cloud stages agree share their prepared frames.
-    let mut groups: Vec<usize> = vec![];
-    for (i, c) in configs.iter().enumerate() {
-        let same = (0..i).find(|&j| configs[j].depth == c.depth && configs[j].cloud == c.cloud);
-        groups.push(same.map_or(i, |j| groups[j]));
-    }
-    let preparers: BTreeSet<usize> = groups.iter().copied().collect();
+    let groups = preparation_groups(&configs);
     let started = Instant::now();
-    // The objects: a real download, or the embedded dataset (synthesised once, cached).
-    let object_dirs: Vec<PathBuf> = match &args.data {
-        Some(root) => {
-            let mut dirs: Vec<PathBuf> = std::fs::read_dir(root)
-                .with_context(|| format!("reading {}", root.display()))?
-                .filter_map(Result::ok)
-                .map(|e| e.path())
-                .filter(|p| p.is_dir())
-                .collect();
-            dirs.sort();
-            if dirs.is_empty() {
-                bail!("{}: no object directories", root.display());
-            }
-            dirs
-        }
-        None => {
-            let meshes = if args.quick {
-                None
-            } else {
-                args.meshes.clone().or_else(|| Some(PathBuf::from("../shared/data/ycb")).filter(|p| p.is_dir()))
-            };
-            let objects = default_objects(meshes.as_deref());
-            let root = Path::new("target").join("bigbird-default");
-            let angles = protocol.angles();
-            let bar = progress(objects.len() as u64, "synthesising the default dataset (cached)");
-            let dirs = objects
-                .par_iter()
-                .map(|o| {
-                    let d = ensure_object(&root, o, &cameras, &angles, 7);
-                    bar.inc(1);
-                    d
-                })
-                .collect::<anyhow::Result<Vec<_>>>()?;
-            bar.finish();
-            dirs
-        }
-    };
+    let object_dirs = object_dirs(args, &protocol, &cameras)?;
     let mut results: Vec<PairResult> = Vec::new();
     let mut skipped: Vec<String> = Vec::new();
     for dir in &object_dirs {
@@ -261,18 +210,105 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
                 continue;
             }
         };
-        // Every frame the protocol needs, prepared once per group of methods.
-        let frames: Vec<FrameId> = cameras
+        let bench = ObjectBench { name: &name, object: &obj, protocol: &protocol, cameras: &cameras };
+        let prepared = bench.prepare_frames(&pipelines, &groups);
+        results.append(&mut bench.run_pairs(&pipelines, &groups, &prepared));
+    }
+    write_outputs(args, &protocol, &results, &skipped, started.elapsed().as_secs_f64())
+}
+
+/// The protocol: `--protocol`, or the shipped quick or full one; `--methods` overrides its
+/// methods.
+fn load_protocol(args: &BenchArgs) -> anyhow::Result<Protocol> {
+    let mut protocol = match &args.protocol {
+        Some(p) => Protocol::from_toml(
+            &std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
+            &p.display().to_string(),
+        )?,
+        None if args.quick => Protocol::from_toml(QUICK_PROTOCOL, "configs/bench/quick.toml")?,
+        None => Protocol::from_toml(FULL_PROTOCOL, "configs/bench/full.toml")?,
+    };
+    if let Some(m) = &args.methods {
+        protocol.methods = m.clone();
+    }
+    Ok(protocol)
+}
+
+/// For each method, the first method whose depth and cloud stages agree with it: methods of
+/// one group share their prepared frames.
+fn preparation_groups(configs: &[PipelineConfig]) -> Vec<usize> {
+    let mut groups: Vec<usize> = vec![];
+    for (i, c) in configs.iter().enumerate() {
+        let same = (0..i).find(|&j| configs[j].depth == c.depth && configs[j].cloud == c.cloud);
+        groups.push(same.map_or(i, |j| groups[j]));
+    }
+    groups
+}
+
+/// The object directories: a real download (`--data`), or the embedded dataset (synthesised
+/// once, cached under `target/bigbird-default`).
+fn object_dirs(args: &BenchArgs, protocol: &Protocol, cameras: &[SensorId]) -> anyhow::Result<Vec<PathBuf>> {
+    if let Some(root) = &args.data {
+        let mut dirs: Vec<PathBuf> = std::fs::read_dir(root)
+            .with_context(|| format!("reading {}", root.display()))?
+            .filter_map(Result::ok)
+            .map(|e| e.path())
+            .filter(|p| p.is_dir())
+            .collect();
+        dirs.sort();
+        if dirs.is_empty() {
+            bail!("{}: no object directories", root.display());
+        }
+        return Ok(dirs);
+    }
+    let meshes = if args.quick {
+        None
+    } else {
+        args.meshes.clone().or_else(|| Some(PathBuf::from("../shared/data/ycb")).filter(|p| p.is_dir()))
+    };
+    let objects = default_objects(meshes.as_deref());
+    let root = Path::new("target").join("bigbird-default");
+    let angles = protocol.angles();
+    let bar = progress(objects.len() as u64, "synthesising the default dataset (cached)");
+    let dirs = objects
+        .par_iter()
+        .map(|o| {
+            let d = ensure_object(&root, o, cameras, &angles, 7);
+            bar.inc(1);
+            d
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    bar.finish();
+    Ok(dirs)
+}
+
+/// Frames prepared by a group's pipeline, or why they could not be.
+type PreparedFrames = BTreeMap<(usize, FrameId), Result<PreparedFrame, String>>;
+
+/// One object's part of the benchmark.
+struct ObjectBench<'a> {
+    name: &'a str,
+    object: &'a BigBirdObject,
+    protocol: &'a Protocol,
+    cameras: &'a [SensorId],
+}
+
+impl ObjectBench<'_> {
+    /// Every frame the protocol needs, prepared once per group of methods.
+    fn prepare_frames(&self, pipelines: &[Pipeline], groups: &[usize]) -> PreparedFrames {
+        let preparers: BTreeSet<usize> = groups.iter().copied().collect();
+        let frames: Vec<FrameId> = self
+            .cameras
             .iter()
-            .flat_map(|&sensor| protocol.angles().into_iter().map(move |angle| FrameId { sensor, angle }))
-            .filter(|id| obj.has_frame(*id))
+            .flat_map(|&sensor| self.protocol.angles().into_iter().map(move |angle| FrameId { sensor, angle }))
+            .filter(|id| self.object.has_frame(*id))
             .collect();
         let work: Vec<(usize, FrameId)> = preparers.iter().flat_map(|&g| frames.iter().map(move |&f| (g, f))).collect();
-        let bar = progress(work.len() as u64, &format!("{name}: depth stage"));
-        let prepared: BTreeMap<(usize, FrameId), Result<PreparedFrame, String>> = work
+        let bar = progress(work.len() as u64, &format!("{}: depth stage", self.name));
+        let prepared = work
             .par_iter()
             .map(|&(g, id)| {
-                let data = load_bigbird_frame(&obj, id)
+                let data = load_bigbird_frame(self.object, id)
                     .map_err(|e| format!("loading: {e}"))
                     .and_then(|f| pipelines[g].prepare(&f).map_err(|e| e.to_string()));
                 bar.inc(1);
@@ -280,27 +316,38 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
             })
             .collect();
         bar.finish();
+        prepared
+    }
+
+    /// Every (camera, base angle, step, method) of the protocol.
+    fn jobs(&self) -> Vec<(SensorId, u32, u32, u32, usize)> {
         let mut jobs = vec![];
-        for &sensor in &cameras {
-            for &base in &protocol.base_angles {
-                for &step in &protocol.steps {
-                    for m in 0..protocol.methods.len() {
+        for &sensor in self.cameras {
+            for &base in &self.protocol.base_angles {
+                for &step in &self.protocol.steps {
+                    for m in 0..self.protocol.methods.len() {
                         jobs.push((sensor, base, (base + step) % 360, step, m));
                     }
                 }
             }
         }
-        let bar = progress(jobs.len() as u64, &format!("{name}: registration"));
-        let mut rows: Vec<PairResult> = jobs
+        jobs
+    }
+
+    /// Every pair of the protocol, estimated and scored.
+    fn run_pairs(&self, pipelines: &[Pipeline], groups: &[usize], prepared: &PreparedFrames) -> Vec<PairResult> {
+        let jobs = self.jobs();
+        let bar = progress(jobs.len() as u64, &format!("{}: registration", self.name));
+        let rows = jobs
             .par_iter()
             .map(|&(sensor, from, to, step, m)| {
                 let mut row = PairResult {
-                    object: name.clone(),
+                    object: self.name.to_string(),
                     camera: sensor.to_string(),
                     from,
                     to,
                     step,
-                    method: protocol.methods[m].clone(),
+                    method: self.protocol.methods[m].clone(),
                     errors: None,
                     converged: None,
                     seconds: None,
@@ -315,7 +362,8 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
                 };
                 let outcome = (|| -> Result<(), String> {
                     let (model, target) = (get(from)?, get(to)?);
-                    let truth = obj.relative_motion(sensor, from, to).map_err(|e| format!("ground truth: {e}"))?;
+                    let truth =
+                        self.object.relative_motion(sensor, from, to).map_err(|e| format!("ground truth: {e}"))?;
                     let t0 = Instant::now();
                     let e = pipelines[m].estimate_prepared(model, target).map_err(|e| e.to_string())?;
                     row.seconds = Some(t0.elapsed().as_secs_f64());
@@ -331,9 +379,8 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
             })
             .collect();
         bar.finish();
-        results.append(&mut rows);
+        rows
     }
-    write_outputs(args, &protocol, &results, &skipped, started.elapsed().as_secs_f64())
 }
 
 fn progress(len: u64, msg: &str) -> ProgressBar {

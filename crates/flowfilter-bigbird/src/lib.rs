@@ -34,3 +34,8 @@ pub use writer::{H5Format, ObjectWriter};
 
 /// Result type of this crate.
 pub type Result<T> = std::result::Result<T, BigBirdError>;
+
+/// The README's examples, compiled and run as doctests.
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+pub struct ReadmeDoctests;

@@ -30,3 +30,8 @@ pub use sensor::RgbdSensor;
 
 /// A 2-D pixel position `(u, v)` in pixels.
 pub type Pixel = nalgebra::Point2<f64>;
+
+/// The README's examples, compiled and run as doctests.
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+pub struct ReadmeDoctests;

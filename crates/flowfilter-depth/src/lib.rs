@@ -30,3 +30,8 @@ pub use config::{
 };
 pub use error::DepthError;
 pub use stage::{DepthStage, ProcessedDepth};
+
+/// The README's examples, compiled and run as doctests.
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+pub struct ReadmeDoctests;

@@ -116,7 +116,14 @@ impl DepthStage {
         t
     }
 
-    /// Run the stage on one frame.
+    /// Run the stage on one frame: check the inputs, crop the depth to the region that can
+    /// land in the mask, filter it, register it to the colour grid, fill holes, and build the
+    /// organised cloud with normals.
+    ///
+    /// # Errors
+    /// [`DepthError::SizeMismatch`] when the depth image, colour image or mask does not have
+    /// the sensor's size, [`DepthError::EmptyMask`], [`DepthError::NoDepth`], and the sensor
+    /// checks' errors.
     pub fn process(
         &self,
         raw: &RawDepth,
@@ -124,30 +131,9 @@ impl DepthStage {
         mask: &Mask,
         sensor: &RgbdSensor,
     ) -> Result<ProcessedDepth, DepthError> {
-        check_sensor(sensor)?;
+        check_inputs(raw, color, mask, sensor)?;
         let (dw, dh) = (sensor.depth.size.width as usize, sensor.depth.size.height as usize);
         let (cw, ch) = (sensor.color.size.width as usize, sensor.color.size.height as usize);
-        if raw.dims() != (dw, dh) {
-            return Err(DepthError::SizeMismatch {
-                what: "depth image",
-                expected: size_text(dw, dh),
-                found: size_text(raw.width(), raw.height()),
-            });
-        }
-        if (color.width() as usize, color.height() as usize) != (cw, ch) {
-            return Err(DepthError::SizeMismatch {
-                what: "colour image",
-                expected: size_text(cw, ch),
-                found: size_text(color.width() as usize, color.height() as usize),
-            });
-        }
-        if mask.dims() != (cw, ch) {
-            return Err(DepthError::SizeMismatch {
-                what: "mask",
-                expected: size_text(cw, ch),
-                found: size_text(mask.width(), mask.height()),
-            });
-        }
         // One scan of the mask: its box (None when empty); the pixel count only inside the box.
         let mask_box = mask_bbox(mask).ok_or(DepthError::EmptyMask)?;
         let (bx0, by0, bx1, by1) = mask_box;
@@ -158,55 +144,15 @@ impl DepthStage {
         }
         let cfg = &self.config;
         let mut stats = DepthStats { raw_valid, mask_pixels, ..Default::default() };
-        let mut clock = std::time::Instant::now();
-        let mut lap = |stats: &mut DepthStats, name: &'static str| {
-            stats.timings_ms.push((name, clock.elapsed().as_secs_f64() * 1e3));
-            clock = std::time::Instant::now();
-        };
-        // Only depth pixels that can land in the mask's box matter: crop the depth image to them
-        // (filters and projection then touch a fraction of the frame).
-        let (rx0, ry0, rx1, ry1) = if cfg.registration.restrict_to_mask {
-            let bbox = mask_box;
-            let margin = cfg.gaussian_filter.window.max(cfg.bigbird_filter.window).max(cfg.step_filter.window) + 2;
-            let coarse = depth_roi(sensor, bbox, ROI_NEAR_M, ROI_FAR_M, margin);
-            // Narrow the depth range to the depths measured in that region (the parallax
-            // between the cameras makes the region grow with the range), with slack for the
-            // difference between depth- and colour-camera z.
-            let (lo, hi) = (coarse.1..=coarse.3)
-                .flat_map(|y| raw.row(y)[coarse.0..=coarse.2].iter().copied())
-                .filter(|&d| d > 0)
-                .fold((u16::MAX, 0u16), |(lo, hi), d| (lo.min(d), hi.max(d)));
-            if lo <= hi {
-                let (near, far) = (f64::from(lo) * sensor.metres_per_unit, f64::from(hi) * sensor.metres_per_unit);
-                let near = (near * (1.0 - ROI_Z_SLACK) - ROI_Z_SLACK_M).max(ROI_NEAR_M);
-                let far = (far * (1.0 + ROI_Z_SLACK) + ROI_Z_SLACK_M).clamp(near, ROI_FAR_M.max(near));
-                depth_roi(sensor, bbox, near, far, margin)
-            } else {
-                coarse
-            }
+        let mut laps = Laps::start();
+        let region = if cfg.registration.restrict_to_mask {
+            self.depth_region(raw, sensor, mask_box)
         } else {
             (0, 0, dw - 1, dh - 1)
         };
-        let (rw, rh) = (rx1 - rx0 + 1, ry1 - ry0 + 1);
-        let unit = sensor.metres_per_unit;
-        let mut depth = DepthMap::from_fn(rw, rh, |x, y| {
-            let d = *raw.at(rx0 + x, ry0 + y);
-            if d == 0 { 0.0 } else { (f64::from(d) * unit) as f32 }
-        });
-        lap(&mut stats, "crop");
-        if cfg.gaussian_filter.enabled {
-            let (d, n) = gaussian_window(&depth, &cfg.gaussian_filter);
-            depth = d;
-            stats.rejected_gaussian = n;
-        }
-        lap(&mut stats, "gaussian");
-        if cfg.step_filter.enabled {
-            let (d, n) = bigbird_discontinuity(&depth, cfg.step_filter.window, cfg.step_filter.threshold_m);
-            depth = d;
-            stats.rejected_step = n;
-        }
-        lap(&mut stats, "step");
-        let projected = project_depth_grid(&depth, (rx0, ry0), sensor, &self.rays(&sensor.depth));
+        let depth = self.filtered_crop(raw, sensor.metres_per_unit, region, &mut stats, &mut laps);
+        let origin = (region.0, region.1);
+        let projected = project_depth_grid(&depth, origin, sensor, &self.rays(&sensor.depth));
         let restrict = cfg.registration.restrict_to_mask.then_some(mask);
         let registered = match cfg.registration.method {
             RegistrationMethod::Splat => splat(&projected, cw, ch, restrict),
@@ -215,7 +161,7 @@ impl DepthStage {
                 mesh_in(&depth, &projected, cw, ch, cfg.registration.max_step_m, restrict, Some(region))
             }
         };
-        lap(&mut stats, "project+register");
+        laps.lap(&mut stats, "project+register");
         // Registration only writes inside the mask (or anywhere when unrestricted).
         stats.registered = (by0..=by1)
             .flat_map(|y| (bx0..=bx1).map(move |x| y * cw + x))
@@ -223,26 +169,143 @@ impl DepthStage {
             .count();
         let mut dense = registered;
         stats.interpolated = fill_holes_in(&mut dense, mask, Some(mask_box), &cfg.interpolation);
-        lap(&mut stats, "interpolate");
+        laps.lap(&mut stats, "interpolate");
+        let (cloud, point_index) = self.cloud(&dense, color, mask, mask_box, sensor);
+        laps.lap(&mut stats, "cloud+normals");
+        let filtered_raw = paste(&depth, origin, dw, dh);
+        Ok(ProcessedDepth { filtered_raw, depth: dense, cloud, point_index, stats })
+    }
+
+    /// The depth pixels that can land in the mask's box (filters and projection then touch a
+    /// fraction of the frame): the box seen over the plausible depth range, narrowed to the
+    /// depths measured there.
+    fn depth_region(
+        &self,
+        raw: &RawDepth,
+        sensor: &RgbdSensor,
+        mask_box: (usize, usize, usize, usize),
+    ) -> (usize, usize, usize, usize) {
+        let cfg = &self.config;
+        let margin = cfg.gaussian_filter.window.max(cfg.bigbird_filter.window).max(cfg.step_filter.window) + 2;
+        let coarse = depth_roi(sensor, mask_box, ROI_NEAR_M, ROI_FAR_M, margin);
+        // Narrow the depth range to the depths measured in that region (the parallax
+        // between the cameras makes the region grow with the range), with slack for the
+        // difference between depth- and colour-camera z.
+        let (lo, hi) = (coarse.1..=coarse.3)
+            .flat_map(|y| raw.row(y)[coarse.0..=coarse.2].iter().copied())
+            .filter(|&d| d > 0)
+            .fold((u16::MAX, 0u16), |(lo, hi), d| (lo.min(d), hi.max(d)));
+        if lo > hi {
+            return coarse;
+        }
+        let (near, far) = (f64::from(lo) * sensor.metres_per_unit, f64::from(hi) * sensor.metres_per_unit);
+        let near = (near * (1.0 - ROI_Z_SLACK) - ROI_Z_SLACK_M).max(ROI_NEAR_M);
+        let far = (far * (1.0 + ROI_Z_SLACK) + ROI_Z_SLACK_M).clamp(near, ROI_FAR_M.max(near));
+        depth_roi(sensor, mask_box, near, far, margin)
+    }
+
+    /// The raw depth of `region` in metres, through the Gaussian-window and step filters.
+    fn filtered_crop(
+        &self,
+        raw: &RawDepth,
+        unit: f64,
+        (rx0, ry0, rx1, ry1): (usize, usize, usize, usize),
+        stats: &mut DepthStats,
+        laps: &mut Laps,
+    ) -> DepthMap {
+        let cfg = &self.config;
+        let (rw, rh) = (rx1 - rx0 + 1, ry1 - ry0 + 1);
+        let mut depth = DepthMap::from_fn(rw, rh, |x, y| {
+            let d = *raw.at(rx0 + x, ry0 + y);
+            if d == 0 { 0.0 } else { (f64::from(d) * unit) as f32 }
+        });
+        laps.lap(stats, "crop");
+        if cfg.gaussian_filter.enabled {
+            let (d, n) = gaussian_window(&depth, &cfg.gaussian_filter);
+            depth = d;
+            stats.rejected_gaussian = n;
+        }
+        laps.lap(stats, "gaussian");
+        if cfg.step_filter.enabled {
+            let (d, n) = bigbird_discontinuity(&depth, cfg.step_filter.window, cfg.step_filter.threshold_m);
+            depth = d;
+            stats.rejected_step = n;
+        }
+        laps.lap(stats, "step");
+        depth
+    }
+
+    /// The organised cloud of the dense colour-grid depth inside the mask, with the configured
+    /// normals, and each point's pixel index.
+    fn cloud(
+        &self,
+        dense: &DepthMap,
+        color: &RgbImage,
+        mask: &Mask,
+        mask_box: (usize, usize, usize, usize),
+        sensor: &RgbdSensor,
+    ) -> (PointCloud, Vec<u32>) {
+        let cfg = &self.config;
         let color_rays = self.rays(&sensor.color);
-        let (mut cloud, point_index) = organized_cloud_in(&dense, &color_rays, Some(color), Some(mask), Some(mask_box));
+        let (mut cloud, point_index) = organized_cloud_in(dense, &color_rays, Some(color), Some(mask), Some(mask_box));
         cloud.normals = match cfg.cloud.normals {
             NormalMethod::None => None,
             NormalMethod::Organized => Some(organized_normals(
                 &cloud,
                 &point_index,
-                cw,
+                sensor.color.size.width as usize,
                 cfg.cloud.organized_step_px,
                 cfg.registration.max_step_m,
             )),
             NormalMethod::Knn => Some(knn_normals(&cloud.points, cfg.cloud.knn, &Point3::origin())),
         };
-        lap(&mut stats, "cloud+normals");
-        // Paste the filtered crop back into a full-size depth-grid map.
-        let mut filtered_raw = DepthMap::filled(dw, dh, 0.0);
-        for y in 0..rh {
-            filtered_raw.as_mut_slice()[(ry0 + y) * dw + rx0..(ry0 + y) * dw + rx0 + rw].copy_from_slice(depth.row(y));
+        (cloud, point_index)
+    }
+}
+
+/// Sizes of the depth image, colour image and mask against the sensor's.
+fn check_inputs(raw: &RawDepth, color: &RgbImage, mask: &Mask, sensor: &RgbdSensor) -> Result<(), DepthError> {
+    check_sensor(sensor)?;
+    let (dw, dh) = (sensor.depth.size.width as usize, sensor.depth.size.height as usize);
+    let (cw, ch) = (sensor.color.size.width as usize, sensor.color.size.height as usize);
+    let found = [
+        ("depth image", (dw, dh), raw.dims()),
+        ("colour image", (cw, ch), (color.width() as usize, color.height() as usize)),
+        ("mask", (cw, ch), mask.dims()),
+    ];
+    for (what, expected, found) in found {
+        if found != expected {
+            return Err(DepthError::SizeMismatch {
+                what,
+                expected: size_text(expected.0, expected.1),
+                found: size_text(found.0, found.1),
+            });
         }
-        Ok(ProcessedDepth { filtered_raw, depth: dense, cloud, point_index, stats })
+    }
+    Ok(())
+}
+
+/// The filtered crop pasted back into a full-size (`dw` x `dh`) depth-grid map.
+fn paste(crop: &DepthMap, (x0, y0): (usize, usize), dw: usize, dh: usize) -> DepthMap {
+    let mut full = DepthMap::filled(dw, dh, 0.0);
+    let rw = crop.width();
+    for y in 0..crop.height() {
+        full.as_mut_slice()[(y0 + y) * dw + x0..(y0 + y) * dw + x0 + rw].copy_from_slice(crop.row(y));
+    }
+    full
+}
+
+/// Wall time per step, recorded in the stage's statistics.
+struct Laps(std::time::Instant);
+
+impl Laps {
+    fn start() -> Self {
+        Self(std::time::Instant::now())
+    }
+
+    /// Record the time since the last lap as step `name`.
+    fn lap(&mut self, stats: &mut DepthStats, name: &'static str) {
+        stats.timings_ms.push((name, self.0.elapsed().as_secs_f64() * 1e3));
+        self.0 = std::time::Instant::now();
     }
 }

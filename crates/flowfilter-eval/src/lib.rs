@@ -124,3 +124,8 @@ mod tests {
         assert_eq!(mean_median(&[3.0, 1.0, 2.0, 10.0]), Some((4.0, 2.5)));
     }
 }
+
+/// The README's examples, compiled and run as doctests.
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+pub struct ReadmeDoctests;

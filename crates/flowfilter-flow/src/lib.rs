@@ -29,3 +29,8 @@ pub use estimator::{FlowError, FlowEstimator, LucasKanade, WindowMatcher};
 pub use field::FlowField;
 pub use flo::FloError;
 pub use registry::{FLOW_ESTIMATOR_NAMES, check_estimator_name, flow_estimator_by_name};
+
+/// The README's examples, compiled and run as doctests.
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+pub struct ReadmeDoctests;

@@ -225,24 +225,7 @@ pub fn track_warped(
     p: &LkParams,
     mask: Option<&Mask>,
 ) -> Vec<Option<[f32; 2]>> {
-    let mut pa = vec![from.clone()];
-    let mut pb = vec![to.clone()];
-    let mut pm: Vec<Mask> = mask.map(|m| vec![m.clone()]).unwrap_or_default();
-    for _ in 0..p.levels {
-        let (a, b) =
-            rayon::join(|| downsample(pa.last().expect("non-empty")), || downsample(pb.last().expect("non-empty")));
-        pa.push(a);
-        pb.push(b);
-        if let Some(last) = pm.last() {
-            let next = downsample_mask(last);
-            pm.push(next);
-        }
-    }
-    // Central-difference gradients of the first image at every level: sampled with the value's
-    // bilinear weights, they equal central differences of bilinear samples (away from borders).
-    let grads: Vec<(Gray, Gray)> = pa.par_iter().map(central_gradients).collect();
-    let r = (p.window / 2) as isize;
-    let area = (p.window * p.window) as f32;
+    let pyramids = Pyramids::new(from, to, mask, p.levels);
     // A prediction is trusted to within a few pixels: refine it on the two finest levels only
     // (the coarse levels, where the silhouette dominates the object's texture, would pull it
     // back towards whatever does not move).
@@ -256,93 +239,7 @@ pub fn track_warped(
             // A linear map is the same at every pyramid level; the identity needs no warping.
             let warp = warps.and_then(|ws| ws.get(i)).copied().filter(|m| *m != IDENTITY_WARP);
             for level in (0..=start_level).rev() {
-                let s = (1u32 << level) as f32;
-                let (a, b) = (&pa[level], &pb[level]);
-                let (px, py) = (pt[0] / s, pt[1] / s);
-                // Template, gradients and the spatial gradient matrix at this level.
-                let mut tmpl = Vec::with_capacity(p.window * p.window);
-                let (mut gxx, mut gxy, mut gyy) = (0.0f32, 0.0f32, 0.0f32);
-                let inside = |x: f32, y: f32| {
-                    pm.get(level).is_none_or(|m| {
-                        let (ix, iy) = (x.round(), y.round());
-                        ix >= 0.0 && iy >= 0.0 && m.get(ix as usize, iy as usize).copied().unwrap_or(false)
-                    })
-                };
-                let (gx, gy) = (&grads[level].0, &grads[level].1);
-                for dy in -r..=r {
-                    for dx in -r..=r {
-                        let (x, y) = (px + dx as f32, py + dy as f32);
-                        if !inside(x, y) {
-                            // Outside the mask: no gradient, no residual.
-                            tmpl.push((0.0, 0.0, 0.0));
-                            continue;
-                        }
-                        let tap = BilinearTap::new(a.width(), a.height(), x, y);
-                        // Beyond the border the clamped image is flat: no gradient there.
-                        let beyond = x < 0.0 || y < 0.0 || x > (a.width() - 1) as f32 || y > (a.height() - 1) as f32;
-                        let (ix, iy) =
-                            if beyond { (0.0, 0.0) } else { (tap.sample(gx.as_slice()), tap.sample(gy.as_slice())) };
-                        tmpl.push((tap.sample(a.as_slice()), ix, iy));
-                        gxx += ix * ix;
-                        gxy += ix * iy;
-                        gyy += iy * iy;
-                    }
-                }
-                let tr = gxx + gyy;
-                let min_eig = 0.5 * (tr - ((gxx - gyy).powi(2) + 4.0 * gxy * gxy).sqrt());
-                if min_eig / area < p.min_eigen {
-                    return None;
-                }
-                let det = gxx * gyy - gxy * gxy;
-                let mut d = [0.0f32; 2];
-                let side = 2 * r as usize + 1;
-                for _ in 0..p.max_iterations {
-                    let (mut bx, mut by) = (0.0f32, 0.0f32);
-                    let (cx, cy) = (px + g[0] + d[0] - r as f32, py + g[1] + d[1] - r as f32);
-                    let mut add = |k: usize, sample: f32| {
-                        let (t, ix, iy) = tmpl[k];
-                        let diff = t - sample;
-                        bx += diff * ix;
-                        by += diff * iy;
-                    };
-                    match (warp, Window::inside(b, cx, cy, side)) {
-                        // A warped window: every sample has its own bilinear weights.
-                        (Some(m), _) => {
-                            let (ox, oy) = (cx + r as f32, cy + r as f32);
-                            for j in 0..side {
-                                let v = j as f32 - r as f32;
-                                for i in 0..side {
-                                    let u = i as f32 - r as f32;
-                                    add(j * side + i, bilinear(b, ox + m[0] * u + m[1] * v, oy + m[2] * u + m[3] * v));
-                                }
-                            }
-                        }
-                        // The whole window in the image: one set of bilinear weights.
-                        (None, Some(win)) => {
-                            for j in 0..side {
-                                for i in 0..side {
-                                    add(j * side + i, win.sample(b, i, j));
-                                }
-                            }
-                        }
-                        (None, None) => {
-                            for j in 0..side {
-                                for i in 0..side {
-                                    add(j * side + i, bilinear(b, cx + i as f32, cy + j as f32));
-                                }
-                            }
-                        }
-                    }
-                    let step = [(gyy * bx - gxy * by) / det, (gxx * by - gxy * bx) / det];
-                    // The template's shift, seen through the warp, is the window's.
-                    let step =
-                        warp.map_or(step, |m| [m[0] * step[0] + m[1] * step[1], m[2] * step[0] + m[3] * step[1]]);
-                    d[0] += step[0];
-                    d[1] += step[1];
-                    if step[0].abs() < p.epsilon && step[1].abs() < p.epsilon {
-                        break;
-                    }
-                }
+                let d = pyramids.refine(level, *pt, g, warp, p)?;
                 g = if level > 0 { [2.0 * (g[0] + d[0]), 2.0 * (g[1] + d[1])] } else { [g[0] + d[0], g[1] + d[1]] };
             }
             let (qx, qy) = (pt[0] + g[0], pt[1] + g[1]);
@@ -350,6 +247,154 @@ pub fn track_warped(
             (inside && g.iter().all(|v| v.is_finite())).then_some(g)
         })
         .collect()
+}
+
+/// The two images' pyramids (and the mask's), with central-difference gradients of the first
+/// image at every level: sampled with the value's bilinear weights, they equal central
+/// differences of bilinear samples (away from borders).
+struct Pyramids {
+    from: Vec<Gray>,
+    to: Vec<Gray>,
+    mask: Vec<Mask>,
+    grads: Vec<(Gray, Gray)>,
+}
+
+/// One template pixel: its value and gradient (all zero outside the mask).
+type TemplatePixel = (f32, f32, f32);
+
+impl Pyramids {
+    fn new(from: &Gray, to: &Gray, mask: Option<&Mask>, levels: usize) -> Self {
+        let mut pa = vec![from.clone()];
+        let mut pb = vec![to.clone()];
+        let mut pm: Vec<Mask> = mask.map(|m| vec![m.clone()]).unwrap_or_default();
+        for _ in 0..levels {
+            let (a, b) =
+                rayon::join(|| downsample(pa.last().expect("non-empty")), || downsample(pb.last().expect("non-empty")));
+            pa.push(a);
+            pb.push(b);
+            if let Some(last) = pm.last() {
+                let next = downsample_mask(last);
+                pm.push(next);
+            }
+        }
+        let grads: Vec<(Gray, Gray)> = pa.par_iter().map(central_gradients).collect();
+        Self { from: pa, to: pb, mask: pm, grads }
+    }
+
+    /// The template around `(px, py)` of `level` (row-major, `window` x `window`) and its
+    /// spatial gradient matrix `(gxx, gxy, gyy)`.
+    fn template(&self, level: usize, px: f32, py: f32, window: usize) -> (Vec<TemplatePixel>, [f32; 3]) {
+        let a = &self.from[level];
+        let r = (window / 2) as isize;
+        let mut tmpl = Vec::with_capacity(window * window);
+        let (mut gxx, mut gxy, mut gyy) = (0.0f32, 0.0f32, 0.0f32);
+        let inside = |x: f32, y: f32| {
+            self.mask.get(level).is_none_or(|m| {
+                let (ix, iy) = (x.round(), y.round());
+                ix >= 0.0 && iy >= 0.0 && m.get(ix as usize, iy as usize).copied().unwrap_or(false)
+            })
+        };
+        let (gx, gy) = (&self.grads[level].0, &self.grads[level].1);
+        for dy in -r..=r {
+            for dx in -r..=r {
+                let (x, y) = (px + dx as f32, py + dy as f32);
+                if !inside(x, y) {
+                    // Outside the mask: no gradient, no residual.
+                    tmpl.push((0.0, 0.0, 0.0));
+                    continue;
+                }
+                let tap = BilinearTap::new(a.width(), a.height(), x, y);
+                // Beyond the border the clamped image is flat: no gradient there.
+                let beyond = x < 0.0 || y < 0.0 || x > (a.width() - 1) as f32 || y > (a.height() - 1) as f32;
+                let (ix, iy) = if beyond { (0.0, 0.0) } else { (tap.sample(gx.as_slice()), tap.sample(gy.as_slice())) };
+                tmpl.push((tap.sample(a.as_slice()), ix, iy));
+                gxx += ix * ix;
+                gxy += ix * iy;
+                gyy += iy * iy;
+            }
+        }
+        (tmpl, [gxx, gxy, gyy])
+    }
+
+    /// The displacement `d` beyond the guess `g` that Newton's iterations find for point `pt`
+    /// at `level`; `None` where the window's gradients are too weak to track.
+    fn refine(
+        &self,
+        level: usize,
+        pt: [f32; 2],
+        g: [f32; 2],
+        warp: Option<WindowWarp>,
+        p: &LkParams,
+    ) -> Option<[f32; 2]> {
+        let s = (1u32 << level) as f32;
+        let b = &self.to[level];
+        let (px, py) = (pt[0] / s, pt[1] / s);
+        let r = (p.window / 2) as isize;
+        let area = (p.window * p.window) as f32;
+        let (tmpl, [gxx, gxy, gyy]) = self.template(level, px, py, p.window);
+        let tr = gxx + gyy;
+        let min_eig = 0.5 * (tr - ((gxx - gyy).powi(2) + 4.0 * gxy * gxy).sqrt());
+        if min_eig / area < p.min_eigen {
+            return None;
+        }
+        let det = gxx * gyy - gxy * gxy;
+        let mut d = [0.0f32; 2];
+        for _ in 0..p.max_iterations {
+            let corner = (px + g[0] + d[0] - r as f32, py + g[1] + d[1] - r as f32);
+            let (bx, by) = mismatch(b, &tmpl, corner, r, warp);
+            let step = [(gyy * bx - gxy * by) / det, (gxx * by - gxy * bx) / det];
+            // The template's shift, seen through the warp, is the window's.
+            let step = warp.map_or(step, |m| [m[0] * step[0] + m[1] * step[1], m[2] * step[0] + m[3] * step[1]]);
+            d[0] += step[0];
+            d[1] += step[1];
+            if step[0].abs() < p.epsilon && step[1].abs() < p.epsilon {
+                break;
+            }
+        }
+        Some(d)
+    }
+}
+
+/// `sum_k (T_k - I(x_k)) grad T_k` over the window of half-size `r` whose top-left corner in
+/// `b` is `(cx, cy)`, warped by `warp` about its centre.
+fn mismatch(b: &Gray, tmpl: &[TemplatePixel], (cx, cy): (f32, f32), r: isize, warp: Option<WindowWarp>) -> (f32, f32) {
+    let side = 2 * r as usize + 1;
+    let (mut bx, mut by) = (0.0f32, 0.0f32);
+    let mut add = |k: usize, sample: f32| {
+        let (t, ix, iy) = tmpl[k];
+        let diff = t - sample;
+        bx += diff * ix;
+        by += diff * iy;
+    };
+    match (warp, Window::inside(b, cx, cy, side)) {
+        // A warped window: every sample has its own bilinear weights.
+        (Some(m), _) => {
+            let (ox, oy) = (cx + r as f32, cy + r as f32);
+            for j in 0..side {
+                let v = j as f32 - r as f32;
+                for i in 0..side {
+                    let u = i as f32 - r as f32;
+                    add(j * side + i, bilinear(b, ox + m[0] * u + m[1] * v, oy + m[2] * u + m[3] * v));
+                }
+            }
+        }
+        // The whole window in the image: one set of bilinear weights.
+        (None, Some(win)) => {
+            for j in 0..side {
+                for i in 0..side {
+                    add(j * side + i, win.sample(b, i, j));
+                }
+            }
+        }
+        (None, None) => {
+            for j in 0..side {
+                for i in 0..side {
+                    add(j * side + i, bilinear(b, cx + i as f32, cy + j as f32));
+                }
+            }
+        }
+    }
+    (bx, by)
 }
 
 #[cfg(test)]

@@ -42,3 +42,8 @@ pub type Point3 = nalgebra::Point3<f64>;
 
 /// A 3-D vector.
 pub type Vector3 = nalgebra::Vector3<f64>;
+
+/// The README's examples, compiled and run as doctests.
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+pub struct ReadmeDoctests;

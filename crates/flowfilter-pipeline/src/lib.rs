@@ -51,3 +51,8 @@ pub use flowfilter_eval as eval;
 pub use flowfilter_flow as flow;
 pub use flowfilter_geometry as geometry;
 pub use flowfilter_registration as registration;
+
+/// The README's examples, compiled and run as doctests.
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+pub struct ReadmeDoctests;

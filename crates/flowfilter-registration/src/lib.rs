@@ -30,3 +30,11 @@ pub use problem::{
 };
 pub use registry::{METHOD_NAMES, RegistrationConfig, registrar_by_name};
 pub use warning::RegistrationWarning;
+
+// The geometric types of this crate's signatures.
+pub use flowfilter_geometry::{Point3, PointCloud, Pose, Vector3};
+
+/// The README's examples, compiled and run as doctests.
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+pub struct ReadmeDoctests;

@@ -106,27 +106,46 @@ pub struct Registration {
 
 /// A rigid registration backend.
 ///
+/// Implementing it plugs a backend into everything that takes one (the pipeline, the CLI):
+///
 /// ```
-/// use flowfilter_geometry::{Point3, PointCloud, Pose};
-/// use flowfilter_registration::{Registrar, RegistrationConfig, RegistrationProblem, registrar_by_name};
-/// use nalgebra::{Translation3, UnitQuaternion};
+/// use flowfilter_registration::{
+///     Point3, PointCloud, Pose, Registrar, Registration, RegistrationError, RegistrationProblem, Vector3,
+///     validate_problem,
+/// };
 ///
-/// // A small curved patch and the same patch moved by a known transform.
-/// let points: Vec<Point3> = (0..400)
-///     .map(|i| {
-///         let (u, v) = ((i % 20) as f64 * 0.005, (i / 20) as f64 * 0.005);
-///         Point3::new(u, v, 0.5 + 4.0 * (u - 0.05) * (u - 0.05) + 2.0 * v * v)
-///     })
-///     .collect();
-/// let truth = Pose::from_parts(Translation3::new(0.004, -0.002, 0.003), UnitQuaternion::from_euler_angles(0.03, -0.02, 0.04));
-/// let moved: Vec<Point3> = points.iter().map(|p| truth * p).collect();
-/// let problem = RegistrationProblem::new(PointCloud::from_points(points), PointCloud::from_points(moved));
+/// /// Aligns the clouds' centroids: a translation-only backend.
+/// struct Centroids;
 ///
-/// let icp = registrar_by_name("icp-pt2pt", &RegistrationConfig::default())?;
-/// let result = icp.register(&problem)?;
-/// let error = (result.transform.inverse() * truth).rotation.angle().to_degrees();
-/// assert!(error < 0.1, "rotation error {error} deg");
-/// # Ok::<(), flowfilter_registration::RegistrationError>(())
+/// impl Registrar for Centroids {
+///     fn name(&self) -> &str {
+///         "centroids"
+///     }
+///
+///     fn register(&self, p: &RegistrationProblem) -> Result<Registration, RegistrationError> {
+///         validate_problem(p, None)?;
+///         let shift = p.target.centroid().unwrap() - p.source.centroid().unwrap();
+///         Ok(Registration {
+///             transform: Pose::new(shift, Vector3::zeros()),
+///             iterations: 1,
+///             converged: true,
+///             fitness: 1.0,
+///             inlier_rmse: 0.0,
+///             sigma2: None,
+///             scale: None,
+///             history: vec![],
+///             warnings: vec![],
+///             correspondence_set: None,
+///         })
+///     }
+/// }
+///
+/// let source: Vec<Point3> = (0..50).map(|i| Point3::new((i % 7) as f64 * 0.01, (i / 7) as f64 * 0.01, 0.5 + (i % 3) as f64 * 0.01)).collect();
+/// let target: Vec<Point3> = source.iter().map(|p| p + Vector3::new(0.02, 0.0, -0.01)).collect();
+/// let problem = RegistrationProblem::new(PointCloud::from_points(source), PointCloud::from_points(target));
+/// let r = Centroids.register(&problem)?;
+/// assert!((r.transform.translation.vector - Vector3::new(0.02, 0.0, -0.01)).norm() < 1e-12);
+/// # Ok::<(), RegistrationError>(())
 /// ```
 pub trait Registrar: Send + Sync {
     /// The backend's name (as accepted by [`crate::registrar_by_name`]).

@@ -29,3 +29,8 @@ pub use procedural::{PROCEDURAL_NAMES, procedural};
 pub use rig::{Rig, RigSensor, look_at, world_from_table};
 pub use scene::{Scene, TABLE_RADIUS};
 pub use truth_flow::{TrueFlow, true_flow};
+
+/// The README's examples, compiled and run as doctests.
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+pub struct ReadmeDoctests;

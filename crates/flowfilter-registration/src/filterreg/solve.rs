@@ -1,0 +1,407 @@
+//! FilterReg's EM iteration, step by step: set-up (spatial order, target values, index,
+//! pyramids), the E-step choice and the points it visits, the M-step, the sigma update, the
+//! Anderson-mixed step, and the final evaluation.
+
+use super::{
+    AUTO_NEIGHBOURS, EmCoordinates, ExactEStep, FilterReg, FilterRegConfig, FilterRegEStep, FilterRegVariant,
+    MAX_MIXING_ANGLE, MERGED_MIN_POINTS, MIXING_SIGMA_CHANGE, SUBSET_SETTLED, SURFACE_SIGMA_SETTLED, SigmaSchedule,
+    Sums, lattice_sums, m_step, permuted, target_values,
+};
+use crate::aggregate::Pyramid;
+use crate::anderson::Anderson;
+use crate::error::RegistrationError;
+use crate::evaluate::{evaluate, evaluate_by};
+use crate::gmm::mean_pair_distance2;
+use crate::problem::{IterationRecord, Registration, RegistrationProblem, validate_problem};
+use crate::warning::RegistrationWarning;
+use flowfilter_geometry::{KnnIndex, Point3, Pose, Vector3, spatial_order};
+
+/// The clouds in a spatially coherent order (the neighbours of a point, and the points queried
+/// one after the other, then sit close together in memory), with what every iteration reads.
+struct Prepared {
+    source: Vec<Point3>,
+    target: Vec<Point3>,
+    /// Values per target point (5, or 8 with normals) and their rows.
+    vd: usize,
+    values: Vec<f64>,
+    index: KnnIndex,
+    /// The support radius below which exact sums are cheaper than the lattice (Auto).
+    exact_below: Option<f64>,
+    /// Merged source (no values) and target for the wide-kernel lattice iterations.
+    pyramids: Option<(Pyramid, Pyramid)>,
+    /// The source's centroid and RMS radius (how far an update moves it; Anderson coordinates).
+    centre: Point3,
+    radius: f64,
+}
+
+impl Prepared {
+    fn new(cfg: &FilterRegConfig, p: &RegistrationProblem, pt2pl: bool) -> Self {
+        // (Independent set-up steps run side by side.)
+        let (source_order, target_order) =
+            rayon::join(|| spatial_order(&p.source.points), || spatial_order(&p.target.points));
+        let source = permuted(&p.source.points, &source_order);
+        let target = permuted(&p.target.points, &target_order);
+        let normals: Option<Vec<Vector3>> =
+            p.target.normals.as_deref().filter(|_| pt2pl).map(|n| permuted(n, &target_order));
+        let (vd, values) = target_values(&target, normals.as_deref());
+        let index = KnnIndex::new(&target);
+        // The median distance from (a strided sample of) target points to their
+        // AUTO_NEIGHBOURS-th neighbour: the support radius below which exact sums are cheaper
+        // than the lattice (Auto), and a quarter of it the point spacing (merging).
+        let merging = cfg.merge_fraction > 0.0 && cfg.e_step == FilterRegEStep::Auto;
+        let support = (cfg.e_step == FilterRegEStep::Auto || merging)
+            .then(|| index.median_neighbour_distance(&target, AUTO_NEIGHBOURS, 64).unwrap_or(f64::INFINITY));
+        let exact_below = support.filter(|_| cfg.e_step == FilterRegEStep::Auto);
+        let pyramids = support.filter(|r| merging && r.is_finite() && *r > 0.0).map(|r| {
+            let finest = r / 4.0;
+            rayon::join(
+                || Pyramid::new(&source, &[], 0, finest, MERGED_MIN_POINTS),
+                || Pyramid::new(&target, &values, vd, finest, MERGED_MIN_POINTS),
+            )
+        });
+        let (centre, radius) = centre_and_radius(&source);
+        Self { source, target, vd, values, index, exact_below, pyramids, centre, radius }
+    }
+}
+
+/// The centroid of `points` and their RMS distance to it (at least 1e-9).
+fn centre_and_radius(points: &[Point3]) -> (Point3, f64) {
+    let n = points.len() as f64;
+    let centre = Point3::from(points.iter().fold(Vector3::zeros(), |a, s| a + s.coords) / n);
+    (centre, (points.iter().map(|s| (s - centre).norm_squared()).sum::<f64>() / n).sqrt().max(1e-9))
+}
+
+/// The points one iteration visits: source points (each standing for `counts` points spread by
+/// `spreads` when merged) and target points with their values.
+struct Visit<'a> {
+    src: &'a [Point3],
+    counts: Option<&'a [f64]>,
+    spreads: Option<&'a [f64]>,
+    tgt: &'a [Point3],
+    tgt_values: &'a [f64],
+}
+
+impl<'a> Visit<'a> {
+    /// The settling subset where it has fewer points than the merged level, else the merged
+    /// level (wide kernels on the lattice; voxels up to a fraction of sigma), else every point.
+    fn select(
+        cfg: &FilterRegConfig,
+        prep: &'a Prepared,
+        subset: Option<&'a (Vec<Point3>, Vec<f64>)>,
+        use_lattice: bool,
+        sigma: f64,
+    ) -> Self {
+        let levels = prep
+            .pyramids
+            .as_ref()
+            .filter(|_| use_lattice)
+            .map(|(ps, pt)| (ps.level_for(cfg.merge_fraction * sigma), pt.level_for(cfg.merge_fraction * sigma)));
+        let (src, counts, spreads) = match (levels.and_then(|l| l.0), subset) {
+            (Some(l), Some((pts, n))) if pts.len() < l.points.len() => (&pts[..], Some(&n[..]), None),
+            (Some(l), _) => (&l.points[..], Some(&l.counts[..]), Some(&l.spreads[..])),
+            (None, Some((pts, n))) => (&pts[..], Some(&n[..]), None),
+            (None, None) => (&prep.source[..], None, None),
+        };
+        let (tgt, tgt_values) = match levels.and_then(|l| l.1) {
+            Some(l) => (&l.points[..], &l.values[..]),
+            None => (&prep.target[..], &prep.values[..]),
+        };
+        Self { src, counts, spreads, tgt, tgt_values }
+    }
+
+    /// The EM update's numerator and denominator of sigma^2 with the new pose `g` and this
+    /// E-step's posteriors. A merged point stands for `n` points spread by `s` around it:
+    /// `sum_j |x_j|^2 = n |x|^2 + s`.
+    fn sigma_sums(&self, sums: &Sums, g: &Pose, c: f64) -> (f64, f64) {
+        (0..self.src.len())
+            .filter(|&i| sums.m0[i] > 1e-12)
+            .map(|i| {
+                let (m0, xg) = (sums.m0[i], g * self.src[i]);
+                let (n, s) = (self.counts.map_or(1.0, |n| n[i]), self.spreads.map_or(0.0, |s| s[i]));
+                let q = m0 * (n * xg.coords.norm_squared() + s) - 2.0 * n * xg.coords.dot(&sums.m1[i]) + n * sums.m2[i];
+                (q / (m0 + c), n * m0 / (m0 + c))
+            })
+            .fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1))
+    }
+}
+
+/// The EM iteration's state from one iteration to the next.
+struct EmState {
+    /// The current iterate (mixed or plain) and sigma^2.
+    t: Pose,
+    sigma2: f64,
+    /// The last plain EM step's pose: the result.
+    result: Pose,
+    iterations: usize,
+    converged: bool,
+    history: Vec<IterationRecord>,
+    warnings: Vec<RegistrationWarning>,
+    /// Whether Auto has switched to the exact E-step (it stays there).
+    exact_phase: bool,
+    /// The evenly spread subset of the source visited while the pose settles (every k-th
+    /// point in spatial order, each standing for its share of the cloud); `None` once the
+    /// iterations visit every point.
+    subset: Option<(Vec<Point3>, Vec<f64>)>,
+    /// Anderson mixing of the EM map (pose, sigma^2) -> (pose', sigma'^2).
+    mixing: Option<(Anderson, EmCoordinates)>,
+    /// The fixed-point residual of the last recorded step (None: the history is empty).
+    previous_residual: Option<f64>,
+    /// Whether the current iterate is a mixed one; whether mixing has started.
+    mixed: bool,
+    started: bool,
+}
+
+impl EmState {
+    fn new(cfg: &FilterRegConfig, p: &RegistrationProblem, prep: &Prepared) -> Self {
+        let t = p.init;
+        let sigma2 = cfg.init_sigma2.unwrap_or_else(|| {
+            let x: Vec<Point3> = prep.source.iter().map(|s| t * s).collect();
+            mean_pair_distance2(&x, &prep.target) / 3.0
+        });
+        let mixing = (cfg.anderson_depth > 0).then(|| {
+            let with_sigma = matches!(cfg.sigma, SigmaSchedule::Update { .. });
+            let coords = EmCoordinates { reference: t, centre: prep.centre, radius: prep.radius, with_sigma };
+            (Anderson::new(cfg.anderson_depth), coords)
+        });
+        let source = &prep.source;
+        let subset = (cfg.settling_points > 0 && source.len() > 2 * cfg.settling_points).then(|| {
+            let pts: Vec<Point3> = source.iter().step_by(source.len().div_ceil(cfg.settling_points)).copied().collect();
+            let counts = vec![source.len() as f64 / pts.len() as f64; pts.len()];
+            (pts, counts)
+        });
+        Self {
+            t,
+            sigma2,
+            result: t,
+            iterations: 0,
+            converged: false,
+            history: vec![],
+            warnings: vec![],
+            exact_phase: false,
+            subset,
+            mixing,
+            previous_residual: None,
+            mixed: false,
+            started: false,
+        }
+    }
+
+    /// Whether this iteration's E-step runs on the lattice.
+    fn use_lattice(&mut self, cfg: &FilterRegConfig, prep: &Prepared, sigma: f64) -> bool {
+        match cfg.e_step {
+            FilterRegEStep::Lattice => true,
+            FilterRegEStep::Exact => false,
+            FilterRegEStep::Auto => {
+                // Once exact, stay exact (sigma rarely grows back; no flip-flopping). The exact
+                // sums cost the kernel's neighbour count, (4 sigma / r)^2 * AUTO_NEIGHBOURS
+                // on a surface, per source point visited; the lattice costs about as much per
+                // point of both clouds: the source points visited and the target (taken as
+                // large as the whole source). With every point visited the switch comes at
+                // (4 sigma / r)^2 = 1; visiting a share s of the source moves it to
+                // (4 sigma / r)^2 = (s + 1) / (2 s), wider kernels.
+                let share = self.subset.as_ref().map_or(1.0, |(pts, _)| pts.len() as f64 / prep.source.len() as f64);
+                self.exact_phase |=
+                    prep.exact_below.is_some_and(|r| (4.0 * sigma / r).powi(2) * share < 0.5 * (share + 1.0));
+                !self.exact_phase
+            }
+        }
+    }
+
+    /// After the plain step to `(g, new_sigma2)` (the update `delta`, moving the source by
+    /// `moved`): the next iterate. True once converged.
+    fn advance(
+        &mut self,
+        cfg: &FilterRegConfig,
+        delta: &Pose,
+        g: Pose,
+        new_sigma2: f64,
+        moved: f64,
+        min_sigma: f64,
+    ) -> bool {
+        let (sigma2, sigma) = (self.sigma2, self.sigma2.sqrt());
+        let small = delta.rotation.angle() < cfg.tolerance && delta.translation.vector.norm() < cfg.tolerance;
+        let sigma_settled = (new_sigma2 - sigma2).abs() <= 1e-3 * sigma2;
+        // The subset's iteration has settled: from here on every point, with a fresh history.
+        if self.subset.is_some()
+            && moved < SUBSET_SETTLED * sigma
+            && (new_sigma2 - sigma2).abs() <= SUBSET_SETTLED * sigma2
+        {
+            self.subset = None;
+            self.previous_residual = None;
+            (self.t, self.sigma2, self.mixed) = (g, new_sigma2, false);
+            return false;
+        }
+        if small && sigma_settled {
+            self.sigma2 = new_sigma2;
+            self.converged = true;
+            return true;
+        }
+        // Mixing starts once sigma has (nearly) settled: while it shrinks fast the EM map
+        // changes from step to step and extrapolating it can leave the basin.
+        self.started |= (new_sigma2 - sigma2).abs() <= MIXING_SIGMA_CHANGE * sigma2;
+        if self.mixing.is_none() || !self.started {
+            (self.t, self.sigma2) = (g, new_sigma2);
+            return false;
+        }
+        self.mixed_step(g, new_sigma2, min_sigma);
+        false
+    }
+
+    /// The Anderson-mixed iterate from the plain step `(g, new_sigma2)`.
+    fn mixed_step(&mut self, g: Pose, new_sigma2: f64, min_sigma: f64) {
+        let (t, sigma2) = (self.t, self.sigma2);
+        let (anderson, coords) = self.mixing.as_mut().expect("mixing is on");
+        // A fresh history wherever the last residual is unknown: at the start, after the
+        // safeguard below, and once the iterations move from the subset to every point.
+        if self.previous_residual.is_none() {
+            anderson.reset();
+            coords.reference = t;
+        }
+        let z = coords.encode(&t, sigma2);
+        let gz = coords.encode(&g, new_sigma2);
+        let residual = (&gz - &z).norm();
+        // Safeguard: when a mixed iterate's residual grew, its plain step is taken instead
+        // and the history restarts there.
+        if let Some(previous) = self.previous_residual
+            && self.mixed
+            && residual > previous
+        {
+            self.previous_residual = None;
+            (self.t, self.sigma2, self.mixed) = (g, new_sigma2, false);
+            return;
+        }
+        self.previous_residual = Some(residual);
+        let next = anderson.step(&z, gz);
+        let (pose, s2) = coords.decode(&next);
+        // Sigma^2 keeps the plain step's bounds (at most halved, floored).
+        let s2 = s2.map_or(new_sigma2, |v| v.clamp((0.5 * sigma2).max(min_sigma * min_sigma), 2.0 * sigma2));
+        self.mixed = pose != g || s2 != new_sigma2;
+        (self.t, self.sigma2) = (pose, s2);
+        if (self.t.rotation * coords.reference.rotation.inverse()).angle() > MAX_MIXING_ANGLE {
+            anderson.reset();
+            coords.reference = self.t;
+        }
+    }
+}
+
+/// The sigma^2 that follows `sigma2` given the EM estimate's sums `(num, den)`.
+fn next_sigma2(cfg: &FilterRegConfig, sigma2: f64, (num, den): (f64, f64), surface_settled: bool) -> f64 {
+    let min_sigma = cfg.min_sigma();
+    match cfg.sigma {
+        // The EM estimate, shrinking by at most half per iteration: an EM step that
+        // collapses sigma freezes the posteriors before the pose has converged.
+        SigmaSchedule::Update { .. } => {
+            let em = num / (3.0 * den);
+            let estimate = if surface_settled { 3.0 * em - 2.0 * sigma2 } else { em };
+            estimate.max(0.5 * sigma2).max(min_sigma * min_sigma)
+        }
+        SigmaSchedule::Anneal { factor, .. } => (sigma2 * factor * factor).max(min_sigma * min_sigma),
+    }
+}
+
+impl FilterRegConfig {
+    /// The sigma schedule's floor.
+    fn min_sigma(&self) -> f64 {
+        match self.sigma {
+            SigmaSchedule::Update { min_sigma } | SigmaSchedule::Anneal { min_sigma, .. } => min_sigma,
+        }
+    }
+}
+
+impl FilterReg {
+    /// [`crate::Registrar::register`]'s body, run on a pool thread.
+    pub(super) fn solve(&self, p: &RegistrationProblem) -> Result<Registration, RegistrationError> {
+        let cfg = &self.config;
+        let pt2pl = cfg.variant == FilterRegVariant::PointToPlane;
+        validate_problem(p, pt2pl.then_some("filterreg-pt2pl"))?;
+        let prep = Prepared::new(cfg, p, pt2pl);
+        let mut exact = (cfg.e_step != FilterRegEStep::Lattice).then(|| ExactEStep {
+            index: &prep.index,
+            target: &prep.target,
+            cache: None,
+        });
+        let mut em = EmState::new(cfg, p, &prep);
+        let corr = p.correspondences.as_ref().filter(|c| !c.is_empty());
+        let surface_sigma = cfg.surface_sigma && pt2pl;
+        // Outlier level relative to the unnormalised kernel sums (as FilterReg's reference
+        // implementation does): c = w / (1 - w) * N / M, independent of sigma.
+        let c =
+            if cfg.w > 0.0 { cfg.w / (1.0 - cfg.w) * prep.target.len() as f64 / prep.source.len() as f64 } else { 0.0 };
+        for it in 0..cfg.max_iterations {
+            let sigma = em.sigma2.sqrt();
+            let use_lattice = em.use_lattice(cfg, &prep, sigma);
+            let visit = Visit::select(cfg, &prep, em.subset.as_ref(), use_lattice, sigma);
+            let x: Vec<Point3> = visit.src.iter().map(|s| em.t * s).collect();
+            let sums = match (&mut exact, use_lattice) {
+                (Some(e), false) => e.sums(&x, &prep.values, prep.vd, sigma),
+                _ => lattice_sums(visit.tgt, visit.tgt_values, prep.vd, &x, sigma),
+            };
+            let Some(delta) = m_step(cfg, &x, visit.counts, &sums, c, corr.map(|k| (k, &em.t))) else {
+                em.warnings.push(RegistrationWarning::NothingNear { sigma_m: sigma });
+                break;
+            };
+            let g = delta * em.t;
+            em.result = g;
+            em.iterations = it + 1;
+            let sigma_sums = visit.sigma_sums(&sums, &g, c);
+            // How far this update moved the source: its centroid, plus the rotation's sweep at its RMS radius.
+            let moved = (g * prep.centre - em.t * prep.centre).norm() + delta.rotation.angle() * prep.radius;
+            let surface_settled = surface_sigma && moved < SURFACE_SIGMA_SETTLED * sigma;
+            let new_sigma2 = next_sigma2(cfg, em.sigma2, sigma_sums, surface_settled);
+            em.history.push(IterationRecord { iteration: it, transform: g, objective: new_sigma2 });
+            if em.advance(cfg, &delta, g, new_sigma2, moved, cfg.min_sigma()) {
+                break;
+            }
+        }
+        let cache = exact.and_then(|e| e.cache);
+        Ok(finish(cfg, p, &prep, cache, em))
+    }
+}
+
+/// The result: the last plain step's pose, evaluated (the initial pose with a warning when the
+/// iterations diverged).
+fn finish(
+    cfg: &FilterRegConfig,
+    p: &RegistrationProblem,
+    prep: &Prepared,
+    cache: Option<super::NeighbourCache>,
+    em: EmState,
+) -> Registration {
+    let t = em.result;
+    if !t.to_homogeneous().iter().all(|v| v.is_finite()) {
+        return Registration {
+            transform: p.init,
+            iterations: em.iterations,
+            converged: false,
+            fitness: 0.0,
+            inlier_rmse: 0.0,
+            sigma2: Some(em.sigma2),
+            scale: None,
+            history: em.history,
+            warnings: vec![RegistrationWarning::Diverged { method: "FilterReg" }],
+            correspondence_set: None,
+        };
+    }
+    // The last exact iteration's lists (when they were gathered for every point) answer
+    // most of the evaluation's nearest-neighbour searches.
+    let (source, target, index) = (&prep.source, &prep.target, &prep.index);
+    let lists = cache.filter(|c| c.built_at.len() == source.len());
+    let (fitness, inlier_rmse) = match &lists {
+        Some(c) => evaluate_by(source, &t, cfg.evaluation_distance, |i, q| {
+            c.nearest2(i, q, target).or_else(|| index.nearest(q).map(|n| n.dist2))
+        }),
+        None => evaluate(source, index, &t, cfg.evaluation_distance),
+    };
+    Registration {
+        transform: t,
+        iterations: em.iterations,
+        converged: em.converged,
+        fitness,
+        inlier_rmse,
+        sigma2: Some(em.sigma2),
+        scale: None,
+        history: em.history,
+        warnings: em.warnings,
+        correspondence_set: None,
+    }
+}
