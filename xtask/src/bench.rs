@@ -492,7 +492,7 @@ fn write_outputs(
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
     let summary = summarise(results);
     let json = serde_json::json!({
-        "schema": "flowfilter bench-bigbird results v1",
+        "schema": "flowfilter bench-bigbird results v2",
         "dataset": args.data.as_ref().map_or("embedded synthetic (target/bigbird-default)".to_string(), |d| d.display().to_string()),
         "protocol": protocol,
         "seconds": seconds,

@@ -3,10 +3,15 @@
 //! - `bench-bigbird`: the paper's BigBIRD experiment (relative rotation between turntable
 //!   angles seen by one camera) on the embedded synthetic dataset, generated once and cached
 //!   under `target/`, or on a real BigBIRD download (`--data DIR`).
+//! - `publish-check`: every library crate packages and builds from its package; a scratch
+//!   crate outside the workspace depends on `flowfilter-registration` and runs its README
+//!   example.
 
 mod bench;
 mod dataset;
+mod deps;
 mod plots;
+mod publish_check;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -22,6 +27,9 @@ struct Cli {
 enum Command {
     /// Run the BigBIRD benchmark and write results/<timestamp>/.
     BenchBigbird(bench::BenchArgs),
+    /// Check that every library crate packages and builds on its own, and that a crate outside
+    /// the workspace can depend on one and run its README example.
+    PublishCheck(publish_check::PublishCheckArgs),
 }
 
 fn main() -> ExitCode {
@@ -31,6 +39,7 @@ fn main() -> ExitCode {
         .init();
     let result = match Cli::parse().command {
         Command::BenchBigbird(args) => bench::run(&args),
+        Command::PublishCheck(args) => publish_check::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,9 +1,10 @@
 //! The BigBIRD RGB-D turntable dataset layout: reader, writer and ground truth.
 //!
-//! The layout is documented in `shared/docs/bigbird-format.md` of the project: per object
-//! directory, colour JPEGs `NP{c}_{angle}.jpg`, raw depth `NP{c}_{angle}.h5` (dataset `depth`,
-//! uint16), PBM masks `masks/NP{c}_{angle}_mask.pbm`, `calibration.h5`, per-angle
-//! `poses/NP5_{angle}_pose.h5` and `poses/turntable.h5`.
+//! The layout, as the BigBIRD download ships it, per object directory: colour JPEGs
+//! `NP{c}_{angle}.jpg`, raw depth `NP{c}_{angle}.h5` (dataset `depth`, uint16), PBM masks
+//! `masks/NP{c}_{angle}_mask.pbm`, `calibration.h5` (intrinsics, distortion and the
+//! depth-to-colour extrinsics of every camera), per-angle `poses/NP5_{angle}_pose.h5` and
+//! `poses/turntable.h5`.
 //!
 //! - [`BigBirdObject::open`] discovers cameras and angles and loads calibration and poses;
 //!   [`BigBirdObject::load_frame`] loads one frame (colour, raw depth, mask).

@@ -100,3 +100,27 @@ fn shipped_configs_need_the_onnx_feature() {
         }
     }
 }
+
+#[test]
+fn validation_checks_names_without_building_and_the_pipeline_builds_each_stage_once() {
+    // An ONNX estimator is checked by name when the file is read, and loaded only when the
+    // pipeline is built: a missing model is reported then, naming the file.
+    let text = "[flow]\nestimator = \"onnx:/no/such/model.onnx\"\n";
+    let parsed = PipelineConfig::from_toml_str(text, Path::new("onnx.toml"));
+    if cfg!(feature = "onnx") {
+        let config = parsed.unwrap();
+        let e = flowfilter_pipeline::Pipeline::from_config(config).err().expect("no such model").to_string();
+        assert!(e.contains("/no/such/model.onnx"), "{e}");
+    } else {
+        let e = parsed.unwrap_err().to_string();
+        assert!(e.contains("onnx.toml") && e.contains("flow.estimator") && e.contains("onnx"), "{e}");
+    }
+    // A method that reads no correspondences builds no flow estimator: an ONNX name that
+    // would fail to load does not matter to it.
+    if cfg!(feature = "onnx") {
+        let config =
+            PipelineConfig::from_toml_str(&format!("method = \"icp-pt2pl\"\n{text}"), Path::new("x.toml")).unwrap();
+        let p = flowfilter_pipeline::Pipeline::from_config(config).unwrap();
+        assert_eq!(p.method(), "icp-pt2pl");
+    }
+}

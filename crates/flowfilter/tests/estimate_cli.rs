@@ -113,7 +113,13 @@ fn bad_input_is_reported() {
     let (ok, _, err) = estimate("30", &[]);
     assert!(!ok && err.contains("no frame NP3_30"), "{err}");
     let (ok, _, err) = estimate("15", &["--method", "ransac"]);
-    assert!(!ok && err.contains("unknown method 'ransac'"), "{err}");
+    assert!(!ok && err.contains("'ransac'") && err.contains("possible values") && err.contains("flowfilter"), "{err}");
+    // A configuration's unknown method is named with its key.
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = tmp.path().join("method.toml");
+    std::fs::write(&cfg, "method = \"ransac\"\n").unwrap();
+    let (ok, _, err) = estimate("15", &["--config", cfg.to_str().unwrap()]);
+    assert!(!ok && err.contains("method.toml") && err.contains("key 'method'") && err.contains("'ransac'"), "{err}");
     let tmp = tempfile::tempdir().unwrap();
     let cfg = tmp.path().join("typo.toml");
     std::fs::write(&cfg, "[flow]\nestimater = \"lk\"\n").unwrap();

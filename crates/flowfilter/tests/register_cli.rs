@@ -39,7 +39,7 @@ fn registers_a_recorded_case_and_reports_json() {
         let (ok, stdout, stderr) = flowfilter(&args);
         assert!(ok, "{method}: {stderr}");
         let out: serde_json::Value = serde_json::from_str(&stdout).unwrap();
-        assert_eq!(out["converged"], true, "{method}: {stdout}");
+        assert_eq!(out["registration"]["converged"], true, "{method}: {stdout}");
         for r in 0..4 {
             for c in 0..4 {
                 let (a, b) = (out["transform"][r][c].as_f64().unwrap(), truth[r][c].as_f64().unwrap());
@@ -54,8 +54,10 @@ fn bad_arguments_fail_clearly() {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/peers/registration");
     let s = dir.join("case_0_source.ply");
     let s = s.to_str().unwrap();
+    // clap checks the method and lists the choices.
     let (ok, _, stderr) = flowfilter(&["register", "--source", s, "--target", s, "--method", "teaser"]);
-    assert!(!ok && stderr.contains("unknown method 'teaser'"), "{stderr}");
+    assert!(!ok && stderr.contains("'teaser'") && stderr.contains("filterreg-pt2pl"), "{stderr}");
+    assert!(stderr.contains("flowfilter-init-only") && stderr.contains("possible values"), "{stderr}");
     let (ok, _, stderr) = flowfilter(&["register", "--source", s, "--target", "/no/such.ply"]);
     assert!(!ok && stderr.contains("/no/such.ply"), "{stderr}");
     // The source PLY has no normals: point-to-plane needs them on the target.
@@ -66,4 +68,97 @@ fn bad_arguments_fail_clearly() {
     let (ok, _, stderr) =
         flowfilter(&["register", "--source", s, "--target", s, "--init", bad.path().to_str().unwrap()]);
     assert!(!ok && stderr.contains("expected 16 numbers"), "{stderr}");
+}
+
+/// The configuration files shipped in `configs/` are accepted by `register --config` (they are
+/// pipeline configurations: `method` and `[registration.*]` tables), and so is a file of bare
+/// backend tables; the file's method is the default, `--method` overrides it.
+#[test]
+fn register_accepts_the_shipped_configs() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let dir = root.join("fixtures/peers/registration");
+    let (s, t) = (dir.join("case_3_source.ply"), dir.join("case_3_target.ply"));
+    let (s, t) = (s.to_str().unwrap(), t.to_str().unwrap());
+    for (config, method) in [
+        ("icp.toml", "icp-pt2pl"),
+        ("filterreg.toml", "filterreg-pt2pt"),
+        ("cpd.toml", "cpd"),
+        ("flowfilter.toml", "flowfilter"),
+    ] {
+        let path = root.join("configs").join(config);
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert!(text.contains(&format!("method = \"{method}\"")), "{config} names another method");
+        let (ok, stdout, stderr) =
+            flowfilter(&["register", "--source", s, "--target", t, "--config", path.to_str().unwrap(), "--json"]);
+        assert!(ok, "{config}: {stderr}");
+        let out: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+        assert_eq!(out["method"], method, "{config}");
+    }
+    let path = root.join("configs/icp.toml");
+    let (ok, stdout, stderr) = flowfilter(&[
+        "register",
+        "--source",
+        s,
+        "--target",
+        t,
+        "--config",
+        path.to_str().unwrap(),
+        "--method",
+        "icp-pt2pt",
+        "--json",
+    ]);
+    assert!(ok, "{stderr}");
+    assert_eq!(serde_json::from_str::<serde_json::Value>(&stdout).unwrap()["method"], "icp-pt2pt");
+    let bare = tempfile::NamedTempFile::new().unwrap();
+    std::fs::write(bare.path(), "[icp]\nmax_iterations = 5\n").unwrap();
+    let (ok, stdout, stderr) = flowfilter(&[
+        "register",
+        "--source",
+        s,
+        "--target",
+        t,
+        "--config",
+        bare.path().to_str().unwrap(),
+        "--method",
+        "icp-pt2pt",
+        "--json",
+    ]);
+    assert!(ok, "{stderr}");
+    let out: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert!(out["registration"]["iterations"].as_u64().unwrap() <= 5, "{stdout}");
+    // A wrong key names the file and the key.
+    std::fs::write(bare.path(), "method = \"icp-pt2pl\"\n[registration.icp]\nmax_iteration = 5\n").unwrap();
+    let (ok, _, stderr) =
+        flowfilter(&["register", "--source", s, "--target", t, "--config", bare.path().to_str().unwrap()]);
+    assert!(!ok && stderr.contains("max_iteration") && stderr.contains(bare.path().to_str().unwrap()), "{stderr}");
+}
+
+/// `register --json` names its quantities as `estimate --json` does, and carries a schema tag.
+#[test]
+fn register_json_speaks_the_estimate_names() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/peers/registration");
+    let (s, t) = (dir.join("case_3_source.ply"), dir.join("case_3_target.ply"));
+    let (ok, stdout, stderr) =
+        flowfilter(&["register", "--source", s.to_str().unwrap(), "--target", t.to_str().unwrap(), "--json"]);
+    assert!(ok, "{stderr}");
+    let out: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert_eq!(out["schema"], "flowfilter register v1");
+    for key in ["rotation_angle_deg", "rotation_axis", "translation_m", "transform", "warnings"] {
+        assert!(!out[key].is_null(), "no '{key}': {stdout}");
+    }
+    for key in ["iterations", "converged", "fitness", "inlier_rmse_m", "sigma2", "model_points", "target_points"] {
+        assert!(!out["registration"][key].is_null(), "no 'registration.{key}': {stdout}");
+    }
+    assert!(out["stage_ms"]["registration"].as_f64().unwrap() > 0.0, "{stdout}");
+    assert!(out["rotation_deg"].is_null() && out["seconds"].is_null(), "old names: {stdout}");
+}
+
+/// `--procedural` is checked by clap, which lists the objects.
+#[test]
+fn procedural_names_are_checked_and_listed() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("x");
+    let (ok, _, stderr) = flowfilter(&["synth", "--procedural", "sphere", "--out", out.to_str().unwrap()]);
+    assert!(!ok && stderr.contains("'sphere'") && stderr.contains("box") && stderr.contains("bottle"), "{stderr}");
+    assert!(!out.exists());
 }
