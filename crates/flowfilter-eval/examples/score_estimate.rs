@@ -9,7 +9,7 @@ fn main() {
     let estimate = Pose::new(Vector3::new(0.011, 0.001, 0.002), Vector3::new(0.002, 0.0, 14.2f64.to_radians()));
     // ADD-S needs the model's points: a ring of radius 4 cm.
     let model: Vec<Point3> = (0..64)
-        .map(|i| (i as f64 / 64.0 * std::f64::consts::TAU))
+        .map(|i| i as f64 / 64.0 * std::f64::consts::TAU)
         .map(|a| Point3::new(0.04 * a.cos(), 0.04 * a.sin(), 0.7))
         .collect();
     let e = PoseErrors::new(&estimate, &truth, Some(&model));

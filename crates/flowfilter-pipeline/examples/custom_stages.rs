@@ -19,7 +19,7 @@ struct Thinned {
 impl Thinned {
     fn thin(&self, mut found: FlowPairs) -> FlowPairs {
         let c = &mut found.pairs;
-        let keep = |i: &usize| i % self.keep == 0;
+        let keep = |i: &usize| i.is_multiple_of(self.keep);
         c.source = c.source.iter().enumerate().filter(|(i, _)| keep(i)).map(|(_, p)| *p).collect();
         c.target = c.target.iter().enumerate().filter(|(i, _)| keep(i)).map(|(_, p)| *p).collect();
         c.weights = c.weights.iter().enumerate().filter(|(i, _)| keep(i)).map(|(_, w)| *w).collect();
