@@ -10,9 +10,12 @@
 //!   barycentrics), shared by the renderer and by depth registration.
 //! - [`RgbdSensor`]: a depth camera and a colour camera calibrated against each other, with the
 //!   raw-depth scale; maps depth pixels into the colour image.
+//! - [`CameraFile`]: a camera from a JSON file (this project's layout, a BOP `scene_camera.json`
+//!   entry or `camera.json`, Open3D's `PinholeCameraIntrinsic`).
 
 #![warn(missing_docs)]
 
+mod camera_file;
 mod distortion;
 mod error;
 mod intrinsics;
@@ -21,6 +24,7 @@ pub mod raster;
 mod rays;
 mod sensor;
 
+pub use camera_file::{CameraFile, CameraFileError, CameraFileLayout};
 pub use distortion::Distortion;
 pub use error::CameraError;
 pub use intrinsics::Intrinsics;
