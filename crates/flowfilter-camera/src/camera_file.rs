@@ -13,7 +13,6 @@
 //! the size ([`CameraFile::model`]).
 
 use crate::{CameraError, CameraModel, Distortion, ImageSize, Intrinsics, RgbdSensor};
-use flowfilter_geometry::Pose;
 use nalgebra::Matrix3;
 use serde_json::Value;
 use std::path::Path;
@@ -247,7 +246,7 @@ impl CameraFile {
             expected: "the depth unit (a positive number)",
             found: "none".into(),
         })?;
-        RgbdSensor::new(camera, camera, Pose::identity(), unit).map_err(|source| CameraFileError::Camera {
+        RgbdSensor::registered(camera, unit).map_err(|source| CameraFileError::Camera {
             path: self.origin.clone(),
             field: "depth_unit_m",
             source,
@@ -358,8 +357,7 @@ mod tests {
         assert_eq!(cams[1].metres_per_unit, Some(0.001));
         assert_eq!(cams[3].metres_per_unit, None);
         assert!(cams[3].registered_sensor(None).is_err());
-        let sensor = cams[0].registered_sensor(None).unwrap();
-        assert_eq!((sensor.depth, sensor.color_from_depth), (sensor.color, Pose::identity()));
+        assert!(cams[0].registered_sensor(None).unwrap().is_registered());
     }
 
     #[test]

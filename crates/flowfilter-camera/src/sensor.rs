@@ -32,6 +32,21 @@ impl RgbdSensor {
         Ok(Self { depth, color, color_from_depth, metres_per_unit })
     }
 
+    /// The sensor of depth registered to colour (RealSense aligned depth, YCB-Video, BOP): one
+    /// camera model for both images and identity extrinsics.
+    ///
+    /// # Errors
+    /// [`CameraError::BadDepthScale`] unless `metres_per_unit` is positive and finite.
+    pub fn registered(camera: CameraModel, metres_per_unit: f64) -> Result<Self, CameraError> {
+        Self::new(camera, camera, Pose::identity(), metres_per_unit)
+    }
+
+    /// Whether depth is already registered to colour: the same camera and identity extrinsics
+    /// (the depth stage then does not re-project it).
+    pub fn is_registered(&self) -> bool {
+        self.depth == self.color && self.color_from_depth == Pose::identity()
+    }
+
     /// Metric depth of a raw depth value (`None` for 0, "no reading").
     pub fn metric_depth(&self, raw: u16) -> Option<f64> {
         (raw != 0).then_some(raw as f64 * self.metres_per_unit)
@@ -78,5 +93,9 @@ mod tests {
         let p = sensor.depth_pixel_to_color_frame(&Pixel::new(319.5, 239.5), 1.0).unwrap();
         assert!((p.coords - Vector3::new(-0.025, 0.0, 1.0)).norm() < 1e-12);
         assert!(RgbdSensor::new(depth, color, Pose::identity(), f64::NAN).is_err());
+        assert!(!sensor.is_registered());
+        let registered = RgbdSensor::registered(color, 1e-3).unwrap();
+        assert!(registered.is_registered());
+        assert!(RgbdSensor::registered(color, 0.0).is_err());
     }
 }

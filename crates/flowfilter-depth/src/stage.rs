@@ -117,7 +117,8 @@ impl DepthStage {
     }
 
     /// Run the stage on one frame: check the inputs, crop the depth to the region that can
-    /// land in the mask, filter it, register it to the colour grid, fill holes, and build the
+    /// land in the mask, filter it, register it to the colour grid (depth already registered to
+    /// colour, [`RgbdSensor::is_registered`], is placed as it is), fill holes, and build the
     /// organised cloud with normals.
     ///
     /// # Errors
@@ -152,13 +153,18 @@ impl DepthStage {
         };
         let depth = self.filtered_crop(raw, sensor.metres_per_unit, region, &mut stats, &mut laps);
         let origin = (region.0, region.1);
-        let projected = project_depth_grid(&depth, origin, sensor, &self.rays(&sensor.depth));
         let restrict = cfg.registration.restrict_to_mask.then_some(mask);
-        let registered = match cfg.registration.method {
-            RegistrationMethod::Splat => splat(&projected, cw, ch, restrict),
-            RegistrationMethod::Mesh => {
-                let region = if restrict.is_some() { mask_box } else { (0, 0, cw - 1, ch - 1) };
-                mesh_in(&depth, &projected, cw, ch, cfg.registration.max_step_m, restrict, Some(region))
+        let registered = if sensor.is_registered() {
+            // Depth already on the colour grid: placed, not re-projected.
+            in_place(&depth, origin, cw, ch, restrict)
+        } else {
+            let projected = project_depth_grid(&depth, origin, sensor, &self.rays(&sensor.depth));
+            match cfg.registration.method {
+                RegistrationMethod::Splat => splat(&projected, cw, ch, restrict),
+                RegistrationMethod::Mesh => {
+                    let region = if restrict.is_some() { mask_box } else { (0, 0, cw - 1, ch - 1) };
+                    mesh_in(&depth, &projected, cw, ch, cfg.registration.max_step_m, restrict, Some(region))
+                }
             }
         };
         laps.lap(&mut stats, "project+register");
@@ -283,6 +289,20 @@ fn check_inputs(raw: &RawDepth, color: &RgbImage, mask: &Mask, sensor: &RgbdSens
         }
     }
     Ok(())
+}
+
+/// Depth registered to colour, filtered on its crop, placed on the full `cw` x `ch` colour grid
+/// (inside `mask` only, when given).
+fn in_place(crop: &DepthMap, (x0, y0): (usize, usize), cw: usize, ch: usize, mask: Option<&Mask>) -> DepthMap {
+    let mut full = paste(crop, (x0, y0), cw, ch);
+    if let Some(m) = mask {
+        for (d, inside) in full.as_mut_slice().iter_mut().zip(m.as_slice()) {
+            if !inside {
+                *d = 0.0;
+            }
+        }
+    }
+    full
 }
 
 /// The filtered crop pasted back into a full-size (`dw` x `dh`) depth-grid map.

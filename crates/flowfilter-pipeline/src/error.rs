@@ -29,6 +29,17 @@ pub enum PipelineError {
     /// The registration backend failed.
     #[error("registration: {0}")]
     Registration(#[from] flowfilter_registration::RegistrationError),
+    /// An input file (image, depth, mask) cannot be used.
+    #[error("{}: {message}", path.display())]
+    Input {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with it.
+        message: String,
+    },
+    /// The camera file does not fit the frame.
+    #[error("camera: {0}")]
+    Camera(#[from] flowfilter_camera::CameraFileError),
     /// A dataset frame could not be loaded.
     #[error("dataset: {0}")]
     Dataset(#[from] flowfilter_bigbird::BigBirdError),

@@ -8,6 +8,9 @@
 //!   pairs between the two prepared frames;
 //! - any [`flowfilter_registration::Registrar`], chosen by name, aligns the clouds.
 //!
+//! Frames come from the BigBIRD layout ([`load_bigbird_frame`]) or, for any camera whose depth is
+//! registered to colour, from image files and a camera file ([`FrameFiles`]).
+//!
 //! [`Pipeline::estimate`] runs them and returns an [`Estimate`] with per-stage times and every
 //! warning (a fallback taken, flow that failed). Configuration comes from TOML
 //! ([`PipelineConfig::from_file`]; the commented files in the repository's `configs/`).
@@ -19,6 +22,7 @@ mod error;
 mod estimate;
 mod frame;
 mod pipeline;
+mod source;
 mod stages;
 mod warning;
 
@@ -29,11 +33,12 @@ pub use estimate::{
 };
 pub use frame::{RgbdFrame, load_bigbird_frame};
 pub use pipeline::Pipeline;
+pub use source::{FrameFiles, MaskSource};
 pub use stages::{CorrespondenceFinder, DepthPreparer, FlowCorrespondenceFinder, FramePreparer, PreparedFrame};
 pub use warning::PipelineWarning;
 
 // What the stage traits' signatures speak, so that a custom stage needs no other import.
-pub use flowfilter_camera::{RayTable, RgbdSensor};
+pub use flowfilter_camera::{CameraFile, RayTable, RgbdSensor};
 pub use flowfilter_depth::DepthConfig;
 pub use flowfilter_flow::correspondences::{CorrespondenceParams, FlowPairs, FlowView};
 pub use flowfilter_flow::lk::Gray;

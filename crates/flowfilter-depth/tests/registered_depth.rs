@@ -1,0 +1,57 @@
+//! Depth already registered to colour (RealSense aligned depth, YCB-Video, BOP): the stage
+//! places it on the colour grid as it is (no re-projection), and still filters and fills it.
+
+use flowfilter_camera::{CameraModel, Distortion, ImageSize, Intrinsics, RgbdSensor};
+use flowfilter_depth::{DepthConfig, DepthStage};
+use flowfilter_geometry::{Mask, RawDepth};
+use image::RgbImage;
+
+/// A 160x120 camera looking at a slanted plane (z = 0.7 + 0.2 x_normalised metres), depth in
+/// 0.1 mm units, with a 3x3 hole inside the object's square mask.
+fn frame() -> (RgbdSensor, RawDepth, Mask, RgbImage, impl Fn(usize, usize) -> f64) {
+    let camera = CameraModel::new(
+        Intrinsics::new(150.0, 150.0, 79.5, 59.5).unwrap(),
+        Distortion::NONE,
+        ImageSize::new(160, 120).unwrap(),
+    );
+    let sensor = RgbdSensor::registered(camera, 1e-4).unwrap();
+    let z = |x: usize, _y: usize| 0.7 + 0.2 * (x as f64 - 79.5) / 150.0;
+    let raw = RawDepth::from_fn(160, 120, |x, y| {
+        if (70..73).contains(&x) && (55..58).contains(&y) { 0 } else { (z(x, y) * 1e4).round() as u16 }
+    });
+    let mask = Mask::from_fn(160, 120, |x, y| (40..120).contains(&x) && (30..90).contains(&y));
+    let color = RgbImage::from_fn(160, 120, |x, y| image::Rgb([(x * 3) as u8, (y * 2) as u8, 128]));
+    (sensor, raw, mask, color, z)
+}
+
+#[test]
+fn registered_depth_is_placed_filtered_and_filled() {
+    let (sensor, raw, mask, color, z) = frame();
+    assert!(sensor.is_registered());
+    let out = DepthStage::new(DepthConfig::default()).unwrap().process(&raw, &color, &mask, &sensor).unwrap();
+    assert_eq!(out.depth.dims(), (160, 120));
+    let mut worst: f64 = 0.0;
+    for y in 32..88 {
+        for x in 42..118 {
+            let d = f64::from(*out.depth.at(x, y));
+            assert!(d > 0.0, "no depth at ({x}, {y}) inside the mask");
+            worst = worst.max((d - z(x, y)).abs());
+        }
+    }
+    // Placed pixel for pixel: the filtered depth is the plane to within the 0.1 mm quantum and
+    // the filters' smoothing; the hole is filled from its neighbours.
+    assert!(worst < 5e-4, "worst depth error {worst} m");
+    assert!(f64::from(*out.depth.at(71, 56)) > 0.0, "the hole is not filled");
+    assert_eq!(*out.depth.at(10, 10), 0.0, "depth outside the mask");
+    // One point per mask pixel with depth.
+    let inside = mask.as_slice().iter().filter(|m| **m).count();
+    assert!(out.cloud.len() as f64 > 0.97 * inside as f64, "{} points for {inside} mask pixels", out.cloud.len());
+}
+
+#[test]
+fn a_registered_sensor_still_checks_sizes() {
+    let (sensor, raw, mask, color, _) = frame();
+    let small = RawDepth::from_fn(80, 60, |x, y| *raw.at(2 * x, 2 * y));
+    let e = DepthStage::new(DepthConfig::default()).unwrap().process(&small, &color, &mask, &sensor).unwrap_err();
+    assert!(e.to_string().contains("depth image") && e.to_string().contains("160x120"), "{e}");
+}

@@ -1,0 +1,110 @@
+//! Frames from files, for cameras whose depth is registered to colour: the real YCB-Video
+//! frames of `../shared/data/ycb-video` (skipped with a message when the shared data is
+//! absent), and bad inputs that must be refused with the file named.
+
+use flowfilter_eval::PoseErrors;
+use flowfilter_pipeline::{CameraFile, FrameFiles, MaskSource, Pipeline, PipelineConfig, PipelineError, Pose};
+use nalgebra::Matrix4;
+use std::path::{Path, PathBuf};
+
+fn sample() -> Option<PathBuf> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/ycb-video/0001");
+    if dir.is_dir() {
+        Some(dir)
+    } else {
+        eprintln!("skipping: {} is absent (the shared data sits beside the repository)", dir.display());
+        None
+    }
+}
+
+fn files(dir: &Path, frame: u32, label: u16) -> FrameFiles {
+    FrameFiles {
+        color: dir.join(format!("{frame:06}-color.png")),
+        depth: dir.join(format!("{frame:06}-depth.png")),
+        mask: MaskSource::Label { path: dir.join(format!("{frame:06}-label.png")), id: label },
+    }
+}
+
+/// `T_camera_from_object` of object `class_id` in a frame's `-gt.json`.
+fn object_pose(dir: &Path, frame: u32, class_id: u64) -> Pose {
+    let gt: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join(format!("{frame:06}-gt.json"))).unwrap()).unwrap();
+    let object = gt["objects"].as_array().unwrap().iter().find(|o| o["class_id"] == class_id).unwrap();
+    let m: Vec<f64> = (0..4)
+        .flat_map(|r| (0..4).map(move |c| (r, c)))
+        .map(|(r, c)| object["T_camera_from_object"][r][c].as_f64().unwrap())
+        .collect();
+    flowfilter_pipeline::geometry::rigid_from_matrix(&Matrix4::from_row_slice(&m)).unwrap()
+}
+
+#[test]
+fn real_ycb_video_frames_run_through_every_method() {
+    let Some(dir) = sample() else { return };
+    let camera = CameraFile::from_file(&dir.join("000001-gt.json")).unwrap();
+    // The cracker box (label 2) between frames 1 and 5.
+    let (a, b) =
+        (files(&dir, 1, 2).load(&camera, "000001").unwrap(), files(&dir, 5, 2).load(&camera, "000005").unwrap());
+    assert!(a.sensor.is_registered());
+    let truth = object_pose(&dir, 5, 2) * object_pose(&dir, 1, 2).inverse();
+    for method in ["flowfilter", "filterreg-pt2pt", "icp-pt2pl", "cpd"] {
+        let pipeline =
+            Pipeline::from_config(PipelineConfig { method: method.into(), ..PipelineConfig::default() }).unwrap();
+        let e = pipeline.estimate(&a, &b).unwrap();
+        let errors = PoseErrors::new(&e.pose, &truth, None);
+        println!(
+            "{method}: geodesic error {:.3} deg, translation {:.2} mm (true motion {:.3} deg); {} -> {} points; warnings {:?}",
+            errors.geodesic_error_deg,
+            errors.translation_error_m * 1e3,
+            truth.rotation.angle().to_degrees(),
+            e.registration.model_points,
+            e.registration.target_points,
+            e.warnings.iter().map(|w| w.code()).collect::<Vec<_>>()
+        );
+        assert!(e.transform.iter().flatten().all(|v| v.is_finite()), "{method}: {:?}", e.transform);
+        assert!(e.registration.model_points > 100, "{method}: {} points", e.registration.model_points);
+        // A small real motion: every method stays within a few degrees and centimetres of it.
+        assert!(errors.geodesic_error_deg < 5.0 && errors.translation_error_m < 0.03, "{method}: {errors:?}");
+    }
+}
+
+#[test]
+fn bad_frame_files_are_refused_naming_the_file() {
+    let Some(dir) = sample() else { return };
+    let camera = CameraFile::from_file(&dir.join("000001-gt.json")).unwrap();
+    let err = |f: FrameFiles| f.load(&camera, "x").unwrap_err();
+    // A label that does not occur.
+    let e = err(files(&dir, 1, 77));
+    assert!(matches!(e, PipelineError::Input { .. }) && e.to_string().contains("label 77 does not occur"), "{e}");
+    // The colour image given as depth (8-bit RGB, not 16-bit depth).
+    let mut f = files(&dir, 1, 2);
+    f.depth = dir.join("000001-color.png");
+    let e = err(f).to_string();
+    assert!(e.contains("000001-color.png") && e.contains("16-bit"), "{e}");
+    // A missing file.
+    let mut f = files(&dir, 1, 2);
+    f.color = dir.join("nope.png");
+    assert!(err(f).to_string().contains("nope.png"));
+    // A camera file without a depth unit, and one of another size.
+    let no_unit =
+        CameraFile::from_json_str(r#"{"K": [1066.778, 0, 312.99, 0, 1067.49, 241.31, 0, 0, 1]}"#, "k.json").unwrap();
+    let e = files(&dir, 1, 2).load(&no_unit, "x").unwrap_err().to_string();
+    assert!(e.contains("k.json") && e.contains("depth_unit_m"), "{e}");
+    let sized = CameraFile::from_json_str(
+        r#"{"K": [500, 0, 320, 0, 500, 240, 0, 0, 1], "width": 1280, "height": 720, "depth_unit_m": 0.001}"#,
+        "s.json",
+    )
+    .unwrap();
+    let e = files(&dir, 1, 2).load(&sized, "x").unwrap_err().to_string();
+    assert!(e.contains("s.json") && e.contains("1280x720") && e.contains("640x480"), "{e}");
+}
+
+#[test]
+fn without_a_mask_the_object_is_every_pixel_with_depth() {
+    let Some(dir) = sample() else { return };
+    let camera = CameraFile::from_file(&dir.join("000001-gt.json")).unwrap();
+    let mut f = files(&dir, 1, 2);
+    f.mask = MaskSource::None;
+    let frame = f.load(&camera, "000001").unwrap();
+    let with_depth = frame.depth.as_slice().iter().filter(|d| **d > 0).count();
+    assert_eq!(frame.mask.as_slice().iter().filter(|m| **m).count(), with_depth);
+}
