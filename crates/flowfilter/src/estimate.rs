@@ -1,30 +1,67 @@
-//! `flowfilter estimate`: the relative pose of an object between two frames of one camera.
+//! `flowfilter estimate`: the relative pose of an object between two frames of one camera, from
+//! a BigBIRD-layout object or from RGB-D files.
 
 use anyhow::Context;
 use clap::Args;
 use flowfilter_bigbird::{BigBirdObject, FrameId, SensorId};
 use flowfilter_depth::ply::{PlyFormat, write_ply};
-use flowfilter_geometry::PointCloud;
-use flowfilter_pipeline::{Estimate, Pipeline, PipelineConfig, PreparedFrame, RgbdFrame, load_bigbird_frame};
+use flowfilter_geometry::{PointCloud, Pose, rigid_from_matrix};
+use flowfilter_pipeline::{
+    CameraFile, Estimate, FrameFiles, MaskSource, Pipeline, PipelineConfig, PreparedFrame, RgbdFrame,
+    load_bigbird_frame,
+};
 use image::{Rgb, RgbImage};
+use nalgebra::Matrix4;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-/// Arguments of `estimate`.
+/// Arguments of `estimate`: two frames of a BigBIRD-layout object (`--object`, `--camera NP3`,
+/// `--from`, `--to`), or two RGB-D frames given as files (`--model-color`, `--model-depth`,
+/// `--target-color`, `--target-depth`, `--camera camera.json`) for any camera whose depth is
+/// registered to colour.
 #[derive(Args)]
+#[command(group(clap::ArgGroup::new("frames").required(true).args(["object", "model_color"])))]
 pub struct EstimateArgs {
     /// A BigBIRD-layout object directory (real or synthesised).
+    #[arg(long, requires_all = ["from", "to"], conflicts_with_all = ["model_color", "model_depth", "target_color", "target_depth", "model_mask", "target_mask", "label", "gt"])]
+    pub object: Option<PathBuf>,
+    /// With --object: the camera (NP1..NP5). With frame files: the camera file (JSON: ours,
+    /// a BOP scene_camera.json entry or camera.json, or Open3D's PinholeCameraIntrinsic).
     #[arg(long)]
-    pub object: PathBuf,
-    /// The camera, e.g. NP3.
+    pub camera: String,
+    /// Turntable angle of the model frame (degrees; with --object).
+    #[arg(long, allow_negative_numbers = true)]
+    pub from: Option<u32>,
+    /// Turntable angle of the target frame (degrees; with --object).
+    #[arg(long, allow_negative_numbers = true)]
+    pub to: Option<u32>,
+    /// Colour image of the model frame (PNG or JPEG).
+    #[arg(long, requires_all = ["model_depth", "target_color", "target_depth"])]
+    pub model_color: Option<PathBuf>,
+    /// Depth of the model frame: a 16-bit PNG registered to the colour image (metres = value x
+    /// the camera file's depth unit).
     #[arg(long)]
-    pub camera: SensorId,
-    /// Turntable angle of the model frame (degrees).
+    pub model_depth: Option<PathBuf>,
+    /// Object mask of the model frame: a binary PNG, or a label image with --label. Without a
+    /// mask the object is every pixel with depth (the registration then aligns the whole scene).
     #[arg(long)]
-    pub from: u32,
-    /// Turntable angle of the target frame (degrees).
+    pub model_mask: Option<PathBuf>,
+    /// Colour image of the target frame.
     #[arg(long)]
-    pub to: u32,
+    pub target_color: Option<PathBuf>,
+    /// Depth of the target frame (as --model-depth).
+    #[arg(long)]
+    pub target_depth: Option<PathBuf>,
+    /// Object mask of the target frame (as --model-mask).
+    #[arg(long)]
+    pub target_mask: Option<PathBuf>,
+    /// The masks are label images and this is the object's label.
+    #[arg(long)]
+    pub label: Option<u16>,
+    /// The true motion, for the errors: a JSON file with `transform` (4x4, row-major,
+    /// `P_target = T * P_model`) or a text file of 16 numbers.
+    #[arg(long)]
+    pub gt: Option<PathBuf>,
     /// Registration method (overrides the configuration's `method`).
     #[arg(long, value_parser = crate::method_parser())]
     pub method: Option<String>,
@@ -43,6 +80,9 @@ pub struct EstimateArgs {
     pub viz: Option<PathBuf>,
 }
 
+/// The two frames and, when known, the true motion.
+type Frames = (RgbdFrame, RgbdFrame, Option<Pose>);
+
 /// Run `estimate`.
 pub fn run(args: &EstimateArgs) -> anyhow::Result<ExitCode> {
     let mut config = match &args.config {
@@ -53,20 +93,15 @@ pub fn run(args: &EstimateArgs) -> anyhow::Result<ExitCode> {
         config.method = m.clone();
     }
     let pipeline = Pipeline::from_config(config).context("--method / --config")?;
-    let object = BigBirdObject::open(&args.object)?;
-    let load = |angle: u32| -> anyhow::Result<RgbdFrame> {
-        let id = FrameId { sensor: args.camera, angle };
-        if !object.has_frame(id) {
-            anyhow::bail!("{}: no frame {id} (camera {}, angle {angle})", args.object.display(), args.camera);
-        }
-        Ok(load_bigbird_frame(&object, id)?)
+    let (fa, fb, truth) = match &args.object {
+        Some(object) => bigbird_frames(args, object)?,
+        None => file_frames(args)?,
     };
-    let (fa, fb) = (load(args.from)?, load(args.to)?);
     let started = std::time::Instant::now();
     let (a, b) = (pipeline.prepare(&fa)?, pipeline.prepare(&fb)?);
     let mut e = pipeline.estimate_prepared(&a, &b)?;
     e.stage_ms.total = started.elapsed().as_secs_f64() * 1e3;
-    if let Ok(truth) = object.relative_motion(args.camera, args.from, args.to) {
+    if let Some(truth) = truth {
         e = e.with_ground_truth(&truth, Some(&a.cloud.points));
     }
     if let Some(dir) = &args.save_ply {
@@ -84,6 +119,80 @@ pub fn run(args: &EstimateArgs) -> anyhow::Result<ExitCode> {
         eprintln!("warning: {w}");
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// Two frames of one camera of a BigBIRD-layout object, with the turntable's ground truth.
+fn bigbird_frames(args: &EstimateArgs, dir: &Path) -> anyhow::Result<Frames> {
+    let camera: SensorId = args
+        .camera
+        .parse()
+        .map_err(|e| anyhow::anyhow!("--camera '{}': {e} (with --object: NP1..NP5)", args.camera))?;
+    let (from, to) =
+        (args.from.context("--from is required with --object")?, args.to.context("--to is required with --object")?);
+    let object = BigBirdObject::open(dir)?;
+    let load = |angle: u32| -> anyhow::Result<RgbdFrame> {
+        let id = FrameId { sensor: camera, angle };
+        if !object.has_frame(id) {
+            anyhow::bail!("{}: no frame {id} (camera {camera}, angle {angle})", dir.display());
+        }
+        Ok(load_bigbird_frame(&object, id)?)
+    };
+    let (fa, fb) = (load(from)?, load(to)?);
+    Ok((fa, fb, object.relative_motion(camera, from, to).ok()))
+}
+
+/// Two frames given as files, with the camera file and the optional --gt.
+fn file_frames(args: &EstimateArgs) -> anyhow::Result<Frames> {
+    let camera = CameraFile::from_file(Path::new(&args.camera))?;
+    let mask = |m: &Option<PathBuf>| match (m, args.label) {
+        (None, _) => MaskSource::None,
+        (Some(path), None) => MaskSource::Binary(path.clone()),
+        (Some(path), Some(id)) => MaskSource::Label { path: path.clone(), id },
+    };
+    let required = |p: &Option<PathBuf>, flag: &str| p.clone().with_context(|| format!("{flag} is required"));
+    let model = FrameFiles {
+        color: required(&args.model_color, "--model-color")?,
+        depth: required(&args.model_depth, "--model-depth")?,
+        mask: mask(&args.model_mask),
+    };
+    let target = FrameFiles {
+        color: required(&args.target_color, "--target-color")?,
+        depth: required(&args.target_depth, "--target-depth")?,
+        mask: mask(&args.target_mask),
+    };
+    let stem = |p: &Path| p.file_stem().map_or_else(|| p.display().to_string(), |s| s.to_string_lossy().into_owned());
+    let fa = model.load(&camera, &stem(&model.color))?;
+    let fb = target.load(&camera, &stem(&target.color))?;
+    let truth = args.gt.as_deref().map(read_truth).transpose()?;
+    Ok((fa, fb, truth))
+}
+
+/// `--gt`: a JSON object with `transform` (4x4 rows) or a text of 16 numbers, row-major.
+fn read_truth(path: &Path) -> anyhow::Result<Pose> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let values: Vec<f64> = match serde_json::from_str::<serde_json::Value>(&text) {
+        Ok(v) => {
+            let rows = v.get("transform").unwrap_or(&v);
+            let flat: Option<Vec<f64>> = rows
+                .as_array()
+                .filter(|r| r.len() == 4)
+                .and_then(|r| {
+                    r.iter().map(|row| row.as_array().filter(|c| c.len() == 4).cloned()).collect::<Option<Vec<_>>>()
+                })
+                .and_then(|r| r.into_iter().flatten().map(|x| x.as_f64()).collect());
+            flat.with_context(|| format!("{}: field 'transform': expected 4 rows of 4 numbers", path.display()))?
+        }
+        Err(_) => text
+            .split(|c: char| c.is_whitespace() || c == ',')
+            .filter(|s| !s.is_empty())
+            .map(|s| s.parse::<f64>().with_context(|| format!("{}: '{s}' is not a number", path.display())))
+            .collect::<Result<_, _>>()?,
+    };
+    if values.len() != 16 {
+        anyhow::bail!("{}: expected 16 numbers (a 4x4 matrix, row-major), found {}", path.display(), values.len());
+    }
+    rigid_from_matrix(&Matrix4::from_row_slice(&values))
+        .with_context(|| format!("{}: not a rigid transform", path.display()))
 }
 
 fn print_human(e: &Estimate) {

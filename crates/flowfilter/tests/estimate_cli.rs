@@ -129,3 +129,89 @@ fn bad_input_is_reported() {
         flowfilter(&["estimate", "--object", "/nonexistent", "--camera", "NP3", "--from", "0", "--to", "15"]);
     assert!(!ok && err.contains("/nonexistent"), "{err}");
 }
+
+/// The file form on the real YCB-Video frames of `../shared/data/ycb-video` (skipped with a
+/// message when the shared data is absent): colour, registered 16-bit depth, label masks and the
+/// frames' own `-gt.json` as the camera file; `--gt` gives the errors.
+#[test]
+fn estimate_from_rgbd_files_with_label_masks() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/ycb-video/0001");
+    if !dir.is_dir() {
+        eprintln!("skipping: {} is absent (the shared data sits beside the repository)", dir.display());
+        return;
+    }
+    let f = |name: &str| dir.join(name).to_str().unwrap().to_string();
+    // The true motion of the sugar box (label 3) from frame 1 to frame 3.
+    let pose = |frame: &str| -> nalgebra::Matrix4<f64> {
+        let gt: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(f(&format!("{frame}-gt.json"))).unwrap()).unwrap();
+        let o = gt["objects"].as_array().unwrap().iter().find(|o| o["class_id"] == 3).unwrap();
+        nalgebra::Matrix4::from_fn(|r, c| o["T_camera_from_object"][r][c].as_f64().unwrap())
+    };
+    let truth = pose("000003") * pose("000001").try_inverse().unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let gt = tmp.path().join("gt.json");
+    let rows: Vec<Vec<f64>> = (0..4).map(|r| (0..4).map(|c| truth[(r, c)]).collect()).collect();
+    std::fs::write(&gt, serde_json::json!({ "transform": rows }).to_string()).unwrap();
+    let viz = tmp.path().join("viz.png");
+    let args = [
+        "estimate",
+        "--model-color",
+        &f("000001-color.png"),
+        "--model-depth",
+        &f("000001-depth.png"),
+        "--model-mask",
+        &f("000001-label.png"),
+        "--target-color",
+        &f("000003-color.png"),
+        "--target-depth",
+        &f("000003-depth.png"),
+        "--target-mask",
+        &f("000003-label.png"),
+        "--label",
+        "3",
+        "--camera",
+        &f("000001-gt.json"),
+        "--gt",
+        gt.to_str().unwrap(),
+        "--viz",
+        viz.to_str().unwrap(),
+        "--json",
+    ];
+    let (ok, stdout, stderr) = flowfilter(&args);
+    assert!(ok, "{stderr}");
+    let v: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert_eq!(v["model"], "000001-color");
+    let errors = &v["ground_truth"]["errors"];
+    println!("{errors}");
+    assert!(errors["geodesic_error_deg"].as_f64().unwrap() < 5.0, "{errors}");
+    assert!(errors["translation_error_m"].as_f64().unwrap() < 0.03, "{errors}");
+    assert!(viz.is_file());
+    // Every method runs on the same files.
+    for method in ["filterreg-pt2pt", "icp-pt2pl", "cpd"] {
+        let mut a: Vec<&str> = args.to_vec();
+        a.extend(["--method", method]);
+        let (ok, _, stderr) = flowfilter(&a);
+        assert!(ok, "{method}: {stderr}");
+    }
+    // The two forms do not mix, and a camera file that does not exist is named.
+    let (ok, _, stderr) = flowfilter(&[
+        "estimate",
+        "--object",
+        "x",
+        "--camera",
+        "NP3",
+        "--from",
+        "0",
+        "--to",
+        "3",
+        "--model-color",
+        "a.png",
+    ]);
+    assert!(!ok && stderr.contains("cannot be used with"), "{stderr}");
+    let mut a: Vec<&str> = args.to_vec();
+    let k = a.iter().position(|s| *s == "--camera").unwrap();
+    a[k + 1] = "/no/camera.json";
+    let (ok, _, stderr) = flowfilter(&a);
+    assert!(!ok && stderr.contains("/no/camera.json"), "{stderr}");
+}
