@@ -5,13 +5,12 @@ use anyhow::Context;
 use clap::Args;
 use flowfilter_bigbird::{BigBirdObject, FrameId, SensorId};
 use flowfilter_depth::ply::{PlyFormat, write_ply};
-use flowfilter_geometry::{PointCloud, Pose, rigid_from_matrix};
+use flowfilter_geometry::{PointCloud, Pose};
 use flowfilter_pipeline::{
     CameraFile, Estimate, FrameFiles, MaskSource, Pipeline, PipelineConfig, PreparedFrame, RgbdFrame,
     load_bigbird_frame,
 };
 use image::{Rgb, RgbImage};
-use nalgebra::Matrix4;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -163,36 +162,8 @@ fn file_frames(args: &EstimateArgs) -> anyhow::Result<Frames> {
     let stem = |p: &Path| p.file_stem().map_or_else(|| p.display().to_string(), |s| s.to_string_lossy().into_owned());
     let fa = model.load(&camera, &stem(&model.color))?;
     let fb = target.load(&camera, &stem(&target.color))?;
-    let truth = args.gt.as_deref().map(read_truth).transpose()?;
+    let truth = args.gt.as_deref().map(crate::matrix_file::read_pose).transpose()?;
     Ok((fa, fb, truth))
-}
-
-/// `--gt`: a JSON object with `transform` (4x4 rows) or a text of 16 numbers, row-major.
-fn read_truth(path: &Path) -> anyhow::Result<Pose> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    let values: Vec<f64> = match serde_json::from_str::<serde_json::Value>(&text) {
-        Ok(v) => {
-            let rows = v.get("transform").unwrap_or(&v);
-            let flat: Option<Vec<f64>> = rows
-                .as_array()
-                .filter(|r| r.len() == 4)
-                .and_then(|r| {
-                    r.iter().map(|row| row.as_array().filter(|c| c.len() == 4).cloned()).collect::<Option<Vec<_>>>()
-                })
-                .and_then(|r| r.into_iter().flatten().map(|x| x.as_f64()).collect());
-            flat.with_context(|| format!("{}: field 'transform': expected 4 rows of 4 numbers", path.display()))?
-        }
-        Err(_) => text
-            .split(|c: char| c.is_whitespace() || c == ',')
-            .filter(|s| !s.is_empty())
-            .map(|s| s.parse::<f64>().with_context(|| format!("{}: '{s}' is not a number", path.display())))
-            .collect::<Result<_, _>>()?,
-    };
-    if values.len() != 16 {
-        anyhow::bail!("{}: expected 16 numbers (a 4x4 matrix, row-major), found {}", path.display(), values.len());
-    }
-    rigid_from_matrix(&Matrix4::from_row_slice(&values))
-        .with_context(|| format!("{}: not a rigid transform", path.display()))
 }
 
 fn print_human(e: &Estimate) {

@@ -3,6 +3,7 @@
 mod estimate;
 mod flow;
 mod inspect;
+mod matrix_file;
 mod register;
 mod synth;
 mod truth_flow;

@@ -1,12 +1,11 @@
 //! `flowfilter register`: align two PLY point clouds with one backend.
 
-use anyhow::{Context, bail};
+use anyhow::Context;
 use clap::Args;
 use flowfilter_depth::ply::read_ply;
-use flowfilter_geometry::{Pose, rigid_from_matrix};
+use flowfilter_geometry::Pose;
 use flowfilter_pipeline::{PipelineConfig, RegistrationSummary, matrix_rows};
 use flowfilter_registration::{RegistrationConfig, RegistrationProblem, registrar_by_name};
-use nalgebra::Matrix4;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
@@ -25,7 +24,8 @@ pub struct RegisterArgs {
     /// not carry: they fall back to FilterReg with a warning.
     #[arg(long, value_parser = crate::method_parser())]
     pub method: Option<String>,
-    /// Initial 4x4 transform: a text file with 16 numbers, row-major.
+    /// Initial 4x4 transform: a text file of 16 numbers (row-major) or a JSON 4x4 array of rows
+    /// (bare or under `transform`).
     #[arg(long)]
     pub init: Option<PathBuf>,
     /// Backend parameters (TOML): a pipeline configuration such as configs/icp.toml (its
@@ -36,20 +36,6 @@ pub struct RegisterArgs {
     /// Print the result as JSON (schema "flowfilter register v1").
     #[arg(long)]
     pub json: bool,
-}
-
-fn read_matrix(path: &Path) -> anyhow::Result<Pose> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    let values: Vec<f64> = text
-        .split(|c: char| c.is_whitespace() || c == ',')
-        .filter(|s| !s.is_empty())
-        .map(|s| s.parse::<f64>().with_context(|| format!("{}: '{s}' is not a number", path.display())))
-        .collect::<Result<_, _>>()?;
-    if values.len() != 16 {
-        bail!("{}: expected 16 numbers (a 4x4 matrix, row-major), found {}", path.display(), values.len());
-    }
-    rigid_from_matrix(&Matrix4::from_row_slice(&values))
-        .with_context(|| format!("{}: not a rigid transform", path.display()))
 }
 
 /// The schema tag of `register --json`.
@@ -79,7 +65,7 @@ pub fn run(args: &RegisterArgs) -> anyhow::Result<ExitCode> {
     let registrar = registrar_by_name(&method, &config).context("--method / --config")?;
     let source = read_ply(&args.source)?;
     let target = read_ply(&args.target)?;
-    let init = args.init.as_deref().map(read_matrix).transpose()?.unwrap_or_else(Pose::identity);
+    let init = args.init.as_deref().map(crate::matrix_file::read_pose).transpose()?.unwrap_or_else(Pose::identity);
     let (model_points, target_points) = (source.len(), target.len());
     let start = Instant::now();
     let r = registrar.register(&RegistrationProblem::new(source, target).with_init(init))?;
