@@ -44,7 +44,7 @@ fn synth_rejects_bad_options() {
     let out = tmp.path().join("x");
     let o = out.to_str().unwrap();
     for (args, needle) in [
-        (vec!["synth", "--procedural", "teapot", "--out", o], "unknown procedural object 'teapot'"),
+        (vec!["synth", "--procedural", "teapot", "--out", o], "invalid value 'teapot' for '--procedural <PROCEDURAL>'"),
         (vec!["synth", "--procedural", "box", "--out", o, "--angles", "0:357:0"], "step must be > 0"),
         (vec!["synth", "--procedural", "box", "--out", o, "--angles", "10:400:3"], "not in 0..360"),
         (vec!["synth", "--procedural", "box", "--out", o, "--cameras", "NP7"], "'NP7' is not a sensor name"),
