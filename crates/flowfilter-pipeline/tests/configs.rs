@@ -110,7 +110,7 @@ fn validation_checks_names_without_building_and_the_pipeline_builds_each_stage_o
     if cfg!(feature = "onnx") {
         let config = parsed.unwrap();
         let e = flowfilter_pipeline::Pipeline::from_config(config).err().expect("no such model").to_string();
-        assert!(e.contains("/no/such/model.onnx"), "{e}");
+        assert!(e.contains("/no/such/model"), "{e}");
     } else {
         let e = parsed.unwrap_err().to_string();
         assert!(e.contains("onnx.toml") && e.contains("flow.estimator") && e.contains("onnx"), "{e}");
