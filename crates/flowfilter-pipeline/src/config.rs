@@ -120,12 +120,6 @@ impl PipelineConfig {
         toml::to_string(self).expect("the configuration serialises")
     }
 
-    /// Whether the chosen method consumes flow correspondences (its registrar says so; `false`
-    /// for an unknown method).
-    pub fn uses_flow(&self) -> bool {
-        registrar_by_name(&self.method, &self.registration).is_ok_and(|r| r.uses_correspondences())
-    }
-
     /// Check values that serde cannot: names and ranges of every stage. Nothing costly is
     /// built (an ONNX model is not loaded).
     ///

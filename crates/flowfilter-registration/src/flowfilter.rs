@@ -237,7 +237,7 @@ impl Registrar for FlowFilter {
     /// starts from, and one of the geometric check's alternatives (reused when handed back).
     fn prior(&self, p: &RegistrationProblem) -> Result<Option<Registration>, RegistrationError> {
         validate_problem(p, None)?;
-        self.geometric_from_init(p).map(Some)
+        FilterReg::new(self.geometric_config())?.register(&p.geometry_only()).map(Some)
     }
 }
 
@@ -286,15 +286,6 @@ impl FlowFilter {
             }
         }
         best
-    }
-
-    /// FilterReg from the problem's initial pose on the clouds alone (the problem's prior when
-    /// it carries one).
-    fn geometric_from_init(&self, p: &RegistrationProblem) -> Result<Registration, RegistrationError> {
-        if let Some(prior) = &p.prior {
-            return Ok(prior.clone());
-        }
-        FilterReg::new(self.geometric_config())?.register(&p.geometry_only())
     }
 
     /// The FilterReg configuration without the correspondence term.
@@ -415,10 +406,15 @@ impl FlowFilter {
         let score = |r: &Registration| {
             visible_residual(&p.source.points, normals, &index, &r.transform, cfg.geometric_tau_m, 0.3)
         };
-        let from_init = self.geometric_from_init(p)?;
+        // The clouds alone, copied once for every flow-free registration below.
+        let plain = p.geometry_only();
+        let from_init = match &p.prior {
+            Some(prior) => prior.clone(),
+            None => FilterReg::new(self.geometric_config())?.register(&plain)?,
+        };
         let s_flow = score(&flow_result);
         if cfg.motion_margin_deg >= 0.0
-            && let Some(r) = self.motion_check(p, &from_init, &flow_result, s_flow, &score)?
+            && let Some(r) = self.motion_check(&plain, &from_init, &flow_result, s_flow, &score)?
         {
             return Ok(r);
         }
@@ -426,36 +422,36 @@ impl FlowFilter {
         if cfg.mode == FlowFilterMode::Joint {
             let mut local_cfg = self.geometric_config();
             local_cfg.init_sigma2.get_or_insert(1e-4);
-            let local = FilterReg::new(local_cfg)?.register(&p.geometry_only().with_init(pose))?;
+            let local = FilterReg::new(local_cfg)?.register(&plain.with_init(pose))?;
             alternatives.push(("FilterReg from the flow pose without the flow term", local));
         }
         Ok(self.fit_check(alternatives, flow_result, s_flow, &score))
     }
 
-    /// The motion check (see [`FlowFilterConfig::motion_margin_deg`]): the geometric
-    /// registration from the initial pose (FilterReg, and point-to-plane ICP) that qualifies
+    /// The motion check (see [`FlowFilterConfig::motion_margin_deg`]) on the clouds alone
+    /// (`plain`): the geometric registration from the initial pose (FilterReg, and point-to-plane ICP) that qualifies
     /// and moved furthest, if any.
     fn motion_check(
         &self,
-        p: &RegistrationProblem,
+        plain: &RegistrationProblem,
         from_init: &Registration,
         flow_result: &Registration,
         s_flow: f64,
         score: &dyn Fn(&Registration) -> f64,
     ) -> Result<Option<Registration>, RegistrationError> {
         let cfg = &self.config;
-        let angle = |r: &Registration| (p.init.inverse() * r.transform).rotation.angle().to_degrees();
+        let angle = |r: &Registration| (plain.init.inverse() * r.transform).rotation.angle().to_degrees();
         // Point-to-plane ICP's hard gate holds on to small asymmetric features, such as a mug's
         // handle, that the GMM's wide kernels average away.
         let mut candidates = vec![("FilterReg from the initial pose", from_init.clone())];
-        if cfg.motion_icp_distance_m > 0.0 && p.target.normals.is_some() {
+        if cfg.motion_icp_distance_m > 0.0 && plain.target.normals.is_some() {
             let icp = Icp::new(IcpConfig {
                 variant: IcpVariant::PointToPlane,
                 max_correspondence_distance: cfg.motion_icp_distance_m,
                 max_iterations: 50,
                 ..IcpConfig::default()
             })?;
-            candidates.push(("point-to-plane ICP from the initial pose", icp.register(&p.geometry_only())?));
+            candidates.push(("point-to-plane ICP from the initial pose", icp.register(plain)?));
         }
         let flow_moved = angle(flow_result);
         let winner = candidates
