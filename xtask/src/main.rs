@@ -3,15 +3,20 @@
 //! - `bench-bigbird`: the paper's BigBIRD experiment (relative rotation between turntable
 //!   angles seen by one camera) on the embedded synthetic dataset, generated once and cached
 //!   under `target/`, or on a real BigBIRD download (`--data DIR`).
+//! - `bench-bop`: the same measurement on BOP scenes (image `i` to image `i + gap`, every
+//!   object visible in both), on a BOP dataset (`--data DIR`) or the embedded synthetic scenes.
 //! - `publish-check`: every library crate packages and builds from its package; a scratch
 //!   crate outside the workspace depends on `flowfilter-registration` and runs its README
 //!   example.
 
 mod bench;
+mod bench_bop;
 mod dataset;
 mod deps;
+mod pairs;
 mod plots;
 mod publish_check;
+mod report;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -27,6 +32,9 @@ struct Cli {
 enum Command {
     /// Run the BigBIRD benchmark and write results/<timestamp>/.
     BenchBigbird(bench::BenchArgs),
+    /// Run the relative-pose benchmark on BOP scenes (a BOP dataset, or the embedded synthetic
+    /// scenes) and write results/<timestamp>/.
+    BenchBop(bench_bop::BopBenchArgs),
     /// Check that every library crate packages and builds on its own, and that a crate outside
     /// the workspace can depend on one and run its README example.
     PublishCheck(publish_check::PublishCheckArgs),
@@ -39,6 +47,7 @@ fn main() -> ExitCode {
         .init();
     let result = match Cli::parse().command {
         Command::BenchBigbird(args) => bench::run(&args),
+        Command::BenchBop(args) => bench_bop::run(&args),
         Command::PublishCheck(args) => publish_check::run(&args),
     };
     match result {

@@ -1,7 +1,7 @@
 //! The benchmark's SVG plots (plotters, SVG backend: no fonts or system libraries needed):
 //! rotation error against rotation step per method, per-object error bars, time per stage.
 
-use crate::bench::PairResult;
+use crate::pairs::PairResult;
 use anyhow::Context;
 use flowfilter_pipeline::StageTimes;
 use plotters::coord::Shift;
@@ -89,38 +89,44 @@ pub fn write_all(
     Ok(names.iter().map(|s| s.to_string()).collect())
 }
 
-/// Mean rotation-angle error against the rotation step, one line per method.
+/// Mean rotation-angle error against the true rotation (the mean over each step's pairs), one
+/// line per method.
 fn error_vs_step(path: &Path, pairs: &[PairResult], methods: &[String]) -> anyhow::Result<()> {
     let mut acc: BTreeMap<(&str, u32), (f64, usize)> = BTreeMap::new();
+    let mut motion: BTreeMap<u32, (f64, usize)> = BTreeMap::new();
     for p in pairs {
         if let Some(e) = &p.errors {
             let a = acc.entry((p.method.as_str(), p.step)).or_default();
             a.0 += e.angle_error_deg;
             a.1 += 1;
         }
+        let m = motion.entry(p.step).or_default();
+        m.0 += p.motion_deg.unwrap_or(f64::from(p.step));
+        m.1 += 1;
     }
     let steps: BTreeSet<u32> = pairs.iter().map(|p| p.step).collect();
-    let (x0, x1) = (*steps.first().unwrap_or(&0) as f64, *steps.last().unwrap_or(&30) as f64);
+    let x_of = |s: u32| motion.get(&s).map_or(f64::from(s), |(sum, n)| sum / *n as f64);
+    let (x0, x1) = (steps.first().map_or(0.0, |&s| x_of(s)), steps.last().map_or(30.0, |&s| x_of(s)));
     let ymax = acc.values().map(|(s, n)| s / *n as f64).fold(1.0f64, f64::max) * 1.1;
     let root = SVGBackend::new(path, (800, 500)).into_drawing_area();
     root.fill(&WHITE).map_err(plot_error)?;
     let mut chart = ChartBuilder::on(&root)
-        .caption("Mean rotation-angle error vs rotation step", ("sans-serif", 22))
+        .caption("Mean rotation-angle error vs true rotation", ("sans-serif", 22))
         .margin(15)
         .x_label_area_size(40)
         .y_label_area_size(55)
-        .build_cartesian_2d((x0 - 1.0)..(x1 + 1.0), 0.0..ymax)
+        .build_cartesian_2d((x0 - 0.05 * (x1 - x0) - 0.1)..(x1 + 0.05 * (x1 - x0) + 0.1), 0.0..ymax)
         .map_err(plot_error)?;
     chart
         .configure_mesh()
-        .x_desc("rotation step (degrees)")
+        .x_desc("true rotation (degrees)")
         .y_desc("mean rotation-angle error (degrees)")
         .draw()
         .map_err(plot_error)?;
     for (i, m) in methods.iter().enumerate() {
         let pts: Vec<(f64, f64)> = steps
             .iter()
-            .filter_map(|&s| acc.get(&(m.as_str(), s)).map(|(sum, n)| (s as f64, sum / *n as f64)))
+            .filter_map(|&s| acc.get(&(m.as_str(), s)).map(|(sum, n)| (x_of(s), sum / *n as f64)))
             .collect();
         let c = colour(i);
         chart

@@ -129,113 +129,197 @@ pub fn render_frame(
     let s: &RigSensor = &rig.sensors[&sensor];
     let id = FrameId { sensor, angle: angle_deg };
     let mut rng = ChaCha8Rng::seed_from_u64(frame_seed(seed, id));
-    let world_from_table = world_from_table(f64::from(angle_deg));
+    let angle = f64::from(angle_deg);
+    let timing = ViewTiming { color_angle_deg: angle, depth_angle_deg: angle };
+    let v = render_view(scene, s, timing, noise, s.rgbd.depth.intrinsics.fx, &mut rng);
+    RenderedFrame {
+        id,
+        color: v.color,
+        raw_depth: v.raw_depth,
+        mask: v.mask,
+        clean_depth: v.clean_depth,
+        color_depth: v.color_depth,
+        depth_object: v.depth_object,
+        noise_truth: v.noise_truth,
+    }
+}
+
+/// Where the turntable stood when the colour and the depth image of a view were taken (the two
+/// differ when the sensor does not capture them at the same instant).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct ViewTiming {
+    /// Turntable angle of the colour exposure, degrees.
+    pub color_angle_deg: f64,
+    /// Turntable angle of the depth exposure, degrees.
+    pub depth_angle_deg: f64,
+}
+
+/// A rendered view: [`RenderedFrame`] without its BigBIRD name.
+pub(crate) struct RenderedView {
+    pub color: RgbImage,
+    pub raw_depth: RawDepth,
+    pub mask: Mask,
+    pub clean_depth: DepthMap,
+    pub color_depth: DepthMap,
+    pub depth_object: Mask,
+    pub noise_truth: DepthNoiseTruth,
+}
+
+/// Which depth pixels the projector cannot light (their point is hidden from the projector).
+fn projector_shadows(
+    scene: &Scene,
+    cam: &CameraModel,
+    gd: &GBuffer,
+    h_depth_from_table: &Pose,
+    baseline: f64,
+    tolerance_m: f64,
+) -> Vec<bool> {
+    let (w, h) = (gd.width, gd.height);
+    // The projector sits `baseline` along the depth camera's +x axis, looking the same way.
+    let h_proj_from_table = Pose::translation(-baseline, 0.0, 0.0) * h_depth_from_table;
+    let gp = render_gbuffer(scene, cam, &h_proj_from_table);
+    (0..w * h)
+        .into_par_iter()
+        .map(|k| {
+            let z = gd.depth[k];
+            if !z.is_finite() {
+                return false;
+            }
+            let px = flowfilter_camera::Pixel::new((k % w) as f64, (k / w) as f64);
+            let Some(p) = cam.backproject(&px, f64::from(z)) else { return false };
+            let q = Point3::new(p.x - baseline, p.y, p.z);
+            let Some(pp) = cam.project(&q) else { return true };
+            let (u, v) = (pp.x.round(), pp.y.round());
+            if u < 0.0 || v < 0.0 || u >= w as f64 || v >= h as f64 {
+                return false; // outside the projector's view: treat as lit
+            }
+            let zp = f64::from(gp.depth[v as usize * w + u as usize]);
+            zp.is_finite() && q.z > zp + tolerance_m
+        })
+        .collect()
+}
+
+/// The structured-light model applied to the depth camera's clean render. `focal_px` is the
+/// focal length of the camera that measured the disparity (its quantisation step).
+fn noisy_depth(
+    scene: &Scene,
+    s: &RigSensor,
+    gd: &GBuffer,
+    h_depth_from_table: &Pose,
+    profile: &NoiseProfile,
+    focal_px: f64,
+    rng: &mut ChaCha8Rng,
+) -> (DepthMap, DepthNoiseTruth) {
+    let cam = &s.rgbd.depth;
+    let (w, h) = (gd.width, gd.height);
+    let rot = h_depth_from_table.rotation.cast::<f32>();
+    let cos_incidence: Vec<f32> = (0..w * h)
+        .into_par_iter()
+        .map(|k| {
+            if gd.triangle[k] == NO_TRIANGLE {
+                return 1.0;
+            }
+            let n = rot * normal_at(scene, gd, k);
+            let px = flowfilter_camera::Pixel::new((k % w) as f64, (k / w) as f64);
+            let ray = cam.normalized_ray(&px).map_or(Vector3::z(), |r| r.normalize()).cast::<f32>();
+            n.dot(&ray).abs()
+        })
+        .collect();
+    let shadowed =
+        projector_shadows(scene, cam, gd, h_depth_from_table, s.projector_baseline, profile.depth.shadow_tolerance_m);
+    let clean_depth = depth_map(gd);
+    let input = DepthNoiseInput { clean: &clean_depth, cos_incidence: &cos_incidence, shadowed: &shadowed, focal_px };
+    apply_depth_noise(&profile.depth, &input, rng)
+}
+
+/// Render one view of `s`: colour (shaded, then blurred and noisy under a profile), the object
+/// mask on the colour grid, and depth from the depth camera (under the structured-light model of
+/// the profile, quantised with `noise_focal_px`).
+pub(crate) fn render_view(
+    scene: &Scene,
+    s: &RigSensor,
+    timing: ViewTiming,
+    noise: Option<&NoiseProfile>,
+    noise_focal_px: f64,
+    rng: &mut ChaCha8Rng,
+) -> RenderedView {
     let n_obj = scene.object_triangles() as u32;
 
     // Colour camera.
-    let h_color_from_table = s.h_color_from_world * world_from_table;
+    let h_color_from_table = s.h_color_from_world * world_from_table(timing.color_angle_deg);
     let gc = render_gbuffer(scene, &s.rgbd.color, &h_color_from_table);
-    let mut color = shade(scene, &gc, f64::from(angle_deg));
+    let mut color = shade(scene, &gc, timing.color_angle_deg);
     let mask = Mask::from_vec(gc.width, gc.height, gc.triangle.iter().map(|&t| t < n_obj).collect()).expect("sized");
     let color_depth = depth_map(&gc);
 
     // Depth camera.
-    let h_depth_from_table = s.rgbd.color_from_depth.inverse() * h_color_from_table;
+    let h_color_from_depth_table = s.h_color_from_world * world_from_table(timing.depth_angle_deg);
+    let h_depth_from_table = s.rgbd.color_from_depth.inverse() * h_color_from_depth_table;
     let gd = render_gbuffer(scene, &s.rgbd.depth, &h_depth_from_table);
     let clean_depth = depth_map(&gd);
     let depth_object =
         Mask::from_vec(gd.width, gd.height, gd.triangle.iter().map(|&t| t < n_obj).collect()).expect("sized");
-    let (w, h) = (gd.width, gd.height);
     let noisy = match noise {
         None => {
-            let none = Mask::filled(w, h, false);
+            let none = Mask::filled(gd.width, gd.height, false);
             (clean_depth.clone(), DepthNoiseTruth { flying: none.clone(), jittered: none.clone(), dropped: none })
         }
-        Some(profile) => {
-            let cam = &s.rgbd.depth;
-            let rot = h_depth_from_table.rotation.cast::<f32>();
-            let cos_incidence: Vec<f32> = (0..w * h)
-                .into_par_iter()
-                .map(|k| {
-                    if gd.triangle[k] == NO_TRIANGLE {
-                        return 1.0;
-                    }
-                    let n = rot * normal_at(scene, &gd, k);
-                    let px = flowfilter_camera::Pixel::new((k % w) as f64, (k / w) as f64);
-                    let ray = cam.normalized_ray(&px).map_or(Vector3::z(), |r| r.normalize()).cast::<f32>();
-                    n.dot(&ray).abs()
-                })
-                .collect();
-            // The projector sits `baseline` along the depth camera's +x axis, looking the same way.
-            let b = s.projector_baseline;
-            let h_proj_from_table = Pose::translation(-b, 0.0, 0.0) * h_depth_from_table;
-            let gp = render_gbuffer(scene, cam, &h_proj_from_table);
-            let shadowed: Vec<bool> = (0..w * h)
-                .into_par_iter()
-                .map(|k| {
-                    let z = gd.depth[k];
-                    if !z.is_finite() {
-                        return false;
-                    }
-                    let px = flowfilter_camera::Pixel::new((k % w) as f64, (k / w) as f64);
-                    let Some(p) = cam.backproject(&px, f64::from(z)) else { return false };
-                    let q = Point3::new(p.x - b, p.y, p.z);
-                    let Some(pp) = cam.project(&q) else { return true };
-                    let (u, v) = (pp.x.round(), pp.y.round());
-                    if u < 0.0 || v < 0.0 || u >= w as f64 || v >= h as f64 {
-                        return false; // outside the projector's view: treat as lit
-                    }
-                    let zp = f64::from(gp.depth[v as usize * w + u as usize]);
-                    zp.is_finite() && q.z > zp + profile.depth.shadow_tolerance_m
-                })
-                .collect();
-            let input = DepthNoiseInput {
-                clean: &clean_depth,
-                cos_incidence: &cos_incidence,
-                shadowed: &shadowed,
-                focal_px: cam.intrinsics.fx,
-            };
-            apply_depth_noise(&profile.depth, &input, &mut rng)
-        }
+        Some(profile) => noisy_depth(scene, s, &gd, &h_depth_from_table, profile, noise_focal_px, rng),
     };
     let unit = s.rgbd.metres_per_unit;
     let raw_depth =
         noisy.0.map(|&z| if z > 0.0 { (f64::from(z) / unit).round().clamp(1.0, 65535.0) as u16 } else { 0 });
     if let Some(profile) = noise {
         color = gaussian_blur(&color, profile.color.blur_sigma_px);
-        add_color_noise(&mut color, profile.color.noise_sigma, &mut rng);
+        add_color_noise(&mut color, profile.color.noise_sigma, rng);
     }
-    RenderedFrame { id, color, raw_depth, mask, clean_depth, color_depth, depth_object, noise_truth: noisy.1 }
+    RenderedView { color, raw_depth, mask, clean_depth, color_depth, depth_object, noise_truth: noisy.1 }
 }
 
 /// Parse an angle specification: `start:end:step` (inclusive, e.g. `0:357:3`), a comma list
-/// (`0,15,30`), or one angle. Angles are whole degrees in `0..360`.
+/// (`0,15,30`), or one angle. Angles are whole degrees in `0..360` (BigBIRD names frames by them).
 pub fn parse_angles(text: &str) -> Result<Vec<u32>, SynthError> {
+    let angles = parse_fractional_angles(text)?;
+    if let Some(a) = angles.iter().find(|a| a.fract() != 0.0) {
+        return Err(SynthError::BadAngles { text: text.into(), message: format!("{a} is not a whole number of degrees") });
+    }
+    Ok(angles.into_iter().map(|a| a as u32).collect())
+}
+
+/// Parse an angle specification with fractional degrees allowed (`0:2.5:0.25`, `0,0.5,3`), sorted
+/// and without repeats; every angle in `[0, 360)`.
+pub fn parse_fractional_angles(text: &str) -> Result<Vec<f64>, SynthError> {
     let err = |message: &str| SynthError::BadAngles { text: text.into(), message: message.into() };
-    let num =
-        |s: &str| s.trim().parse::<u32>().map_err(|_| err(&format!("'{}' is not a whole number of degrees", s.trim())));
-    let angles: Vec<u32> = if text.contains(':') {
+    let num = |s: &str| {
+        s.trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|v| v.is_finite() && *v >= 0.0)
+            .ok_or_else(|| err(&format!("'{}' is not a non-negative number of degrees", s.trim())))
+    };
+    let angles: Vec<f64> = if text.contains(':') {
         let parts: Vec<&str> = text.split(':').collect();
         let [start, end, step] = parts[..] else { return Err(err("expected start:end:step")) };
         let (start, end, step) = (num(start)?, num(end)?, num(step)?);
-        if step == 0 {
+        if step <= 0.0 {
             return Err(err("step must be > 0"));
         }
         if start > end {
             return Err(err("start must be <= end"));
         }
-        (start..=end).step_by(step as usize).collect()
+        let n = ((end - start) / step + 1e-9).floor() as usize + 1;
+        (0..n).map(|i| start + i as f64 * step).collect()
     } else {
         text.split(',').map(num).collect::<Result<_, _>>()?
     };
     if angles.is_empty() {
         return Err(err("no angles"));
     }
-    if let Some(a) = angles.iter().find(|&&a| a >= 360) {
+    if let Some(a) = angles.iter().find(|&&a| a >= 360.0) {
         return Err(err(&format!("angle {a} is not in 0..360")));
     }
-    let mut sorted = angles.clone();
-    sorted.sort_unstable();
+    let mut sorted = angles;
+    sorted.sort_by(f64::total_cmp);
     sorted.dedup();
     Ok(sorted)
 }
@@ -333,7 +417,10 @@ mod tests {
         assert_eq!(parse_angles("0:357:3").unwrap().len(), 120);
         assert_eq!(parse_angles("30,0,15,15").unwrap(), vec![0, 15, 30]);
         assert_eq!(parse_angles("45").unwrap(), vec![45]);
-        for bad in ["0:357:0", "30:0:3", "0:360:3", "a:b:c", "0:10", "", "370", "1,-2"] {
+        assert_eq!(parse_fractional_angles("0:1:0.25").unwrap(), vec![0.0, 0.25, 0.5, 0.75, 1.0]);
+        assert_eq!(parse_fractional_angles("3,0.5").unwrap(), vec![0.5, 3.0]);
+        assert!(matches!(parse_angles("0.5"), Err(SynthError::BadAngles { .. })));
+        for bad in ["0:357:0", "30:0:3", "0:360:3", "a:b:c", "0:10", "", "370", "1,-2", "nan", "0:1:-0.5"] {
             let e = parse_angles(bad);
             assert!(matches!(e, Err(SynthError::BadAngles { .. })), "{bad}: {e:?}");
         }

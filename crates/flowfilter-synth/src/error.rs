@@ -65,6 +65,22 @@ pub enum SynthError {
         /// What is wrong.
         message: String,
     },
+    /// A file of a synthesised dataset cannot be written.
+    #[error("{}: cannot write: {message}", path.display())]
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// The system's message.
+        message: String,
+    },
+    /// A value of the options cannot make a dataset.
+    #[error("{field}: {message}")]
+    BadOption {
+        /// The option.
+        field: &'static str,
+        /// What is wrong.
+        message: String,
+    },
     /// Writing the dataset failed.
     #[error(transparent)]
     Dataset(#[from] flowfilter_bigbird::BigBirdError),

@@ -8,10 +8,14 @@
 //!   noise ([`NoiseProfile`]).
 //! - [`true_flow`]: exact optical flow between any two colour views, with occlusion.
 //! - [`write_capture`]: a whole capture in the BigBIRD layout through `flowfilter-bigbird`.
+//! - [`write_bop_scene`]: a scene in the BOP layout (depth registered to colour, visible masks,
+//!   `scene_gt.json`), with the per-frame [`FrameEffects`] of real captures.
 
 #![warn(missing_docs)]
 
+mod bop;
 mod capture;
+mod effects;
 mod error;
 mod mesh;
 mod noise;
@@ -21,7 +25,9 @@ mod scene;
 mod texture;
 mod truth_flow;
 
-pub use capture::{CaptureOptions, RenderedFrame, contact_sheet, parse_angles, render_frame, write_capture};
+pub use bop::{BopSceneOptions, BopView, bop_sensor, render_bop_view, write_bop_scene};
+pub use capture::{CaptureOptions, RenderedFrame, contact_sheet, parse_angles, parse_fractional_angles, render_frame, write_capture};
+pub use effects::{FrameDraw, FrameEffects};
 pub use error::SynthError;
 pub use mesh::TexturedMesh;
 pub use noise::{CARMINE_TOML, ColorNoise, DepthNoise, DepthNoiseTruth, NoiseProfile};

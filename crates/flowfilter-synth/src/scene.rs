@@ -54,6 +54,14 @@ impl Scene {
         self.object.triangles.len()
     }
 
+    /// The object alone, without the table (for its unoccluded silhouette).
+    pub(crate) fn object_only(&self) -> Self {
+        let mut only = self.clone();
+        only.positions.truncate(self.object.positions.len());
+        only.triangles.truncate(self.object.triangles.len());
+        only
+    }
+
     /// The mesh and local triangle index of a scene triangle.
     pub(crate) fn locate(&self, t: u32) -> (&TexturedMesh, usize) {
         let n = self.object.triangles.len();

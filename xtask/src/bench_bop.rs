@@ -1,0 +1,295 @@
+//! `cargo xtask bench-bop`: in every BOP scene, every object seen in images `i` and `i + gap`
+//! (each gap asked for, the visible fraction above a threshold in both), registered from the
+//! first view to the second with every method and scored against `T_ab = T_b * inv(T_a)`,
+//! beside the "no motion" answer.
+//!
+//! Without `--data` it runs on the embedded synthetic BOP dataset (`target/bop-default/test`):
+//! per default object, scene `k` (camera NP3, turntable angles 0, 3, ..., 30 degrees: the gaps
+//! 1, 5, 10 are 3, 15 and 30 degrees) and scene `100 + k` (camera NP2, angles 0, 0.25, ..., 2.5:
+//! 0.25, 1.25 and 2.5 degrees), with Carmine depth noise and the real-sensor frame effects.
+
+use crate::dataset::{BopSceneSpec, DefaultObject, default_objects, ensure_bop_scene};
+use crate::pairs::{Methods, PairJob, PairResult, preparation_groups, progress};
+use crate::report::{ReportSpec, write_outputs};
+use anyhow::{Context, bail};
+use clap::Args;
+use flowfilter_bigbird::SensorId;
+use flowfilter_pipeline::bop::BopScene;
+use flowfilter_pipeline::{Pipeline, PipelineConfig};
+use rayon::prelude::*;
+use std::collections::BTreeMap;
+use std::fmt;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Arguments of `bench-bop`.
+#[derive(Args)]
+pub struct BopBenchArgs {
+    /// A BOP split folder (e.g. `ycbv/test`: one folder per scene) or one scene folder; default:
+    /// the embedded synthetic BOP dataset.
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    /// Scene ids to run (folder names as numbers), comma separated; default: all.
+    #[arg(long, value_delimiter = ',')]
+    pub scenes: Option<Vec<u32>>,
+    /// Image gaps: pairs are images `i` and `i + gap` (default 1,5,10; 1,4 with --quick).
+    #[arg(long, value_delimiter = ',')]
+    pub gaps: Option<Vec<u32>>,
+    /// Methods, comma separated.
+    #[arg(long, value_delimiter = ',', default_value = "icp-pt2pl,cpd,filterreg-pt2pt,flowfilter")]
+    pub methods: Vec<String>,
+    /// Pipeline configuration shared by the methods (its `method` key is replaced by each name).
+    #[arg(long, default_value = "configs/flowfilter.toml")]
+    pub pipeline: PathBuf,
+    /// Smallest visible fraction (`visib_fract` of `scene_gt_info.json`) of an object in both
+    /// images; 0.1 is the BOP benchmark's own threshold for test targets.
+    #[arg(long, default_value_t = 0.1)]
+    pub min_visib: f64,
+    /// Small embedded dataset for CI: the procedural objects, 5 images per scene, gaps 1 and 4.
+    #[arg(long)]
+    pub quick: bool,
+    /// Directories of textured meshes (`*/textured.obj`) to add to the embedded dataset
+    /// (default: ../shared/data/ycb when present; not used with --quick).
+    #[arg(long)]
+    pub meshes: Option<PathBuf>,
+    /// Output root (a timestamped directory is created inside).
+    #[arg(long, default_value = "results")]
+    pub out: PathBuf,
+    /// Voxel size of the clouds given to the registration, metres.
+    #[arg(long)]
+    pub voxel: Option<f64>,
+    /// Exit non-zero unless results.json holds every method with every metric and no pair
+    /// failed.
+    #[arg(long)]
+    pub check: bool,
+}
+
+/// A frame of a scene: an image and the object whose mask it uses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+struct BopKey {
+    im_id: u32,
+    obj_id: u32,
+}
+
+impl fmt::Display for BopKey {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{:06}/obj_{:06}", self.im_id, self.obj_id)
+    }
+}
+
+/// The repository root (relative paths are resolved against it).
+fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+/// Run the benchmark scene by scene.
+pub fn run(args: &BopBenchArgs) -> anyhow::Result<()> {
+    let gaps = args.gaps.clone().unwrap_or_else(|| if args.quick { vec![1, 4] } else { vec![1, 5, 10] });
+    if gaps.is_empty() || gaps.contains(&0) {
+        bail!("--gaps: give one or more gaps of at least 1 image");
+    }
+    if !(0.0..=1.0).contains(&args.min_visib) {
+        bail!("--min-visib: expected a fraction in [0, 1], found {}", args.min_visib);
+    }
+    let configs = method_configs(args)?;
+    let pipelines: Vec<Pipeline> = configs
+        .iter()
+        .map(|c| Pipeline::from_config(c.clone()).with_context(|| format!("method '{}'", c.method)))
+        .collect::<anyhow::Result<_>>()?;
+    let groups = preparation_groups(&configs);
+    let methods = Methods { names: &args.methods, pipelines: &pipelines, groups: &groups };
+    let started = Instant::now();
+    let (scene_dirs, names) = scene_dirs(args)?;
+    let mut results: Vec<PairResult> = vec![];
+    let mut skipped: Vec<String> = vec![];
+    for dir in &scene_dirs {
+        let label = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        let scene = match BopScene::open(dir) {
+            Ok(s) => s,
+            Err(e) => {
+                tracing::warn!(scene = %label, error = %e, "skipping scene");
+                skipped.push(format!("{label}: {e}"));
+                continue;
+            }
+        };
+        let jobs = scene_jobs(&scene, &label, &gaps, args.min_visib, &names);
+        if jobs.is_empty() {
+            skipped.push(format!("{label}: no object is visible in two images {gaps:?} apart"));
+            continue;
+        }
+        let mut frames: Vec<BopKey> = jobs.iter().flat_map(|j| [j.model, j.target]).collect();
+        frames.sort();
+        frames.dedup();
+        let load = |k: BopKey| scene.frame(k.im_id, k.obj_id).map_err(|e| e.to_string());
+        let prepared = methods.prepare(&frames, &load, &format!("scene {label}"));
+        results.append(&mut methods.run(&jobs, &prepared, &format!("scene {label}")));
+    }
+    if results.is_empty() {
+        bail!("no pair to run: {}", skipped.join("; "));
+    }
+    let spec = ReportSpec {
+        bench: "bench-bop",
+        dataset: args.data.as_ref().map_or_else(
+            || format!("embedded synthetic BOP scenes ({})", default_root(args.quick).display()),
+            |d| d.display().to_string(),
+        ),
+        protocol: serde_json::json!({
+            "scenes": scene_dirs.iter().map(|d| d.display().to_string()).collect::<Vec<_>>(),
+            "gaps": gaps,
+            "methods": args.methods,
+            "pipeline": args.pipeline,
+            "min_visib": args.min_visib,
+            "voxel": args.voxel,
+        }),
+        protocol_line: format!(
+            "{} scene(s), gaps {:?}, visible fraction >= {}, pipeline {}",
+            scene_dirs.len(),
+            gaps,
+            args.min_visib,
+            args.pipeline.display()
+        ),
+        step_label: "image gap",
+        methods: &args.methods,
+        appendix: String::new(),
+        out: &args.out,
+        check: args.check,
+    };
+    write_outputs(&spec, &results, &skipped, started.elapsed().as_secs_f64())?;
+    Ok(())
+}
+
+/// One pipeline configuration per method.
+fn method_configs(args: &BopBenchArgs) -> anyhow::Result<Vec<PipelineConfig>> {
+    let path = if args.pipeline.is_absolute() { args.pipeline.clone() } else { repo_root().join(&args.pipeline) };
+    let base = PipelineConfig::from_file(&path)?;
+    args.methods
+        .iter()
+        .map(|m| {
+            let mut c = base.clone();
+            c.method = m.clone();
+            if let Some(v) = args.voxel {
+                c.cloud.voxel_m = v;
+            }
+            c.validate().map_err(|e| anyhow::anyhow!("method '{m}': {e}"))?;
+            Ok(c)
+        })
+        .collect()
+}
+
+/// Every (image, image + gap, object) of a scene whose object is annotated once in both images
+/// and visible enough in both (an object without `scene_gt_info.json` counts as visible).
+fn scene_jobs(
+    scene: &BopScene,
+    label: &str,
+    gaps: &[u32],
+    min_visib: f64,
+    names: &BTreeMap<u32, String>,
+) -> Vec<PairJob<BopKey>> {
+    let visible = |im: u32, obj: u32| {
+        let list = scene.instances(im);
+        let mut of_obj = list.iter().filter(|i| i.obj_id == obj);
+        match (of_obj.next(), of_obj.next()) {
+            (Some(i), None) => i.visib_fract.is_none_or(|v| v >= min_visib),
+            _ => false, // absent, or several instances: which one moved where is ambiguous
+        }
+    };
+    let mut jobs = vec![];
+    let ids = scene.image_ids();
+    for &gap in gaps {
+        for &a in &ids {
+            let b = a + gap;
+            let mut objects: Vec<u32> = scene.instances(a).iter().map(|i| i.obj_id).collect();
+            objects.sort_unstable();
+            objects.dedup();
+            for obj in objects {
+                if !(visible(a, obj) && visible(b, obj)) {
+                    continue;
+                }
+                jobs.push(PairJob {
+                    object: names.get(&obj).cloned().unwrap_or_else(|| format!("obj_{obj:06}")),
+                    camera: label.to_string(),
+                    from: a,
+                    to: b,
+                    step: gap,
+                    model: BopKey { im_id: a, obj_id: obj },
+                    target: BopKey { im_id: b, obj_id: obj },
+                    truth: scene.relative_motion(a, b, obj).map_err(|e| e.to_string()),
+                });
+            }
+        }
+    }
+    jobs
+}
+
+/// Where the embedded dataset is cached.
+fn default_root(quick: bool) -> PathBuf {
+    Path::new("target").join(if quick { "bop-quick" } else { "bop-default" }).join("test")
+}
+
+/// The scene folders (filtered by `--scenes`) and the object names known for their ids.
+fn scene_dirs(args: &BopBenchArgs) -> anyhow::Result<(Vec<PathBuf>, BTreeMap<u32, String>)> {
+    let (mut dirs, names) = match &args.data {
+        Some(root) if root.join("scene_gt.json").is_file() => (vec![root.clone()], BTreeMap::new()),
+        Some(root) => {
+            let mut dirs: Vec<PathBuf> = std::fs::read_dir(root)
+                .with_context(|| format!("reading {}", root.display()))?
+                .filter_map(Result::ok)
+                .map(|e| e.path())
+                .filter(|p| p.join("scene_gt.json").is_file())
+                .collect();
+            dirs.sort();
+            if dirs.is_empty() {
+                bail!("{}: no BOP scene folders (folders holding scene_gt.json)", root.display());
+            }
+            (dirs, BTreeMap::new())
+        }
+        None => default_dataset(args)?,
+    };
+    if let Some(wanted) = &args.scenes {
+        let id = |d: &PathBuf| d.file_name().and_then(|n| n.to_str()).and_then(|n| n.parse::<u32>().ok());
+        dirs.retain(|d| id(d).is_some_and(|i| wanted.contains(&i)));
+        if dirs.is_empty() {
+            bail!("--scenes {wanted:?}: none of these scenes is in the dataset");
+        }
+    }
+    Ok((dirs, names))
+}
+
+/// The embedded dataset's scenes of one object (see the module documentation).
+fn default_scenes(k: u32, quick: bool) -> [BopSceneSpec; 2] {
+    let (coarse, fine) = if quick { (4, 4) } else { (10, 10) };
+    let np = |i| SensorId::new(i).expect("NP2 and NP3 exist");
+    [
+        BopSceneSpec { scene_id: k, sensor: np(3), angles_deg: (0..=coarse).map(|i| 3.0 * f64::from(i)).collect() },
+        BopSceneSpec { scene_id: 100 + k, sensor: np(2), angles_deg: (0..=fine).map(|i| 0.25 * f64::from(i)).collect() },
+    ]
+}
+
+/// Synthesise (once, cached) the embedded dataset.
+fn default_dataset(args: &BopBenchArgs) -> anyhow::Result<(Vec<PathBuf>, BTreeMap<u32, String>)> {
+    let meshes = if args.quick {
+        None
+    } else {
+        args.meshes.clone().or_else(|| Some(PathBuf::from("../shared/data/ycb")).filter(|p| p.is_dir()))
+    };
+    let objects: Vec<DefaultObject> = default_objects(meshes.as_deref());
+    let root = default_root(args.quick);
+    let work: Vec<(u32, &DefaultObject, BopSceneSpec)> = objects
+        .iter()
+        .zip(1u32..)
+        .flat_map(|(o, k)| default_scenes(k, args.quick).into_iter().map(move |s| (k, o, s)))
+        .collect();
+    let bar = progress(work.len() as u64, "synthesising the default BOP scenes (cached)");
+    let mut dirs = work
+        .par_iter()
+        .map(|(k, o, spec)| {
+            let d = ensure_bop_scene(&root, o, *k, spec, 7);
+            bar.inc(1);
+            d
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    bar.finish();
+    dirs.sort();
+    let names = objects.iter().zip(1u32..).map(|(o, k)| (k, o.name.clone())).collect();
+    Ok((dirs, names))
+}

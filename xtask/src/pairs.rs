@@ -1,0 +1,191 @@
+//! What both benchmarks share: frames prepared once per group of methods, every (pair, method)
+//! estimated and scored against the ground truth, and the "no motion" answer scored beside them.
+
+use flowfilter_eval::PoseErrors;
+use flowfilter_pipeline::{Pipeline, PipelineConfig, PipelineWarning, Pose, PreparedFrame, RgbdFrame, StageTimes};
+use indicatif::{ProgressBar, ProgressStyle};
+use rayon::prelude::*;
+use serde::Serialize;
+use std::collections::{BTreeMap, BTreeSet};
+use std::fmt::Display;
+use std::time::Instant;
+
+/// The row of the identity estimate: what answering "it did not move" scores.
+pub const NO_MOTION: &str = "no-motion";
+
+/// One registration (or the "no motion" answer) of one pair.
+#[derive(Debug, Clone, Serialize)]
+pub struct PairResult {
+    /// Object (BigBIRD: directory name; BOP: `obj_000001`, or its name when known).
+    pub object: String,
+    /// What took the sequence: the BigBIRD camera (`NP1`..`NP5`), or the BOP scene folder.
+    pub camera: String,
+    /// Model frame: turntable angle (BigBIRD) or image id (BOP).
+    pub from: u32,
+    /// Target frame, likewise.
+    pub to: u32,
+    /// Rotation step in degrees (BigBIRD) or image gap (BOP).
+    pub step: u32,
+    /// Rotation angle of the true motion, degrees (what "no motion" misses by).
+    pub motion_deg: Option<f64>,
+    /// Method (or [`NO_MOTION`]).
+    pub method: String,
+    /// Errors, when the pair ran.
+    pub errors: Option<PoseErrors>,
+    /// Whether the method reported convergence.
+    pub converged: Option<bool>,
+    /// Time of the pair (flow, correspondences, registration), seconds.
+    pub seconds: Option<f64>,
+    /// Per-stage times (the two frames' depth stages included).
+    pub stage_ms: Option<StageTimes>,
+    /// Warnings of the pipeline (fallbacks taken).
+    pub warnings: Vec<PipelineWarning>,
+    /// The stage that failed and why.
+    pub failure: Option<String>,
+}
+
+/// One pair of a benchmark: its names, its frames' keys and its ground truth.
+pub struct PairJob<K> {
+    /// See [`PairResult::object`].
+    pub object: String,
+    /// See [`PairResult::camera`].
+    pub camera: String,
+    /// See [`PairResult::from`].
+    pub from: u32,
+    /// See [`PairResult::to`].
+    pub to: u32,
+    /// See [`PairResult::step`].
+    pub step: u32,
+    /// The model frame.
+    pub model: K,
+    /// The target frame.
+    pub target: K,
+    /// The true motion model -> target, or why it is unknown.
+    pub truth: Result<Pose, String>,
+}
+
+/// Frames prepared by a group's pipeline, or why they could not be.
+pub type PreparedFrames<K> = BTreeMap<(usize, K), Result<PreparedFrame, String>>;
+
+/// A progress bar with a message (plain lines when stderr is not a terminal: indicatif hides
+/// the bar).
+pub fn progress(len: u64, msg: &str) -> ProgressBar {
+    let bar = ProgressBar::new(len);
+    bar.set_style(ProgressStyle::with_template("{msg:40} [{bar:30}] {pos}/{len} {elapsed}").expect("valid template"));
+    bar.set_message(msg.to_string());
+    bar
+}
+
+/// For each method, the first method whose depth and cloud stages agree with it: methods of
+/// one group share their prepared frames.
+pub fn preparation_groups(configs: &[PipelineConfig]) -> Vec<usize> {
+    let mut groups: Vec<usize> = vec![];
+    for (i, c) in configs.iter().enumerate() {
+        let same = (0..i).find(|&j| configs[j].depth == c.depth && configs[j].cloud == c.cloud);
+        groups.push(same.map_or(i, |j| groups[j]));
+    }
+    groups
+}
+
+/// The methods' pipelines and how they share prepared frames.
+pub struct Methods<'a> {
+    /// Method names (labels).
+    pub names: &'a [String],
+    /// One pipeline per method.
+    pub pipelines: &'a [Pipeline],
+    /// [`preparation_groups`] of their configurations.
+    pub groups: &'a [usize],
+}
+
+impl Methods<'_> {
+    /// Every frame, loaded and prepared once per group.
+    pub fn prepare<K>(
+        &self,
+        frames: &[K],
+        load: &(dyn Fn(K) -> Result<RgbdFrame, String> + Sync),
+        label: &str,
+    ) -> PreparedFrames<K>
+    where
+        K: Ord + Copy + Send + Sync,
+    {
+        let preparers: BTreeSet<usize> = self.groups.iter().copied().collect();
+        let work: Vec<(usize, K)> = preparers.iter().flat_map(|&g| frames.iter().map(move |&f| (g, f))).collect();
+        let bar = progress(work.len() as u64, &format!("{label}: depth stage"));
+        let prepared = work
+            .par_iter()
+            .map(|&(g, key)| {
+                let data = load(key).and_then(|f| self.pipelines[g].prepare(&f).map_err(|e| e.to_string()));
+                bar.inc(1);
+                ((g, key), data)
+            })
+            .collect();
+        bar.finish();
+        prepared
+    }
+
+    /// Every pair with every method, plus its "no motion" row, estimated and scored.
+    pub fn run<K>(&self, jobs: &[PairJob<K>], prepared: &PreparedFrames<K>, label: &str) -> Vec<PairResult>
+    where
+        K: Ord + Copy + Send + Sync + Display,
+    {
+        let rows_per_job = self.names.len() + 1;
+        let work: Vec<(usize, usize)> = (0..jobs.len()).flat_map(|j| (0..rows_per_job).map(move |m| (j, m))).collect();
+        let bar = progress(work.len() as u64, &format!("{label}: registration"));
+        let rows = work
+            .par_iter()
+            .map(|&(j, m)| {
+                let row = self.run_one(&jobs[j], (m < self.names.len()).then_some(m), prepared);
+                bar.inc(1);
+                row
+            })
+            .collect();
+        bar.finish();
+        rows
+    }
+
+    /// One pair with method `m`, or the "no motion" answer for `None`.
+    fn run_one<K>(&self, job: &PairJob<K>, m: Option<usize>, prepared: &PreparedFrames<K>) -> PairResult
+    where
+        K: Ord + Copy + Display,
+    {
+        let mut row = PairResult {
+            object: job.object.clone(),
+            camera: job.camera.clone(),
+            from: job.from,
+            to: job.to,
+            step: job.step,
+            motion_deg: job.truth.as_ref().ok().map(|t| t.rotation.angle().to_degrees()),
+            method: m.map_or(NO_MOTION.to_string(), |m| self.names[m].clone()),
+            errors: None,
+            converged: None,
+            seconds: None,
+            stage_ms: None,
+            warnings: vec![],
+            failure: None,
+        };
+        let group = self.groups[m.unwrap_or(0)];
+        let get = |key: K| match prepared.get(&(group, key)) {
+            Some(Ok(c)) => Ok(c),
+            Some(Err(e)) => Err(format!("frame {key}: {e}")),
+            None => Err(format!("frame {key}: not in the dataset")),
+        };
+        let outcome = (|| -> Result<(), String> {
+            let (model, target) = (get(job.model)?, get(job.target)?);
+            let truth = job.truth.as_ref().map_err(|e| format!("ground truth: {e}"))?;
+            let Some(m) = m else {
+                row.errors = Some(PoseErrors::new(&Pose::identity(), truth, Some(&model.cloud.points)));
+                return Ok(());
+            };
+            let t0 = Instant::now();
+            let e = self.pipelines[m].estimate_prepared(model, target).map_err(|e| e.to_string())?;
+            row.seconds = Some(t0.elapsed().as_secs_f64());
+            row.converged = Some(e.registration.converged);
+            row.errors = Some(PoseErrors::new(&e.pose, truth, Some(&model.cloud.points)));
+            row.stage_ms = Some(e.stage_ms);
+            row.warnings = e.warnings;
+            Ok(())
+        })();
+        row.failure = outcome.err();
+        row
+    }
+}
