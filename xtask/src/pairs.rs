@@ -8,6 +8,8 @@ use rayon::prelude::*;
 use serde::Serialize;
 use std::collections::{BTreeMap, BTreeSet};
 use std::fmt::Display;
+use std::io::IsTerminal;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
 /// The row of the identity estimate: what answering "it did not move" scores.
@@ -67,13 +69,43 @@ pub struct PairJob<K> {
 /// Frames prepared by a group's pipeline, or why they could not be.
 pub type PreparedFrames<K> = BTreeMap<(usize, K), Result<PreparedFrame, String>>;
 
-/// A progress bar with a message (plain lines when stderr is not a terminal: indicatif hides
-/// the bar).
-pub fn progress(len: u64, msg: &str) -> ProgressBar {
+/// Progress of a step: an indicatif bar on a terminal, else a plain line at every tenth of the
+/// work and at the end (logs and CI output).
+pub struct Progress {
+    bar: ProgressBar,
+    plain: bool,
+    len: u64,
+    done: AtomicU64,
+    msg: String,
+}
+
+impl Progress {
+    /// One more item done.
+    pub fn inc(&self, n: u64) {
+        self.bar.inc(n);
+        let done = self.done.fetch_add(n, Ordering::Relaxed) + n;
+        let tenth = self.len.div_ceil(10).max(1);
+        if self.plain && done < self.len && done / tenth != (done - n) / tenth {
+            eprintln!("{}: {done}/{}", self.msg, self.len);
+        }
+    }
+
+    /// The step is over.
+    pub fn finish(&self) {
+        self.bar.finish();
+        if self.plain {
+            eprintln!("{}: {}/{} in {:.1} s", self.msg, self.done.load(Ordering::Relaxed), self.len, self.bar.elapsed().as_secs_f64());
+        }
+    }
+}
+
+/// The progress of a step of `len` items.
+pub fn progress(len: u64, msg: &str) -> Progress {
     let bar = ProgressBar::new(len);
     bar.set_style(ProgressStyle::with_template("{msg:40} [{bar:30}] {pos}/{len} {elapsed}").expect("valid template"));
     bar.set_message(msg.to_string());
-    bar
+    let plain = !std::io::stderr().is_terminal();
+    Progress { bar, plain, len, done: AtomicU64::new(0), msg: msg.to_string() }
 }
 
 /// For each method, the first method whose depth and cloud stages agree with it: methods of

@@ -8,12 +8,19 @@
 //! | BOP | `cam_K` (or `fx`, `fy`, `cx`, `cy`), `depth_scale`, optional `width`, `height` | `cam_K`: 9 numbers, row-major | `depth_scale` millimetres per unit |
 //! | Open3D | `width`, `height`, `intrinsic_matrix` | 9 numbers, column-major | none |
 //!
+//! A sensor whose depth is *not* registered to colour (BigBIRD, raw Kinect or Azure depth) adds,
+//! in this project's layout, a `depth` object (its own `K`, `width`, `height`, optional
+//! `distortion`) and `color_from_depth`: the rigid motion from the depth camera's frame to the
+//! colour camera's, 16 numbers row-major or 4 rows of 4, translation in metres. The depth stage
+//! then registers depth to colour; without them depth is taken as registered and is not moved.
+//!
 //! A BOP `scene_camera.json` holds one entry per image (`{"0": {...}, "1": {...}}`): pass the
 //! entry, e.g. with [`CameraFile::from_json_value`]. Without `width` and `height` the images give
 //! the size ([`CameraFile::model`]).
 
 use crate::{CameraError, CameraModel, Distortion, ImageSize, Intrinsics, RgbdSensor};
-use nalgebra::Matrix3;
+use flowfilter_geometry::{Pose, rigid_from_matrix};
+use nalgebra::{Matrix3, Matrix4};
 use serde_json::Value;
 use std::path::Path;
 
@@ -107,8 +114,23 @@ pub struct CameraFile {
     pub size: Option<ImageSize>,
     /// Metres per raw depth unit, when the file gives it.
     pub metres_per_unit: Option<f64>,
+    /// A separate depth camera and its pose, when depth is not registered to colour.
+    pub depth: Option<DepthCamera>,
     /// The file, for messages.
     pub origin: String,
+}
+
+/// The depth camera of a sensor whose depth is not registered to colour.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DepthCamera {
+    /// Its focal lengths and principal point (pixels).
+    pub intrinsics: Intrinsics,
+    /// Its lens distortion.
+    pub distortion: Distortion,
+    /// Its image size, when given.
+    pub size: Option<ImageSize>,
+    /// Maps points in the depth camera's frame into the colour camera's.
+    pub color_from_depth: Pose,
 }
 
 impl CameraFile {
@@ -142,6 +164,9 @@ impl CameraFile {
         let Some(object) = value.as_object() else {
             return Err(r.field_error("(the file)", "a JSON object", value));
         };
+        if let Some(entry) = Self::single_bop_entry(object, origin)? {
+            return Self::from_json_value(entry, origin);
+        }
         let layout = if object.contains_key("K") {
             CameraFileLayout::Flowfilter
         } else if object.contains_key("cam_K") || object.contains_key("fx") {
@@ -168,17 +193,10 @@ impl CameraFile {
             }
         };
         let intrinsics = Intrinsics::from_matrix(&k).map_err(|source| r.camera_error(field, source))?;
-        let distortion = match object.get("distortion") {
-            Some(_) => Distortion::from_slice(&r.numbers("distortion", 5)?)
-                .map_err(|source| r.camera_error("distortion", source))?,
-            None => Distortion::NONE,
-        };
-        let size = match (object.get("width"), object.get("height")) {
-            (None, None) => None,
-            _ => Some(
-                ImageSize::new(r.dimension("width")?, r.dimension("height")?)
-                    .map_err(|source| r.camera_error("width", source))?,
-            ),
+        let (distortion, size) = r.distortion_and_size()?;
+        let depth = match object.get("depth") {
+            Some(entry) if layout == CameraFileLayout::Flowfilter => Some(r.depth_camera(entry)?),
+            _ => None,
         };
         let metres_per_unit = match layout {
             CameraFileLayout::Flowfilter if object.contains_key("depth_png_units_per_metre") => {
@@ -196,7 +214,30 @@ impl CameraFile {
             let field = if layout == CameraFileLayout::Bop { "depth_scale" } else { "depth_unit_m" };
             return Err(r.camera_error(field, CameraError::BadDepthScale { value: unit }));
         }
-        Ok(Self { layout, intrinsics, distortion, size, metres_per_unit, origin: origin.into() })
+        Ok(Self { layout, intrinsics, distortion, size, metres_per_unit, depth, origin: origin.into() })
+    }
+
+    /// A whole BOP `scene_camera.json` (entries keyed by image id) stands for its camera when
+    /// every entry is the same; with cameras that differ one must pick the image's entry.
+    fn single_bop_entry<'v>(
+        object: &'v serde_json::Map<String, Value>,
+        origin: &str,
+    ) -> Result<Option<&'v Value>, CameraFileError> {
+        let by_image = !object.is_empty() && object.keys().all(|k| k.parse::<u32>().is_ok());
+        if !by_image {
+            return Ok(None);
+        }
+        let mut entries = object.values();
+        let first = entries.next().expect("not empty");
+        if entries.all(|e| e == first) {
+            return Ok(Some(first));
+        }
+        Err(CameraFileError::Field {
+            path: origin.into(),
+            field: "(image ids)",
+            expected: "one camera for every image (or pass the entry of the image, e.g. with from_json_value)",
+            found: format!("{} entries that differ", object.len()),
+        })
     }
 
     /// The camera model; `image_size` (width, height) is used when the file gives no size and
@@ -205,31 +246,69 @@ impl CameraFile {
     /// # Errors
     /// [`CameraFileError::Field`] when neither gives a size or the two disagree.
     pub fn model(&self, image_size: Option<(u32, u32)>) -> Result<CameraModel, CameraFileError> {
-        let size = match (self.size, image_size) {
-            (Some(s), Some((w, h))) if (s.width, s.height) != (w, h) => {
-                return Err(CameraFileError::Field {
-                    path: self.origin.clone(),
-                    field: "width",
-                    expected: "the images' size",
-                    found: format!("{}x{} against images of {w}x{h}", s.width, s.height),
-                });
-            }
-            (Some(s), _) => s,
-            (None, Some((w, h))) => ImageSize::new(w, h).map_err(|source| CameraFileError::Camera {
-                path: self.origin.clone(),
-                field: "width",
-                source,
-            })?,
-            (None, None) => {
-                return Err(CameraFileError::Field {
-                    path: self.origin.clone(),
-                    field: "width",
-                    expected: "an image size (in the file, or from the images)",
-                    found: "none".into(),
-                });
-            }
-        };
+        let size = self.resolve_size(self.size, image_size, "width")?;
         Ok(CameraModel::new(self.intrinsics, self.distortion, size))
+    }
+
+    /// The size of a camera: the file's, or the images' (the two must agree).
+    fn resolve_size(
+        &self,
+        file: Option<ImageSize>,
+        images: Option<(u32, u32)>,
+        field: &'static str,
+    ) -> Result<ImageSize, CameraFileError> {
+        match (file, images) {
+            (Some(s), Some((w, h))) if (s.width, s.height) != (w, h) => Err(CameraFileError::Field {
+                path: self.origin.clone(),
+                field,
+                expected: "the images' size",
+                found: format!("{}x{} against images of {w}x{h}", s.width, s.height),
+            }),
+            (Some(s), _) => Ok(s),
+            (None, Some((w, h))) => {
+                ImageSize::new(w, h).map_err(|source| CameraFileError::Camera { path: self.origin.clone(), field, source })
+            }
+            (None, None) => Err(CameraFileError::Field {
+                path: self.origin.clone(),
+                field,
+                expected: "an image size (in the file, or from the images)",
+                found: "none".into(),
+            }),
+        }
+    }
+
+    /// The file's depth unit, or an error naming the field that should give it.
+    fn depth_unit(&self) -> Result<f64, CameraFileError> {
+        self.metres_per_unit.ok_or_else(|| CameraFileError::Field {
+            path: self.origin.clone(),
+            field: if self.layout == CameraFileLayout::Bop { "depth_scale" } else { "depth_unit_m" },
+            expected: "the depth unit (a positive number)",
+            found: "none".into(),
+        })
+    }
+
+    /// Whether the file describes depth registered to colour (no separate depth camera).
+    pub fn is_registered(&self) -> bool {
+        self.depth.is_none()
+    }
+
+    /// The sensor the file describes: [`CameraFile::registered_sensor`] without a `depth`
+    /// camera, else the two cameras and their pose. `color_size` and `depth_size` are the
+    /// images' sizes (used when the file gives none; checked when it does).
+    ///
+    /// # Errors
+    /// As [`CameraFile::registered_sensor`].
+    pub fn sensor(
+        &self,
+        color_size: Option<(u32, u32)>,
+        depth_size: Option<(u32, u32)>,
+    ) -> Result<RgbdSensor, CameraFileError> {
+        let Some(d) = &self.depth else { return self.registered_sensor(color_size) };
+        let color = self.model(color_size)?;
+        let depth = CameraModel::new(d.intrinsics, d.distortion, self.resolve_size(d.size, depth_size, "depth.width")?);
+        RgbdSensor::new(depth, color, d.color_from_depth, self.depth_unit()?).map_err(|source| {
+            CameraFileError::Camera { path: self.origin.clone(), field: "depth_unit_m", source }
+        })
     }
 
     /// The sensor of depth registered to colour (RealSense aligned depth, YCB-Video, BOP): one
@@ -240,13 +319,7 @@ impl CameraFile {
     /// unit.
     pub fn registered_sensor(&self, image_size: Option<(u32, u32)>) -> Result<RgbdSensor, CameraFileError> {
         let camera = self.model(image_size)?;
-        let unit = self.metres_per_unit.ok_or_else(|| CameraFileError::Field {
-            path: self.origin.clone(),
-            field: if self.layout == CameraFileLayout::Bop { "depth_scale" } else { "depth_unit_m" },
-            expected: "the depth unit (a positive number)",
-            found: "none".into(),
-        })?;
-        RgbdSensor::registered(camera, unit).map_err(|source| CameraFileError::Camera {
+        RgbdSensor::registered(camera, self.depth_unit()?).map_err(|source| CameraFileError::Camera {
             path: self.origin.clone(),
             field: "depth_unit_m",
             source,
@@ -316,6 +389,58 @@ impl Reader<'_> {
             }
             None => self.numbers(field, 9),
         }
+    }
+
+    /// Optional `distortion` (5 numbers) and optional `width` and `height`.
+    fn distortion_and_size(&self) -> Result<(Distortion, Option<ImageSize>), CameraFileError> {
+        let distortion = match self.value.get("distortion") {
+            Some(_) => Distortion::from_slice(&self.numbers("distortion", 5)?)
+                .map_err(|source| self.camera_error("distortion", source))?,
+            None => Distortion::NONE,
+        };
+        let size = match (self.value.get("width"), self.value.get("height")) {
+            (None, None) => None,
+            _ => Some(
+                ImageSize::new(self.dimension("width")?, self.dimension("height")?)
+                    .map_err(|source| self.camera_error("width", source))?,
+            ),
+        };
+        Ok((distortion, size))
+    }
+
+    /// The `depth` object and `color_from_depth` of a sensor with a separate depth camera.
+    fn depth_camera(&self, entry: &Value) -> Result<DepthCamera, CameraFileError> {
+        let origin = format!("{} (depth camera)", self.origin);
+        let d = Reader { value: entry, origin: &origin };
+        if !entry.is_object() {
+            return Err(self.field_error("depth", "an object with K, width, height", entry));
+        }
+        let k = Matrix3::from_row_slice(&d.matrix_rows("K")?);
+        let intrinsics = Intrinsics::from_matrix(&k).map_err(|source| d.camera_error("K", source))?;
+        let (distortion, size) = d.distortion_and_size()?;
+        let m = Matrix4::from_row_slice(&self.matrix4("color_from_depth")?);
+        let color_from_depth = rigid_from_matrix(&m).map_err(|e| CameraFileError::Field {
+            path: self.origin.into(),
+            field: "color_from_depth",
+            expected: "a rigid transform (rotation and translation in metres)",
+            found: e.to_string(),
+        })?;
+        Ok(DepthCamera { intrinsics, distortion, size, color_from_depth })
+    }
+
+    /// A 4x4 matrix as 16 numbers (row-major), from a flat array or from 4 rows of 4.
+    fn matrix4(&self, field: &'static str) -> Result<Vec<f64>, CameraFileError> {
+        let v = self.get(field)?;
+        let flat: Option<Vec<f64>> = match v.as_array() {
+            Some(rows) if rows.len() == 4 && rows.iter().all(Value::is_array) => rows
+                .iter()
+                .map(|r| r.as_array().filter(|r| r.len() == 4).and_then(|r| r.iter().map(Value::as_f64).collect::<Option<Vec<f64>>>()))
+                .collect::<Option<Vec<Vec<f64>>>>()
+                .map(|rows| rows.concat()),
+            Some(a) if a.len() == 16 => a.iter().map(Value::as_f64).collect(),
+            _ => None,
+        };
+        flat.ok_or_else(|| self.field_error(field, "16 numbers, or 4 rows of 4 numbers", v))
     }
 
     fn numbers(&self, field: &'static str, n: usize) -> Result<Vec<f64>, CameraFileError> {
@@ -406,6 +531,19 @@ mod tests {
         }
         let e = CameraFile::from_file(Path::new("/no/such/camera.json")).unwrap_err().to_string();
         assert!(e.contains("/no/such/camera.json") && e.contains("cannot read"), "{e}");
+    }
+
+    #[test]
+    fn a_whole_scene_camera_file_stands_for_its_one_camera() {
+        let entry = r#"{"cam_K": [500, 0, 320, 0, 500, 240, 0, 0, 1], "depth_scale": 0.1}"#;
+        let whole = format!(r#"{{"0": {entry}, "1": {entry}, "7": {entry}}}"#);
+        let c = CameraFile::from_json_str(&whole, "scene_camera.json").unwrap();
+        assert_eq!(c, CameraFile::from_json_str(entry, "scene_camera.json").unwrap());
+        let other = r#"{"cam_K": [510, 0, 320, 0, 510, 240, 0, 0, 1], "depth_scale": 0.1}"#;
+        let e = CameraFile::from_json_str(&format!(r#"{{"0": {entry}, "1": {other}}}"#), "scene_camera.json")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("scene_camera.json") && e.contains("2 entries that differ"), "{e}");
     }
 
     #[test]

@@ -1,14 +1,17 @@
-//! RGB-D frames from files, for any camera whose depth is registered to its colour image
-//! (RealSense aligned depth, Azure Kinect's transformed depth, YCB-Video, BOP datasets).
+//! RGB-D frames from files, for any camera: depth registered to its colour image (RealSense
+//! aligned depth, Azure Kinect's transformed depth, YCB-Video, BOP datasets), or depth from a
+//! separate depth camera that the camera file describes (raw Kinect or Azure depth, BigBIRD).
 //!
 //! - Colour: any PNG or JPEG (converted to 8-bit RGB).
 //! - Depth: a 16-bit single-channel PNG, metres = value x the camera file's depth unit; 0 = no
 //!   reading. Other depth encodings are refused with a message.
-//! - Mask: none (the object is then every pixel with depth: the whole visible scene, so the
-//!   registration aligns the scene, not the object), a binary PNG (any non-zero value is the
-//!   object), or a label image (8- or 16-bit PNG) and the object's id.
+//! - Mask, on the colour image's grid: none (the object is then every pixel with depth: the whole
+//!   visible scene, so the registration aligns the scene, not the object), a binary PNG (any
+//!   non-zero value is the object), or a label image (8- or 16-bit PNG) and the object's id.
 //! - Camera: a [`CameraFile`] (this project's JSON, a BOP `scene_camera.json` entry or
-//!   `camera.json`, or Open3D's `PinholeCameraIntrinsic`); its size must be the images'.
+//!   `camera.json`, or Open3D's `PinholeCameraIntrinsic`); its sizes must be the images'. With a
+//!   separate depth camera the depth image has that camera's size and the depth stage registers
+//!   it to colour; otherwise it must have the colour image's size and is used where it lies.
 
 use crate::error::PipelineError;
 use crate::frame::RgbdFrame;
@@ -33,7 +36,7 @@ pub enum MaskSource {
     },
 }
 
-/// The files of one RGB-D frame whose depth is registered to its colour image.
+/// The files of one RGB-D frame.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct FrameFiles {
     /// Colour image.
@@ -77,23 +80,32 @@ impl FrameFiles {
                 ),
             ));
         };
-        if depth_pixels.dimensions() != (w, h) {
-            let (dw, dh) = depth_pixels.dimensions();
+        let (dw, dh) = depth_pixels.dimensions();
+        if camera.is_registered() && (dw, dh) != (w, h) {
             return Err(input_error(
                 &self.depth,
-                format!("the depth image is {dw}x{dh} but the colour image {} is {w}x{h}", self.color.display()),
+                format!(
+                    "the depth image is {dw}x{dh} but the colour image {} is {w}x{h} (depth registered to colour must \
+                     have its size; a separate depth camera needs 'depth' and 'color_from_depth' in {})",
+                    self.color.display(),
+                    camera.origin
+                ),
             ));
         }
-        let depth = RawDepth::from_fn(w as usize, h as usize, |x, y| depth_pixels.get_pixel(x as u32, y as u32).0[0]);
-        let mask = self.mask(&depth, (w, h))?;
-        let sensor = camera.registered_sensor(Some((w, h)))?;
+        let depth = RawDepth::from_fn(dw as usize, dh as usize, |x, y| depth_pixels.get_pixel(x as u32, y as u32).0[0]);
+        let sensor = camera.sensor(Some((w, h)), Some((dw, dh)))?;
+        let mask = self.mask(&depth, camera.is_registered(), (w, h))?;
         Ok(RgbdFrame { label: label.into(), color: color_image.to_rgb8(), depth, mask, sensor })
     }
 
-    /// The object mask on the colour grid.
-    fn mask(&self, depth: &RawDepth, (w, h): (u32, u32)) -> Result<Mask, PipelineError> {
+    /// The object mask on the colour grid (without a mask file: the pixels with registered
+    /// depth, or every pixel when the depth stage will register depth from another camera).
+    fn mask(&self, depth: &RawDepth, registered: bool, (w, h): (u32, u32)) -> Result<Mask, PipelineError> {
         let (path, id) = match &self.mask {
-            MaskSource::None => return Ok(Mask::from_fn(w as usize, h as usize, |x, y| *depth.at(x, y) > 0)),
+            MaskSource::None if registered => {
+                return Ok(Mask::from_fn(w as usize, h as usize, |x, y| *depth.at(x, y) > 0));
+            }
+            MaskSource::None => return Ok(Mask::filled(w as usize, h as usize, true)),
             MaskSource::Binary(path) => (path, None),
             MaskSource::Label { path, id } => (path, Some(*id)),
         };
