@@ -3,11 +3,11 @@
 //! every method, and score the estimate against the turntable ground truth.
 
 use crate::dataset::{default_objects, ensure_object};
+use crate::pairs::{Methods, PairJob, PairResult, preparation_groups, progress};
+use crate::report::{ReportSpec, write_outputs};
 use anyhow::{Context, bail};
 use clap::Args;
 use flowfilter_bigbird::{BigBirdObject, FrameId, SensorId};
-use crate::pairs::{Methods, PairJob, PairResult, preparation_groups, progress};
-use crate::report::{ReportSpec, write_outputs};
 use flowfilter_pipeline::{Pipeline, PipelineConfig, load_bigbird_frame};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};

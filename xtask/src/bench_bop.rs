@@ -261,7 +261,11 @@ fn default_scenes(k: u32, quick: bool) -> [BopSceneSpec; 2] {
     let np = |i| SensorId::new(i).expect("NP2 and NP3 exist");
     [
         BopSceneSpec { scene_id: k, sensor: np(3), angles_deg: (0..=coarse).map(|i| 3.0 * f64::from(i)).collect() },
-        BopSceneSpec { scene_id: 100 + k, sensor: np(2), angles_deg: (0..=fine).map(|i| 0.25 * f64::from(i)).collect() },
+        BopSceneSpec {
+            scene_id: 100 + k,
+            sensor: np(2),
+            angles_deg: (0..=fine).map(|i| 0.25 * f64::from(i)).collect(),
+        },
     ]
 }
 
@@ -292,4 +296,77 @@ fn default_dataset(args: &BopBenchArgs) -> anyhow::Result<(Vec<PathBuf>, BTreeMa
     dirs.sort();
     let names = objects.iter().zip(1u32..).map(|(o, k)| (k, o.name.clone())).collect();
     Ok((dirs, names))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn copy_dir(from: &Path, to: &Path) {
+        std::fs::create_dir_all(to).unwrap();
+        for e in std::fs::read_dir(from).unwrap() {
+            let p = e.unwrap().path();
+            let target = to.join(p.file_name().unwrap());
+            if p.is_dir() { copy_dir(&p, &target) } else { std::fs::copy(&p, &target).map(|_| ()).unwrap() }
+        }
+    }
+
+    fn args(data: PathBuf, out: PathBuf) -> BopBenchArgs {
+        BopBenchArgs {
+            data: Some(data),
+            scenes: None,
+            gaps: Some(vec![1, 2]),
+            methods: vec!["icp-pt2pl".into(), "flowfilter".into()],
+            pipeline: PathBuf::from("configs/flowfilter.toml"),
+            min_visib: 0.1,
+            quick: false,
+            meshes: None,
+            out,
+            voxel: Some(0.002),
+            check: true,
+        }
+    }
+
+    /// The BOP fixture (written by tools/peers/bop_fixture.py) beside a scene without
+    /// scene_camera.json: the broken scene is skipped with its reason, every pair of the other runs
+    /// with the "no motion" row, and the outputs are written.
+    #[test]
+    fn bop_scenes_run_pair_by_pair_and_broken_scenes_are_skipped() {
+        let tmp = tempfile::tempdir().unwrap();
+        let data = tmp.path().join("test");
+        copy_dir(&repo_root().join("fixtures/bop/000001"), &data.join("000001"));
+        copy_dir(&repo_root().join("fixtures/bop/000001"), &data.join("000002"));
+        std::fs::remove_file(data.join("000002/scene_camera.json")).unwrap();
+        let out = tmp.path().join("results");
+        run(&args(data.clone(), out.clone())).unwrap();
+        let run_dir = std::fs::read_dir(&out).unwrap().next().unwrap().unwrap().path();
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(run_dir.join("results.json")).unwrap()).unwrap();
+        assert_eq!(v["schema"], "flowfilter bench-bop results v3");
+        let skipped = v["skipped"].as_array().unwrap();
+        assert!(skipped.len() == 1 && skipped[0].as_str().unwrap().contains("scene_camera.json"), "{skipped:?}");
+        // Gap 1: the plate (7) in 0->1 and 1->2, the box (3) in 0->1 (it leaves after image 1);
+        // gap 2: the plate in 0->2. Two methods and "no motion" each.
+        let pairs = v["pairs"].as_array().unwrap();
+        assert_eq!(pairs.len(), 4 * 3);
+        let plate: Vec<(u64, u64)> = pairs
+            .iter()
+            .filter(|p| p["object"] == "obj_000007" && p["method"] == "no-motion")
+            .map(|p| (p["from"].as_u64().unwrap(), p["to"].as_u64().unwrap()))
+            .collect();
+        assert_eq!(plate, [(0, 1), (1, 2), (0, 2)]);
+        // "No motion" scores the true motion itself.
+        for p in pairs.iter().filter(|p| p["method"] == "no-motion") {
+            let (e, m) = (p["errors"]["geodesic_error_deg"].as_f64().unwrap(), p["motion_deg"].as_f64().unwrap());
+            assert!((e - m).abs() < 1e-9, "{p}");
+        }
+        for f in ["pairs.csv", "summary.md", "error_vs_step.svg", "per_object.svg", "stage_times.svg"] {
+            assert!(run_dir.join(f).is_file(), "{f} missing");
+        }
+        // --scenes selects by folder number; a scene that is not there is an error.
+        let mut only = args(data.clone(), tmp.path().join("r2"));
+        only.scenes = Some(vec![5]);
+        let e = run(&only).unwrap_err().to_string();
+        assert!(e.contains("--scenes [5]"), "{e}");
+    }
 }

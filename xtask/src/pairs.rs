@@ -94,7 +94,13 @@ impl Progress {
     pub fn finish(&self) {
         self.bar.finish();
         if self.plain {
-            eprintln!("{}: {}/{} in {:.1} s", self.msg, self.done.load(Ordering::Relaxed), self.len, self.bar.elapsed().as_secs_f64());
+            eprintln!(
+                "{}: {}/{} in {:.1} s",
+                self.msg,
+                self.done.load(Ordering::Relaxed),
+                self.len,
+                self.bar.elapsed().as_secs_f64()
+            );
         }
     }
 }

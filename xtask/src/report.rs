@@ -86,8 +86,10 @@ fn summary_of((object, step, motion): GroupKey, method: String, rows: &[&PairRes
 const MOTION_BINS: [(f64, &str); 6] =
     [(1.0, "< 1"), (3.0, "1-3"), (10.0, "3-10"), (20.0, "10-20"), (45.0, "20-45"), (f64::INFINITY, ">= 45")];
 
-/// The range of a true rotation.
+/// The range of a true rotation (to a micro-degree, so that a 3-degree step computed as
+/// 2.9999999 lands in "3-10").
 fn motion_bin(deg: f64) -> &'static str {
+    let deg = (deg * 1e6).round() / 1e6;
     MOTION_BINS.iter().find(|(hi, _)| deg < *hi).map_or(">= 45", |b| b.1)
 }
 
@@ -242,7 +244,12 @@ fn tables(summary: &[Summary], columns: &[String], step_label: &str) -> [String;
 /// Write `results.json`, `pairs.csv`, `summary.md` and the plots into a new timestamped
 /// directory under `spec.out`, print the tables, and check the JSON when asked. Returns the
 /// directory.
-pub fn write_outputs(spec: &ReportSpec, results: &[PairResult], skipped: &[String], seconds: f64) -> anyhow::Result<PathBuf> {
+pub fn write_outputs(
+    spec: &ReportSpec,
+    results: &[PairResult],
+    skipped: &[String],
+    seconds: f64,
+) -> anyhow::Result<PathBuf> {
     let dir = spec.out.join(timestamp());
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
     let summary = summarise(results);
@@ -395,4 +402,59 @@ pub fn check(path: &Path, methods: &[String]) -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(object: &str, step: u32, motion: f64, method: &str, error: f64) -> PairResult {
+        PairResult {
+            object: object.into(),
+            camera: "NP3".into(),
+            from: 0,
+            to: step,
+            step,
+            motion_deg: Some(motion),
+            method: method.into(),
+            errors: Some(PoseErrors {
+                angle_error_deg: error,
+                geodesic_error_deg: error,
+                translation_error_m: 0.001,
+                add_s_m: Some(0.001),
+                success: error < 2.0,
+            }),
+            converged: Some(true),
+            seconds: Some(0.1),
+            stage_ms: None,
+            warnings: vec![],
+            failure: None,
+        }
+    }
+
+    #[test]
+    fn summaries_group_by_object_step_and_true_rotation() {
+        let rows = [
+            row("box", 1, 0.25, "flowfilter", 0.1),
+            row("can", 1, 0.25, "flowfilter", 0.3),
+            row("box", 10, 2.999_999_9, "flowfilter", 1.0),
+            row("box", 1, 0.25, NO_MOTION, 0.25),
+        ];
+        let s = summarise(&rows);
+        let find = |f: &dyn Fn(&Summary) -> bool| s.iter().find(|x| f(x) && x.method == "flowfilter").unwrap();
+        let all = find(&|x| x.object == "ALL" && x.step.is_none() && x.motion.is_none());
+        assert_eq!(all.pairs, 3);
+        assert!((all.mean_angle_error_deg.unwrap() - 1.4 / 3.0).abs() < 1e-12);
+        let step1 = find(&|x| x.step == Some(1));
+        assert_eq!((step1.pairs, step1.mean_motion_deg), (2, Some(0.25)));
+        assert!((step1.mean_angle_error_deg.unwrap() - 0.2).abs() < 1e-12);
+        assert_eq!(find(&|x| x.motion == Some("< 1")).pairs, 2);
+        // A 3-degree motion computed a hair short of 3 is still in the 3-10 range.
+        assert_eq!(find(&|x| x.motion == Some("3-10")).pairs, 1);
+        assert!(s.iter().all(|x| x.motion != Some("1-3")));
+        let [objects, steps, motions] = tables(&s, &["flowfilter".to_string(), NO_MOTION.to_string()], "gap");
+        assert!(objects.contains("| box | 0.55 (100% ok) | 0.25 (100% ok) |"), "{objects}");
+        assert!(steps.contains("| 1 (0.25 deg) | 0.20 (100% ok) | 0.25 (100% ok) |"), "{steps}");
+        assert!(motions.contains("| < 1 deg (2 pairs) |"), "{motions}");
+    }
 }

@@ -265,9 +265,11 @@ impl CameraFile {
                 found: format!("{}x{} against images of {w}x{h}", s.width, s.height),
             }),
             (Some(s), _) => Ok(s),
-            (None, Some((w, h))) => {
-                ImageSize::new(w, h).map_err(|source| CameraFileError::Camera { path: self.origin.clone(), field, source })
-            }
+            (None, Some((w, h))) => ImageSize::new(w, h).map_err(|source| CameraFileError::Camera {
+                path: self.origin.clone(),
+                field,
+                source,
+            }),
             (None, None) => Err(CameraFileError::Field {
                 path: self.origin.clone(),
                 field,
@@ -306,9 +308,8 @@ impl CameraFile {
         let Some(d) = &self.depth else { return self.registered_sensor(color_size) };
         let color = self.model(color_size)?;
         let depth = CameraModel::new(d.intrinsics, d.distortion, self.resolve_size(d.size, depth_size, "depth.width")?);
-        RgbdSensor::new(depth, color, d.color_from_depth, self.depth_unit()?).map_err(|source| {
-            CameraFileError::Camera { path: self.origin.clone(), field: "depth_unit_m", source }
-        })
+        RgbdSensor::new(depth, color, d.color_from_depth, self.depth_unit()?)
+            .map_err(|source| CameraFileError::Camera { path: self.origin.clone(), field: "depth_unit_m", source })
     }
 
     /// The sensor of depth registered to colour (RealSense aligned depth, YCB-Video, BOP): one
@@ -434,7 +435,11 @@ impl Reader<'_> {
         let flat: Option<Vec<f64>> = match v.as_array() {
             Some(rows) if rows.len() == 4 && rows.iter().all(Value::is_array) => rows
                 .iter()
-                .map(|r| r.as_array().filter(|r| r.len() == 4).and_then(|r| r.iter().map(Value::as_f64).collect::<Option<Vec<f64>>>()))
+                .map(|r| {
+                    r.as_array()
+                        .filter(|r| r.len() == 4)
+                        .and_then(|r| r.iter().map(Value::as_f64).collect::<Option<Vec<f64>>>())
+                })
                 .collect::<Option<Vec<Vec<f64>>>>()
                 .map(|rows| rows.concat()),
             Some(a) if a.len() == 16 => a.iter().map(Value::as_f64).collect(),

@@ -182,10 +182,13 @@ fn bad_synthetic_frames_are_refused_naming_file_and_field() {
     assert!(matches!(e, PipelineError::Input { .. }) && e.to_string().contains("small_mask.png"), "{e}");
     assert!(e.to_string().contains("64x48") && e.to_string().contains("1280x1024"), "{e}");
     // A label that does not occur in the label image (the binary mask read as labels: 255 only).
-    let e = FrameFiles { mask: MaskSource::Label { path: dir.join("mask_visib/000000_000000.png"), id: 9 }, ..good.clone() }
-        .load(&camera, "x")
-        .unwrap_err()
-        .to_string();
+    let e = FrameFiles {
+        mask: MaskSource::Label { path: dir.join("mask_visib/000000_000000.png"), id: 9 },
+        ..good.clone()
+    }
+    .load(&camera, "x")
+    .unwrap_err()
+    .to_string();
     assert!(e.contains("000000_000000.png") && e.contains("label 9 does not occur"), "{e}");
     // Depth of another size than colour, for registered depth.
     let depth = tmp.path().join("depth_small.png");

@@ -110,8 +110,9 @@ pub fn render_bop_view(
     draw.apply_gain(&mut view.color);
     let cam_from_obj = registered.h_color_from_world * world_from_table(angle);
     let alone = render_gbuffer(&scene.object_only(), &registered.rgbd.color, &cam_from_obj);
-    let silhouette = Mask::from_vec(alone.width, alone.height, alone.triangle.iter().map(|&t| t != NO_TRIANGLE).collect())
-        .expect("sized");
+    let silhouette =
+        Mask::from_vec(alone.width, alone.height, alone.triangle.iter().map(|&t| t != NO_TRIANGLE).collect())
+            .expect("sized");
     Ok(BopView {
         color: view.color,
         depth: view.raw_depth,
@@ -167,7 +168,8 @@ fn write_json(path: &Path, value: &Value) -> Result<(), SynthError> {
 /// The three annotation entries of one image.
 fn annotations(view: &BopView, s: &RigSensor, opts: &BopSceneOptions) -> (Value, Value, Value) {
     let k = &s.rgbd.color.intrinsics;
-    let camera = json!({"cam_K": [k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0], "depth_scale": opts.depth_scale_mm});
+    let camera =
+        json!({"cam_K": [k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0], "depth_scale": opts.depth_scale_mm});
     let r = view.cam_from_obj.rotation.to_rotation_matrix();
     let t = view.cam_from_obj.translation.vector * 1e3;
     let gt = json!([{

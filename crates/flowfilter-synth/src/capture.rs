@@ -281,7 +281,10 @@ pub(crate) fn render_view(
 pub fn parse_angles(text: &str) -> Result<Vec<u32>, SynthError> {
     let angles = parse_fractional_angles(text)?;
     if let Some(a) = angles.iter().find(|a| a.fract() != 0.0) {
-        return Err(SynthError::BadAngles { text: text.into(), message: format!("{a} is not a whole number of degrees") });
+        return Err(SynthError::BadAngles {
+            text: text.into(),
+            message: format!("{a} is not a whole number of degrees"),
+        });
     }
     Ok(angles.into_iter().map(|a| a as u32).collect())
 }

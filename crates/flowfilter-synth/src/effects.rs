@@ -78,14 +78,18 @@ impl FrameDraw {
     pub fn perturb_mask(&self, mask: &Mask) -> Mask {
         let (w, h) = mask.dims();
         let (dx, dy) = self.mask_shift;
-        let at = |x: i64, y: i64| x >= 0 && y >= 0 && (x as usize) < w && (y as usize) < h && *mask.at(x as usize, y as usize);
+        let at = |x: i64, y: i64| {
+            x >= 0 && y >= 0 && (x as usize) < w && (y as usize) < h && *mask.at(x as usize, y as usize)
+        };
         let shifted = Mask::from_fn(w, h, |x, y| at(x as i64 - i64::from(dx), y as i64 - i64::from(dy)));
         let r = i64::from(self.mask_grow.unsigned_abs());
         if r == 0 {
             return shifted;
         }
         let grow = self.mask_grow > 0;
-        let s = |x: i64, y: i64| x >= 0 && y >= 0 && (x as usize) < w && (y as usize) < h && *shifted.at(x as usize, y as usize);
+        let s = |x: i64, y: i64| {
+            x >= 0 && y >= 0 && (x as usize) < w && (y as usize) < h && *shifted.at(x as usize, y as usize)
+        };
         Mask::from_fn(w, h, |x, y| {
             let (x, y) = (x as i64, y as i64);
             let mut window = (-r..=r).flat_map(|oy| (-r..=r).map(move |ox| (x + ox, y + oy)));
@@ -139,7 +143,8 @@ mod tests {
     #[test]
     fn gains_scale_and_saturate() {
         let mut img = RgbImage::from_pixel(2, 1, image::Rgb([100, 200, 250]));
-        FrameDraw { gain: [1.1, 0.5, 1.1], mask_shift: (0, 0), mask_grow: 0, depth_delay_deg: 0.0 }.apply_gain(&mut img);
+        FrameDraw { gain: [1.1, 0.5, 1.1], mask_shift: (0, 0), mask_grow: 0, depth_delay_deg: 0.0 }
+            .apply_gain(&mut img);
         assert_eq!(img.get_pixel(1, 0).0, [110, 100, 255]);
     }
 }

@@ -26,7 +26,9 @@ mod texture;
 mod truth_flow;
 
 pub use bop::{BopSceneOptions, BopView, bop_sensor, render_bop_view, write_bop_scene};
-pub use capture::{CaptureOptions, RenderedFrame, contact_sheet, parse_angles, parse_fractional_angles, render_frame, write_capture};
+pub use capture::{
+    CaptureOptions, RenderedFrame, contact_sheet, parse_angles, parse_fractional_angles, render_frame, write_capture,
+};
 pub use effects::{FrameDraw, FrameEffects};
 pub use error::SynthError;
 pub use mesh::TexturedMesh;
