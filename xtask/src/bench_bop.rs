@@ -11,10 +11,10 @@
 use crate::dataset::{BopSceneSpec, DefaultObject, default_objects, ensure_bop_scene};
 use crate::pairs::{Methods, PairJob, PairResult, preparation_groups, progress};
 use crate::report::{ReportSpec, write_outputs};
+use crate::sequence::{Sequence, is_sequence, open_sequence};
 use anyhow::{Context, bail};
 use clap::Args;
 use flowfilter_bigbird::SensorId;
-use flowfilter_pipeline::bop::BopScene;
 use flowfilter_pipeline::{Pipeline, PipelineConfig};
 use rayon::prelude::*;
 use std::collections::BTreeMap;
@@ -25,8 +25,9 @@ use std::time::Instant;
 /// Arguments of `bench-bop`.
 #[derive(Args)]
 pub struct BopBenchArgs {
-    /// A BOP split folder (e.g. `ycbv/test`: one folder per scene) or one scene folder; default:
-    /// the embedded synthetic BOP dataset.
+    /// A BOP split folder (e.g. `ycbv/test`: one folder per scene) or one scene folder, or a
+    /// folder of YCB-Video frames (`NNNNNN-color.png`, `-depth.png`, `-label.png`, `-gt.json`,
+    /// as `../shared/data/ycb-video/0001`); default: the embedded synthetic BOP dataset.
     #[arg(long)]
     pub data: Option<PathBuf>,
     /// Scene ids to run (folder names as numbers), comma separated; default: all.
@@ -104,7 +105,7 @@ pub fn run(args: &BopBenchArgs) -> anyhow::Result<()> {
     let mut skipped: Vec<String> = vec![];
     for dir in &scene_dirs {
         let label = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-        let scene = match BopScene::open(dir) {
+        let scene = match open_sequence(dir) {
             Ok(s) => s,
             Err(e) => {
                 tracing::warn!(scene = %label, error = %e, "skipping scene");
@@ -112,7 +113,7 @@ pub fn run(args: &BopBenchArgs) -> anyhow::Result<()> {
                 continue;
             }
         };
-        let jobs = scene_jobs(&scene, &label, &gaps, args.min_visib, &names);
+        let jobs = scene_jobs(scene.as_ref(), &label, &gaps, args.min_visib, &names);
         if jobs.is_empty() {
             skipped.push(format!("{label}: no object is visible in two images {gaps:?} apart"));
             continue;
@@ -120,7 +121,7 @@ pub fn run(args: &BopBenchArgs) -> anyhow::Result<()> {
         let mut frames: Vec<BopKey> = jobs.iter().flat_map(|j| [j.model, j.target]).collect();
         frames.sort();
         frames.dedup();
-        let load = |k: BopKey| scene.frame(k.im_id, k.obj_id).map_err(|e| e.to_string());
+        let load = |k: BopKey| scene.frame(k.im_id, k.obj_id);
         let prepared = methods.prepare(&frames, &load, &format!("scene {label}"));
         results.append(&mut methods.run(&jobs, &prepared, &format!("scene {label}")));
     }
@@ -179,7 +180,7 @@ fn method_configs(args: &BopBenchArgs) -> anyhow::Result<Vec<PipelineConfig>> {
 /// Every (image, image + gap, object) of a scene whose object is annotated once in both images
 /// and visible enough in both (an object without `scene_gt_info.json` counts as visible).
 fn scene_jobs(
-    scene: &BopScene,
+    scene: &dyn Sequence,
     label: &str,
     gaps: &[u32],
     min_visib: f64,
@@ -187,9 +188,9 @@ fn scene_jobs(
 ) -> Vec<PairJob<BopKey>> {
     let visible = |im: u32, obj: u32| {
         let list = scene.instances(im);
-        let mut of_obj = list.iter().filter(|i| i.obj_id == obj);
+        let mut of_obj = list.iter().filter(|i| i.0 == obj);
         match (of_obj.next(), of_obj.next()) {
-            (Some(i), None) => i.visib_fract.is_none_or(|v| v >= min_visib),
+            (Some(i), None) => i.1.is_none_or(|v| v >= min_visib),
             _ => false, // absent, or several instances: which one moved where is ambiguous
         }
     };
@@ -198,7 +199,7 @@ fn scene_jobs(
     for &gap in gaps {
         for &a in &ids {
             let b = a + gap;
-            let mut objects: Vec<u32> = scene.instances(a).iter().map(|i| i.obj_id).collect();
+            let mut objects: Vec<u32> = scene.instances(a).iter().map(|i| i.0).collect();
             objects.sort_unstable();
             objects.dedup();
             for obj in objects {
@@ -206,14 +207,18 @@ fn scene_jobs(
                     continue;
                 }
                 jobs.push(PairJob {
-                    object: names.get(&obj).cloned().unwrap_or_else(|| format!("obj_{obj:06}")),
+                    object: names
+                        .get(&obj)
+                        .cloned()
+                        .or_else(|| scene.object_name(obj))
+                        .unwrap_or_else(|| format!("obj_{obj:06}")),
                     camera: label.to_string(),
                     from: a,
                     to: b,
                     step: gap,
                     model: BopKey { im_id: a, obj_id: obj },
                     target: BopKey { im_id: b, obj_id: obj },
-                    truth: scene.relative_motion(a, b, obj).map_err(|e| e.to_string()),
+                    truth: scene.relative_motion(a, b, obj),
                 });
             }
         }
@@ -229,17 +234,20 @@ fn default_root(quick: bool) -> PathBuf {
 /// The scene folders (filtered by `--scenes`) and the object names known for their ids.
 fn scene_dirs(args: &BopBenchArgs) -> anyhow::Result<(Vec<PathBuf>, BTreeMap<u32, String>)> {
     let (mut dirs, names) = match &args.data {
-        Some(root) if root.join("scene_gt.json").is_file() => (vec![root.clone()], BTreeMap::new()),
+        Some(root) if is_sequence(root) => (vec![root.clone()], BTreeMap::new()),
         Some(root) => {
             let mut dirs: Vec<PathBuf> = std::fs::read_dir(root)
                 .with_context(|| format!("reading {}", root.display()))?
                 .filter_map(Result::ok)
                 .map(|e| e.path())
-                .filter(|p| p.join("scene_gt.json").is_file())
+                .filter(|p| is_sequence(p))
                 .collect();
             dirs.sort();
             if dirs.is_empty() {
-                bail!("{}: no BOP scene folders (folders holding scene_gt.json)", root.display());
+                bail!(
+                    "{}: no scene folders (BOP folders holding scene_gt.json, or YCB-Video frames NNNNNN-gt.json)",
+                    root.display()
+                );
             }
             (dirs, BTreeMap::new())
         }
@@ -368,5 +376,50 @@ mod tests {
         only.scenes = Some(vec![5]);
         let e = run(&only).unwrap_err().to_string();
         assert!(e.contains("--scenes [5]"), "{e}");
+    }
+}
+
+#[cfg(test)]
+mod real_frames {
+    use super::*;
+
+    /// The real YCB-Video frames of `../shared/data/ycb-video/0001` (skipped with a message when
+    /// the shared data is absent) run through the same benchmark as a folder of YCB-Video frames:
+    /// label masks, the frames' own `-gt.json` as camera and ground truth, object names from it.
+    #[test]
+    fn ycb_video_frames_run_as_a_sequence() {
+        let data = repo_root().join("../shared/data/ycb-video/0001");
+        if !data.is_dir() {
+            eprintln!("skipping: {} is absent (the shared data sits beside the repository)", data.display());
+            return;
+        }
+        let tmp = tempfile::tempdir().unwrap();
+        let args = BopBenchArgs {
+            data: Some(data),
+            scenes: None,
+            gaps: Some(vec![4]),
+            methods: vec!["flowfilter".into()],
+            pipeline: PathBuf::from("configs/flowfilter.toml"),
+            min_visib: 0.1,
+            quick: false,
+            meshes: None,
+            out: tmp.path().to_path_buf(),
+            voxel: None,
+            check: true,
+        };
+        run(&args).unwrap();
+        let run_dir = std::fs::read_dir(tmp.path()).unwrap().next().unwrap().unwrap().path();
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(run_dir.join("results.json")).unwrap()).unwrap();
+        let mut objects: Vec<&str> =
+            v["pairs"].as_array().unwrap().iter().map(|p| p["object"].as_str().unwrap()).collect();
+        objects.dedup();
+        assert_eq!(objects, ["002_master_chef_can", "003_cracker_box", "004_sugar_box", "006_mustard_bottle"]);
+        // Frame 1 -> 5: true motions of 0.2-0.4 deg, which "no motion" misses by exactly that much.
+        for p in v["pairs"].as_array().unwrap() {
+            let m = p["motion_deg"].as_f64().unwrap();
+            assert!((0.1..0.6).contains(&m), "{p}");
+            assert_eq!((p["from"].as_u64(), p["to"].as_u64()), (Some(1), Some(5)));
+        }
     }
 }

@@ -17,6 +17,7 @@ mod pairs;
 mod plots;
 mod publish_check;
 mod report;
+mod sequence;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
