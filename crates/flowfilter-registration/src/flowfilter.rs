@@ -11,6 +11,7 @@ use crate::evaluate::visible_residual;
 use crate::filterreg::{FilterReg, FilterRegConfig};
 use crate::icp::{Icp, IcpConfig, IcpVariant};
 use crate::problem::{Correspondences, Registrar, Registration, RegistrationProblem, in_pool, validate_problem};
+use crate::reprojection::refine_by_reprojection;
 use crate::warning::RegistrationWarning;
 use flowfilter_geometry::{KnnIndex, Point3, Pose, weighted_kabsch};
 use rand::{Rng, SeedableRng};
@@ -90,6 +91,14 @@ pub struct FlowFilterConfig {
     /// of itself and more than this (metres): a polish that slides along a symmetry, or that
     /// follows a partial view's geometric bias away from accurate flow, disagrees with the flow.
     pub polish_flow_slack_m: f64,
+    /// Last step: refine the pose by the two-way reprojection error of the flow pairs that agree
+    /// with it (within `inlier_threshold_m`): pixels are known to a tenth of a pixel, depth only
+    /// to millimetres, and a reprojection barely feels depth error (see
+    /// [`crate::refine_by_reprojection`]).
+    pub reprojection_refine: bool,
+    /// The refinement is not taken when it turns the pose by more than this (degrees): it then
+    /// left the basin the registration found.
+    pub reprojection_max_change_deg: f64,
     /// The FilterReg part.
     pub filterreg: FilterRegConfig,
 }
@@ -113,6 +122,8 @@ impl Default for FlowFilterConfig {
             motion_icp_distance_m: 0.02,
             polish_distance_m: 0.005,
             polish_flow_slack_m: 0.0005,
+            reprojection_refine: true,
+            reprojection_max_change_deg: 1.0,
             filterreg: FilterRegConfig::default(),
         }
     }
@@ -204,11 +215,12 @@ impl FlowFilter {
             || config.motion_fit_tolerance < 0.0
             || config.polish_flow_slack_m.is_nan()
             || config.polish_flow_slack_m < 0.0
+            || !(config.reprojection_max_change_deg >= 0.0)
         {
             return Err(RegistrationError::Config(
                 "flowfilter needs ransac_iterations > 0, inlier_threshold_m > 0, correspondence_weight >= 0, \
                  min_inlier_fraction in [0, 1], geometric_margin_m >= 0, geometric_ratio >= 1, \
-                 geometric_tau_m > 0, polish_distance_m >= 0, a motion_margin_deg that is a number, motion_icp_distance_m >= 0, motion_fit_tolerance >= 0 and polish_flow_slack_m >= 0"
+                 geometric_tau_m > 0, polish_distance_m >= 0, a motion_margin_deg that is a number, motion_icp_distance_m >= 0, motion_fit_tolerance >= 0, polish_flow_slack_m >= 0 and reprojection_max_change_deg >= 0"
                     .into(),
             ));
         }
@@ -268,6 +280,9 @@ impl FlowFilter {
         // Without trusted flow the result is plain FilterReg, as documented: no polish.
         if flow_used {
             r = self.polish(p, chosen.as_ref().map(|c| c.pairs), r)?;
+            if let Some(c) = &chosen {
+                r.transform = self.refine(c.pairs, r.transform);
+            }
         }
         r.correspondence_set = chosen.map(|c| c.index);
         Ok(r)
@@ -320,6 +335,27 @@ impl FlowFilter {
             }
         }
         Ok(Registration { transform: q.transform, fitness: q.fitness, inlier_rmse: q.inlier_rmse, ..r })
+    }
+
+    /// [`FlowFilterConfig::reprojection_refine`] from `t` on the pairs that agree with it; `t`
+    /// itself when off, with too few pairs, or when the refinement turns too far.
+    fn refine(&self, pairs: &Correspondences, t: Pose) -> Pose {
+        if !self.config.reprojection_refine {
+            return t;
+        }
+        let gate2 = self.config.inlier_threshold_m.powi(2);
+        let agree: Vec<bool> = (0..pairs.len())
+            .map(|i| pairs.weights[i] > 0.0 && (t * pairs.source[i] - pairs.target[i]).norm_squared() <= gate2)
+            .collect();
+        match refine_by_reprojection(pairs, &agree, t, 20) {
+            Some(q)
+                if (q.rotation * t.rotation.inverse()).angle().to_degrees()
+                    <= self.config.reprojection_max_change_deg =>
+            {
+                q
+            }
+            _ => t,
+        }
     }
 
     /// Flow Filter before the polish, and whether trusted flow was used.

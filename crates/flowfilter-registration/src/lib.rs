@@ -16,6 +16,7 @@ mod icp;
 pub mod lattice;
 mod problem;
 mod registry;
+mod reprojection;
 mod warning;
 
 pub use cpd::{Cpd, CpdConfig, CpdEStep};
@@ -29,6 +30,7 @@ pub use problem::{
     Correspondences, IterationRecord, Registrar, Registration, RegistrationProblem, validate_cloud, validate_problem,
 };
 pub use registry::{METHOD_NAMES, RegistrationConfig, registrar_by_name};
+pub use reprojection::refine_by_reprojection;
 pub use warning::RegistrationWarning;
 
 // The geometric types of this crate's signatures.
