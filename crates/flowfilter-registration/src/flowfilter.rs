@@ -215,7 +215,8 @@ impl FlowFilter {
             || config.motion_fit_tolerance < 0.0
             || config.polish_flow_slack_m.is_nan()
             || config.polish_flow_slack_m < 0.0
-            || !(config.reprojection_max_change_deg >= 0.0)
+            || config.reprojection_max_change_deg.is_nan()
+            || config.reprojection_max_change_deg < 0.0
         {
             return Err(RegistrationError::Config(
                 "flowfilter needs ransac_iterations > 0, inlier_threshold_m > 0, correspondence_weight >= 0, \
