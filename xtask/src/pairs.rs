@@ -2,7 +2,9 @@
 //! estimated and scored against the ground truth, and the "no motion" answer scored beside them.
 
 use flowfilter_eval::PoseErrors;
-use flowfilter_pipeline::{Pipeline, PipelineConfig, PipelineWarning, Pose, PreparedFrame, RgbdFrame, StageTimes};
+use flowfilter_pipeline::{
+    Pipeline, PipelineConfig, PipelineWarning, Pose, PreparedFrame, RgbdFrame, StageTimes, Uncertainty,
+};
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -36,6 +38,9 @@ pub struct PairResult {
     pub errors: Option<PoseErrors>,
     /// Whether the method reported convergence.
     pub converged: Option<bool>,
+    /// The method's error bounds, when it gives them.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub uncertainty: Option<Uncertainty>,
     /// Time of the pair (flow, correspondences, registration), seconds.
     pub seconds: Option<f64>,
     /// Per-stage times (the two frames' depth stages included).
@@ -196,6 +201,7 @@ impl Methods<'_> {
             method: m.map_or(NO_MOTION.to_string(), |m| self.names[m].clone()),
             errors: None,
             converged: None,
+            uncertainty: None,
             seconds: None,
             stage_ms: None,
             warnings: vec![],
@@ -218,6 +224,7 @@ impl Methods<'_> {
             let e = self.pipelines[m].estimate_prepared(model, target).map_err(|e| e.to_string())?;
             row.seconds = Some(t0.elapsed().as_secs_f64());
             row.converged = Some(e.registration.converged);
+            row.uncertainty = e.registration.uncertainty;
             row.errors = Some(PoseErrors::new(&e.pose, truth, Some(&model.cloud.points)));
             row.stage_ms = Some(e.stage_ms);
             row.warnings = e.warnings;

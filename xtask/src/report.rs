@@ -40,6 +40,10 @@ pub struct Summary {
     mean_add_s_mm: Option<f64>,
     median_add_s_mm: Option<f64>,
     success_rate: Option<f64>,
+    /// Rows with error bounds, and the fraction of them whose rotation and translation errors
+    /// are both within the bounds.
+    bounded: usize,
+    bounds_cover: Option<f64>,
     mean_seconds: Option<f64>,
     /// Mean time per stage over the pairs that ran, ms.
     mean_stage_ms: Option<StageTimes>,
@@ -59,6 +63,13 @@ fn summary_of((object, step, motion): GroupKey, method: String, rows: &[&PairRes
     let add_s = mean_median(&ok.iter().filter_map(|e| e.add_s_m.map(|v| v * 1e3)).collect::<Vec<_>>());
     let secs: Vec<f64> = rows.iter().filter_map(|r| r.seconds).collect();
     let motions: Vec<f64> = rows.iter().filter_map(|r| r.motion_deg).collect();
+    let bounded: Vec<bool> = rows
+        .iter()
+        .filter_map(|r| {
+            let (e, u) = (r.errors.as_ref()?, r.uncertainty?);
+            Some(e.geodesic_error_deg <= u.rotation_deg && e.translation_error_m <= u.translation_m)
+        })
+        .collect();
     Summary {
         object,
         step,
@@ -76,6 +87,9 @@ fn summary_of((object, step, motion): GroupKey, method: String, rows: &[&PairRes
         mean_add_s_mm: add_s.map(|a| a.0),
         median_add_s_mm: add_s.map(|a| a.1),
         success_rate: (!ok.is_empty()).then(|| ok.iter().filter(|e| e.success).count() as f64 / ok.len() as f64),
+        bounded: bounded.len(),
+        bounds_cover: (!bounded.is_empty())
+            .then(|| bounded.iter().filter(|b| **b).count() as f64 / bounded.len() as f64),
         mean_seconds: mean_median(&secs).map(|a| a.0),
         mean_stage_ms: mean_stages(rows.iter().filter_map(|r| r.stage_ms.as_ref())),
         warned: rows.iter().filter(|r| !r.warnings.is_empty()).count(),
@@ -268,7 +282,7 @@ pub fn write_outputs(
     columns.push(NO_MOTION.into());
     let plots = crate::plots::write_all(&dir, results, &summary_for_plots(&summary), &columns)?;
     let [object_table, step_table, motion_table] = tables(&summary, &columns, spec.step_label);
-    let stages = stage_table(&summary, spec.methods);
+    let stages = stage_table(&summary, spec.methods) + &bounds_lines(&summary, spec.methods);
     let failures = results.iter().filter(|r| r.failure.is_some()).count();
     let md = format!(
         "# {} results\n\nMean absolute rotation-angle error (degrees; the paper's metric) and success rate (< 2 deg, < 1 cm) per object and method; `{NO_MOTION}` is the identity answer (its error is the true motion). {} rows, {} failed, {:.0} s.\n\nDataset: {}. Protocol: {}.\n\n{object_table}\nPer {}:\n\n{step_table}\nPer range of the true rotation (where answering \"no motion\" is hard to beat):\n\n{motion_table}\n{stages}\n{}\n{}",
@@ -357,6 +371,26 @@ fn stage_table(summary: &[Summary], methods: &[String]) -> String {
     t
 }
 
+/// For each method that gives error bounds: on how many rows, and how often they held.
+fn bounds_lines(summary: &[Summary], methods: &[String]) -> String {
+    let mut t = String::new();
+    for m in methods {
+        if let Some(s) =
+            summary.iter().find(|s| s.object == "ALL" && s.step.is_none() && s.motion.is_none() && &s.method == m)
+            && let Some(cover) = s.bounds_cover
+        {
+            let _ = writeln!(
+                t,
+                "\n{m}: error bounds on {} of {} pairs; both errors within them on {:.0}%.",
+                s.bounded,
+                s.pairs,
+                cover * 100.0
+            );
+        }
+    }
+    t
+}
+
 /// What the plots need of the per-object summary.
 fn summary_for_plots(summary: &[Summary]) -> Vec<crate::plots::MethodObject> {
     summary
@@ -425,6 +459,7 @@ mod tests {
                 success: error < 2.0,
             }),
             converged: Some(true),
+            uncertainty: None,
             seconds: Some(0.1),
             stage_ms: None,
             warnings: vec![],

@@ -17,7 +17,7 @@
 use crate::warning::PipelineWarning;
 use flowfilter_eval::PoseErrors;
 use flowfilter_geometry::{Point3, Pose};
-use flowfilter_registration::Registration;
+use flowfilter_registration::{Registration, Uncertainty};
 use serde::Serialize;
 
 /// The schema tag of [`Estimate`]'s JSON.
@@ -40,6 +40,9 @@ pub struct RegistrationSummary {
     pub model_points: usize,
     /// Points of the target cloud.
     pub target_points: usize,
+    /// The backend's error bounds, when it gives them (Flow Filter; see `Uncertainty`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub uncertainty: Option<Uncertainty>,
 }
 
 impl RegistrationSummary {
@@ -53,6 +56,7 @@ impl RegistrationSummary {
             sigma2: r.sigma2,
             model_points,
             target_points,
+            uncertainty: r.uncertainty,
         }
     }
 }

@@ -46,7 +46,7 @@ pub use flowfilter_flow::lk::Gray;
 pub use flowfilter_flow::{FlowError, FlowEstimator};
 pub use flowfilter_geometry::{Correspondences, DepthMap, Mask, Point3, PointCloud, Pose, RawDepth};
 pub use flowfilter_registration::{
-    Registrar, Registration, RegistrationError, RegistrationProblem, RegistrationWarning,
+    Registrar, Registration, RegistrationError, RegistrationProblem, RegistrationWarning, Uncertainty,
 };
 
 // The stage crates themselves, for everything else they offer.

@@ -72,6 +72,7 @@ impl Registrar for PairsOnly {
             history: vec![],
             warnings: vec![],
             correspondence_set: Some(0),
+            uncertainty: None,
         })
     }
 

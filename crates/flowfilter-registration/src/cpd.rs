@@ -245,6 +245,7 @@ impl Cpd {
             history,
             warnings,
             correspondence_set: None,
+            uncertainty: None,
         })
     }
 }

@@ -10,6 +10,7 @@ use crate::error::RegistrationError;
 use crate::evaluate::visible_residual;
 use crate::filterreg::{FilterReg, FilterRegConfig};
 use crate::icp::{Icp, IcpConfig, IcpVariant};
+use crate::problem::Uncertainty;
 use crate::problem::{Correspondences, Registrar, Registration, RegistrationProblem, in_pool, validate_problem};
 use crate::reprojection::refine_by_reprojection;
 use crate::warning::RegistrationWarning;
@@ -282,7 +283,7 @@ impl FlowFilter {
         if flow_used {
             r = self.polish(p, chosen.as_ref().map(|c| c.pairs), r)?;
             if let Some(c) = &chosen {
-                r.transform = self.refine(c.pairs, r.transform);
+                self.refine(c.pairs, &mut r);
             }
         }
         r.correspondence_set = chosen.map(|c| c.index);
@@ -338,24 +339,30 @@ impl FlowFilter {
         Ok(Registration { transform: q.transform, fitness: q.fitness, inlier_rmse: q.inlier_rmse, ..r })
     }
 
-    /// [`FlowFilterConfig::reprojection_refine`] from `t` on the pairs that agree with it; `t`
-    /// itself when off, with too few pairs, or when the refinement turns too far.
-    fn refine(&self, pairs: &Correspondences, t: Pose) -> Pose {
+    /// [`FlowFilterConfig::reprojection_refine`] from `r` on the pairs that agree with it (`r`
+    /// is left as it is when off, with too few pairs, or when the refinement turns too far); the
+    /// refinement's bounds become `r.uncertainty`, and a motion within them is reported
+    /// ([`RegistrationWarning::BelowResolution`]).
+    fn refine(&self, pairs: &Correspondences, r: &mut Registration) {
         if !self.config.reprojection_refine {
-            return t;
+            return;
         }
+        let t = r.transform;
         let gate2 = self.config.inlier_threshold_m.powi(2);
         let agree: Vec<bool> = (0..pairs.len())
             .map(|i| pairs.weights[i] > 0.0 && (t * pairs.source[i] - pairs.target[i]).norm_squared() <= gate2)
             .collect();
-        match refine_by_reprojection(pairs, &agree, t, 20) {
-            Some(q)
-                if (q.rotation * t.rotation.inverse()).angle().to_degrees()
-                    <= self.config.reprojection_max_change_deg =>
-            {
-                q
-            }
-            _ => t,
+        let Some(q) = refine_by_reprojection(pairs, &agree, t, 20) else { return };
+        if (q.pose.rotation * t.rotation.inverse()).angle().to_degrees() > self.config.reprojection_max_change_deg {
+            return;
+        }
+        let (rotation_deg, translation_m) = q.bounds();
+        r.transform = q.pose;
+        r.uncertainty = Some(Uncertainty { rotation_deg, translation_m });
+        let moved_deg = q.pose.rotation.angle().to_degrees();
+        let moved_m = q.pose.translation.vector.norm();
+        if moved_deg <= rotation_deg && moved_m <= translation_m {
+            r.warnings.push(RegistrationWarning::BelowResolution { moved_deg, rotation_deg, moved_m, translation_m });
         }
     }
 
@@ -545,6 +552,7 @@ fn flow_only(pose: Pose, agreeing: usize, pairs: usize) -> Registration {
         history: vec![],
         warnings: vec![],
         correspondence_set: None,
+        uncertainty: None,
     }
 }
 

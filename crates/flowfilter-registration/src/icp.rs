@@ -176,6 +176,7 @@ impl Icp {
             history,
             warnings,
             correspondence_set: None,
+            uncertainty: None,
         })
     }
 }

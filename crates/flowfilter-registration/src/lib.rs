@@ -27,10 +27,11 @@ pub use flowfilter::{FlowFilter, FlowFilterConfig, FlowFilterMode, ransac_kabsch
 pub use gmm::mean_pair_distance2;
 pub use icp::{Icp, IcpConfig, IcpVariant};
 pub use problem::{
-    Correspondences, IterationRecord, Registrar, Registration, RegistrationProblem, validate_cloud, validate_problem,
+    Correspondences, IterationRecord, Registrar, Registration, RegistrationProblem, Uncertainty, validate_cloud,
+    validate_problem,
 };
 pub use registry::{METHOD_NAMES, RegistrationConfig, registrar_by_name};
-pub use reprojection::refine_by_reprojection;
+pub use reprojection::{Refinement, refine_by_reprojection};
 pub use warning::RegistrationWarning;
 
 // The geometric types of this crate's signatures.

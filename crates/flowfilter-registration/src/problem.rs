@@ -102,6 +102,21 @@ pub struct Registration {
     /// Which candidate set of correspondences the backend used (see
     /// [`RegistrationProblem::alternative_correspondences`]); `None` when it used none.
     pub correspondence_set: Option<usize>,
+    /// How far the pose may be off, when the backend can tell.
+    pub uncertainty: Option<Uncertainty>,
+}
+
+/// Bounds on a pose's error under the backend's noise model (Flow Filter: 2.5 standard
+/// deviations, along the worst axis, of the reprojection refinement's covariance, which takes the
+/// flow pairs' errors as independent: the 90% radius of a 3-D Gaussian). Correlated or systematic
+/// errors are not in it; how often the bounds hold on real and synthetic frames is measured by
+/// the benchmarks (`docs/bop.md`).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Uncertainty {
+    /// Rotation error bound, degrees.
+    pub rotation_deg: f64,
+    /// Translation error bound, metres.
+    pub translation_m: f64,
 }
 
 /// A rigid registration backend.
@@ -136,6 +151,7 @@ pub struct Registration {
 ///             history: vec![],
 ///             warnings: vec![],
 ///             correspondence_set: None,
+///             uncertainty: None,
 ///         })
 ///     }
 /// }

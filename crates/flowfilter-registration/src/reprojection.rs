@@ -88,10 +88,59 @@ fn median_norm(c: &Correspondences, use_pair: &[bool], t: &Pose) -> Option<f64> 
     Some(n[n.len() / 2])
 }
 
+/// A refined pose and the covariance of its left twist `(rho, phi)`: `s^2 H^-1` at the solution,
+/// `s^2` the weighted residual variance and `H` the Gauss-Newton matrix.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Refinement {
+    /// The pose.
+    pub pose: Pose,
+    /// Covariance of `(rho, phi)` (metres, radians).
+    pub covariance: Matrix6<f64>,
+}
+
+impl Refinement {
+    /// Bounds of the rotation (degrees) and translation (metres) error: 2.5 standard deviations
+    /// (the 90% quantile of a 3-D Gaussian's radius) along the worst axis, for independent pair
+    /// errors.
+    pub fn bounds(&self) -> (f64, f64) {
+        let worst = |block: Matrix3<f64>| block.symmetric_eigenvalues().max().max(0.0).sqrt();
+        let rot = worst(self.covariance.fixed_view::<3, 3>(3, 3).into_owned());
+        let trans = worst(self.covariance.fixed_view::<3, 3>(0, 0).into_owned());
+        (2.5 * rot.to_degrees(), 2.5 * trans)
+    }
+}
+
+/// The Gauss-Newton system, weighted squared residual sum and residual count at `t`.
+fn normal_equations(
+    c: &Correspondences,
+    use_pair: &[bool],
+    t: &Pose,
+    delta: f64,
+) -> (Matrix6<f64>, Vector6<f64>, f64, usize) {
+    let (mut h, mut g, mut sum, mut n) = (Matrix6::<f64>::zeros(), Vector6::<f64>::zeros(), 0.0, 0usize);
+    for i in (0..c.len()).filter(|&i| use_pair[i] && c.weights[i] > 0.0) {
+        let (p, q) = (&c.source[i], &c.target[i]);
+        for (r, j) in [forward(t, p, q), backward(t, p, q)].into_iter().flatten() {
+            let norm = r.norm();
+            let w = c.weights[i] * if norm <= delta { 1.0 } else { delta / norm };
+            h += w * j.transpose() * j;
+            g += w * j.transpose() * r;
+            sum += w * r.norm_squared();
+            n += 3;
+        }
+    }
+    (h, g, sum, n)
+}
+
 /// Refine `init` by Gauss-Newton on the two-way reprojection error of the pairs flagged in
-/// `use_pair` (weighted by the pairs' weights, Huber-weighted at 1.345 robust sigmas). `None`
-/// with fewer than eight usable pairs or a singular system.
-pub fn refine_by_reprojection(c: &Correspondences, use_pair: &[bool], init: Pose, iterations: usize) -> Option<Pose> {
+/// `use_pair` (weighted by the pairs' weights, Huber-weighted at 1.345 robust sigmas), with the
+/// covariance of the result. `None` with fewer than eight usable pairs or a singular system.
+pub fn refine_by_reprojection(
+    c: &Correspondences,
+    use_pair: &[bool],
+    init: Pose,
+    iterations: usize,
+) -> Option<Refinement> {
     let usable = (0..c.len()).filter(|&i| use_pair[i] && c.weights[i] > 0.0).count();
     if usable < MIN_PAIRS {
         return None;
@@ -100,16 +149,7 @@ pub fn refine_by_reprojection(c: &Correspondences, use_pair: &[bool], init: Pose
     let delta = (1.345 * sigma).max(1e-9);
     let mut t = init;
     for _ in 0..iterations {
-        let (mut h, mut g) = (Matrix6::<f64>::zeros(), Vector6::<f64>::zeros());
-        for i in (0..c.len()).filter(|&i| use_pair[i] && c.weights[i] > 0.0) {
-            let (p, q) = (&c.source[i], &c.target[i]);
-            for (r, j) in [forward(&t, p, q), backward(&t, p, q)].into_iter().flatten() {
-                let n = r.norm();
-                let w = c.weights[i] * if n <= delta { 1.0 } else { delta / n };
-                h += w * j.transpose() * j;
-                g += w * j.transpose() * r;
-            }
-        }
+        let (h, g, _, _) = normal_equations(c, use_pair, &t, delta);
         let xi = -h.cholesky()?.solve(&g);
         if !xi.iter().all(|v| v.is_finite()) {
             return None;
@@ -119,7 +159,10 @@ pub fn refine_by_reprojection(c: &Correspondences, use_pair: &[bool], init: Pose
             break;
         }
     }
-    Some(t)
+    let (h, _, sum, n) = normal_equations(c, use_pair, &t, delta);
+    let s2 = sum / (n.saturating_sub(6).max(1)) as f64;
+    let covariance = h.cholesky()?.inverse() * s2;
+    covariance.iter().all(|v| v.is_finite()).then_some(Refinement { pose: t, covariance })
 }
 
 #[cfg(test)]
@@ -144,9 +187,14 @@ mod tests {
         }
         let c = Correspondences { weights: vec![1.0; source.len()], source, target };
         let all = vec![true; c.len()];
-        let t = refine_by_reprojection(&c, &all, Pose::identity(), 20).unwrap();
-        let rot_err = (t.rotation * truth.rotation.inverse()).angle().to_degrees();
+        let r = refine_by_reprojection(&c, &all, Pose::identity(), 20).unwrap();
+        let rot_err = (r.pose.rotation * truth.rotation.inverse()).angle().to_degrees();
         assert!(rot_err < 0.01, "rotation error {rot_err} deg");
+        // The bounds cover the error and are of its order (the range term carries the noise).
+        let (rot_bound, trans_bound) = r.bounds();
+        let trans_err = (r.pose.translation.vector - truth.translation.vector).norm();
+        assert!(rot_err <= rot_bound && rot_bound < 0.5, "{rot_err} vs bound {rot_bound}");
+        assert!(trans_err <= trans_bound && trans_bound < 0.01, "{trans_err} vs bound {trans_bound}");
         // Too few pairs: no answer.
         let few: Vec<bool> = (0..c.len()).map(|i| i < 5).collect();
         assert!(refine_by_reprojection(&c, &few, Pose::identity(), 20).is_none());

@@ -57,6 +57,18 @@ pub enum RegistrationWarning {
         /// The flow result's mean visible residual, metres.
         flow_residual_m: f64,
     },
+    /// The estimated motion is within the estimate's own error bounds: it cannot be told from
+    /// no motion.
+    BelowResolution {
+        /// The estimated rotation, degrees.
+        moved_deg: f64,
+        /// The rotation bound, degrees.
+        rotation_deg: f64,
+        /// The estimated translation, metres.
+        moved_m: f64,
+        /// The translation bound, metres.
+        translation_m: f64,
+    },
     /// Flow Filter's geometric check kept a flow-free registration that fits the clouds clearly
     /// better than the flow result.
     GeometricCheck {
@@ -78,6 +90,7 @@ impl RegistrationWarning {
             Self::NothingExplained => "nothing_explained",
             Self::NothingNear { .. } => "nothing_near",
             Self::Diverged { .. } => "diverged",
+            Self::BelowResolution { .. } => "below_resolution",
             Self::FlowFallback { .. } => "flow_fallback",
             Self::MotionCheck { .. } => "motion_check",
             Self::GeometricCheck { .. } => "geometric_check",
@@ -112,6 +125,13 @@ impl fmt::Display for RegistrationWarning {
                  kept the former (the flow tracked a pattern that does not move with the surface)",
                 residual_m * 1e3,
                 flow_residual_m * 1e3
+            ),
+            Self::BelowResolution { moved_deg, rotation_deg, moved_m, translation_m } => write!(
+                f,
+                "the motion ({moved_deg:.3} deg, {:.2} mm) is within the estimate's error bounds \
+                 ({rotation_deg:.3} deg, {:.2} mm): it cannot be told from no motion",
+                moved_m * 1e3,
+                translation_m * 1e3
             ),
             Self::GeometricCheck { kept, residual_m, flow_residual_m } => write!(
                 f,

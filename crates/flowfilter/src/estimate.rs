@@ -195,6 +195,13 @@ fn print_human(e: &Estimate) {
         r.model_points,
         r.target_points
     );
+    if let Some(u) = r.uncertainty {
+        println!(
+            "error bounds (2.5 sigma, independent flow errors): {:.3} deg, {:.2} mm",
+            u.rotation_deg,
+            u.translation_m * 1e3
+        );
+    }
     if let Some(c) = e.correspondences {
         println!("flow pairs: {} tracked, {} consistent, {} inliers", c.tracked, c.consistent, c.inliers);
     }

@@ -380,6 +380,7 @@ fn finish(
             history: em.history,
             warnings: vec![RegistrationWarning::Diverged { method: "FilterReg" }],
             correspondence_set: None,
+            uncertainty: None,
         };
     }
     // The last exact iteration's lists (when they were gathered for every point) answer
@@ -403,5 +404,6 @@ fn finish(
         history: em.history,
         warnings: em.warnings,
         correspondence_set: None,
+        uncertainty: None,
     }
 }
