@@ -3,12 +3,12 @@
 //! every method, and score the estimate against the turntable ground truth.
 
 use crate::dataset::{default_objects, ensure_object};
-use crate::pairs::{Methods, PairJob, PairResult, preparation_groups, progress};
+use crate::pairs::{Methods, PairJob, PairResult, RunArgs, progress};
 use crate::report::{ReportSpec, write_outputs};
 use anyhow::{Context, bail};
 use clap::Args;
 use flowfilter_bigbird::{BigBirdObject, FrameId, SensorId};
-use flowfilter_pipeline::{Pipeline, PipelineConfig, load_bigbird_frame};
+use flowfilter_pipeline::{PipelineConfig, load_bigbird_frame};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, BTreeSet};
@@ -36,17 +36,9 @@ pub struct BenchArgs {
     /// Methods, comma separated (overrides the protocol's).
     #[arg(long, value_delimiter = ',')]
     pub methods: Option<Vec<String>>,
-    /// Output root (a timestamped directory is created inside).
-    #[arg(long, default_value = "results")]
-    pub out: PathBuf,
-    /// Voxel size of the clouds given to the registration, metres (overrides the pipeline
-    /// configurations' `cloud.voxel_m`).
-    #[arg(long)]
-    pub voxel: Option<f64>,
-    /// Exit non-zero unless results.json holds every method with every metric and no pair
-    /// failed (what CI checks).
-    #[arg(long)]
-    pub check: bool,
+    /// Outputs, voxel size, check.
+    #[command(flatten)]
+    pub run: RunArgs,
 }
 
 /// The experiment's protocol, read from TOML (`configs/bench/*.toml`).
@@ -145,13 +137,8 @@ const QUICK_PROTOCOL: &str = include_str!("../../configs/bench/quick.toml");
 pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
     let protocol = load_protocol(args)?;
     let cameras = protocol.sensors().map_err(anyhow::Error::msg)?;
-    let configs = protocol.method_configs(args.voxel)?;
-    let pipelines: Vec<Pipeline> = configs
-        .iter()
-        .map(|c| Pipeline::from_config(c.clone()).with_context(|| format!("method '{}'", c.method)))
-        .collect::<anyhow::Result<_>>()?;
-    let groups = preparation_groups(&configs);
-    let methods = Methods { names: &protocol.methods, pipelines: &pipelines, groups: &groups };
+    let configs = protocol.method_configs(args.run.voxel)?;
+    let methods = Methods::new(&protocol.methods, &configs)?;
     let started = Instant::now();
     let object_dirs = object_dirs(args, &protocol, &cameras)?;
     let mut results: Vec<PairResult> = Vec::new();
@@ -192,8 +179,8 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         step_label: "rotation step (deg)",
         methods: &protocol.methods,
         appendix: paper,
-        out: &args.out,
-        check: args.check,
+        out: &args.run.out,
+        check: args.run.check,
     };
     write_outputs(&spec, &results, &skipped, started.elapsed().as_secs_f64())?;
     Ok(())
@@ -336,9 +323,7 @@ mod tests {
             meshes: None,
             protocol: Some(protocol),
             methods: None,
-            out: out.clone(),
-            voxel: Some(0.002),
-            check: true,
+            run: RunArgs { out: out.clone(), voxel: Some(0.002), check: true },
         };
         run(&args).unwrap();
         let run_dir = std::fs::read_dir(&out).unwrap().next().unwrap().unwrap().path();

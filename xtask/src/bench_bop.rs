@@ -9,13 +9,13 @@
 //! 0.25, 1.25 and 2.5 degrees), with Carmine depth noise and the real-sensor frame effects.
 
 use crate::dataset::{BopSceneSpec, DefaultObject, default_objects, ensure_bop_scene};
-use crate::pairs::{Methods, PairJob, PairResult, preparation_groups, progress};
+use crate::pairs::{Methods, PairJob, PairResult, RunArgs, progress};
 use crate::report::{ReportSpec, write_outputs};
 use crate::sequence::{Sequence, is_sequence, open_sequence};
 use anyhow::{Context, bail};
 use clap::Args;
 use flowfilter_bigbird::SensorId;
-use flowfilter_pipeline::{Pipeline, PipelineConfig};
+use flowfilter_pipeline::PipelineConfig;
 use rayon::prelude::*;
 use std::collections::BTreeMap;
 use std::fmt;
@@ -53,16 +53,9 @@ pub struct BopBenchArgs {
     /// (default: ../shared/data/ycb when present; not used with --quick).
     #[arg(long)]
     pub meshes: Option<PathBuf>,
-    /// Output root (a timestamped directory is created inside).
-    #[arg(long, default_value = "results")]
-    pub out: PathBuf,
-    /// Voxel size of the clouds given to the registration, metres.
-    #[arg(long)]
-    pub voxel: Option<f64>,
-    /// Exit non-zero unless results.json holds every method with every metric and no pair
-    /// failed.
-    #[arg(long)]
-    pub check: bool,
+    /// Outputs, voxel size, check.
+    #[command(flatten)]
+    pub run: RunArgs,
 }
 
 /// A frame of a scene: an image and the object whose mask it uses.
@@ -93,12 +86,7 @@ pub fn run(args: &BopBenchArgs) -> anyhow::Result<()> {
         bail!("--min-visib: expected a fraction in [0, 1], found {}", args.min_visib);
     }
     let configs = method_configs(args)?;
-    let pipelines: Vec<Pipeline> = configs
-        .iter()
-        .map(|c| Pipeline::from_config(c.clone()).with_context(|| format!("method '{}'", c.method)))
-        .collect::<anyhow::Result<_>>()?;
-    let groups = preparation_groups(&configs);
-    let methods = Methods { names: &args.methods, pipelines: &pipelines, groups: &groups };
+    let methods = Methods::new(&args.methods, &configs)?;
     let started = Instant::now();
     let (scene_dirs, names) = scene_dirs(args)?;
     let mut results: Vec<PairResult> = vec![];
@@ -140,7 +128,7 @@ pub fn run(args: &BopBenchArgs) -> anyhow::Result<()> {
             "methods": args.methods,
             "pipeline": args.pipeline,
             "min_visib": args.min_visib,
-            "voxel": args.voxel,
+            "voxel": args.run.voxel,
         }),
         protocol_line: format!(
             "{} scene(s), gaps {:?}, visible fraction >= {}, pipeline {}",
@@ -152,8 +140,8 @@ pub fn run(args: &BopBenchArgs) -> anyhow::Result<()> {
         step_label: "image gap",
         methods: &args.methods,
         appendix: String::new(),
-        out: &args.out,
-        check: args.check,
+        out: &args.run.out,
+        check: args.run.check,
     };
     write_outputs(&spec, &results, &skipped, started.elapsed().as_secs_f64())?;
     Ok(())
@@ -168,7 +156,7 @@ fn method_configs(args: &BopBenchArgs) -> anyhow::Result<Vec<PipelineConfig>> {
         .map(|m| {
             let mut c = base.clone();
             c.method = m.clone();
-            if let Some(v) = args.voxel {
+            if let Some(v) = args.run.voxel {
                 c.cloud.voxel_m = v;
             }
             c.validate().map_err(|e| anyhow::anyhow!("method '{m}': {e}"))?;
@@ -329,9 +317,7 @@ mod tests {
             min_visib: 0.1,
             quick: false,
             meshes: None,
-            out,
-            voxel: Some(0.002),
-            check: true,
+            run: RunArgs { out, voxel: Some(0.002), check: true },
         }
     }
 
@@ -403,9 +389,7 @@ mod real_frames {
             min_visib: 0.1,
             quick: false,
             meshes: None,
-            out: tmp.path().to_path_buf(),
-            voxel: None,
-            check: true,
+            run: RunArgs { out: tmp.path().to_path_buf(), voxel: None, check: true },
         };
         run(&args).unwrap();
         let run_dir = std::fs::read_dir(tmp.path()).unwrap().next().unwrap().unwrap().path();

@@ -1,6 +1,7 @@
 //! What both benchmarks share: frames prepared once per group of methods, every (pair, method)
 //! estimated and scored against the ground truth, and the "no motion" answer scored beside them.
 
+use anyhow::Context;
 use flowfilter_eval::PoseErrors;
 use flowfilter_pipeline::{
     Pipeline, PipelineConfig, PipelineWarning, Pose, PreparedFrame, RgbdFrame, StageTimes, Uncertainty,
@@ -11,8 +12,25 @@ use serde::Serialize;
 use std::collections::{BTreeMap, BTreeSet};
 use std::fmt::Display;
 use std::io::IsTerminal;
+use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
+
+/// The options every benchmark takes for its run and its outputs.
+#[derive(clap::Args, Debug, Clone)]
+pub struct RunArgs {
+    /// Output root (a timestamped directory is created inside).
+    #[arg(long, default_value = "results")]
+    pub out: PathBuf,
+    /// Voxel size of the clouds given to the registration, metres (overrides the pipeline
+    /// configurations' `cloud.voxel_m`).
+    #[arg(long)]
+    pub voxel: Option<f64>,
+    /// Exit non-zero unless results.json holds every method with every metric and no pair
+    /// failed (what CI checks).
+    #[arg(long)]
+    pub check: bool,
+}
 
 /// The row of the identity estimate: what answering "it did not move" scores.
 pub const NO_MOTION: &str = "no-motion";
@@ -135,9 +153,23 @@ pub struct Methods<'a> {
     /// Method names (labels).
     pub names: &'a [String],
     /// One pipeline per method.
-    pub pipelines: &'a [Pipeline],
+    pub pipelines: Vec<Pipeline>,
     /// [`preparation_groups`] of their configurations.
-    pub groups: &'a [usize],
+    pub groups: Vec<usize>,
+}
+
+impl<'a> Methods<'a> {
+    /// One pipeline per configuration (`names[i]` labels `configs[i]`).
+    ///
+    /// # Errors
+    /// A configuration that does not make a pipeline, named by its method.
+    pub fn new(names: &'a [String], configs: &[PipelineConfig]) -> anyhow::Result<Self> {
+        let pipelines = configs
+            .iter()
+            .map(|c| Pipeline::from_config(c.clone()).with_context(|| format!("method '{}'", c.method)))
+            .collect::<anyhow::Result<_>>()?;
+        Ok(Self { names, pipelines, groups: preparation_groups(configs) })
+    }
 }
 
 impl Methods<'_> {
