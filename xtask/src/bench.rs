@@ -2,8 +2,9 @@
 //! object cloud of the model frame (base angle) to that of the target frame (base + step) with
 //! every method, and score the estimate against the turntable ground truth.
 
-use crate::dataset::{default_objects, ensure_object};
+use crate::dataset::{embedded_objects, ensure_object};
 use crate::pairs::{Methods, PairJob, PairResult, RunArgs, progress};
+use crate::repo_root;
 use crate::report::{ReportSpec, write_outputs};
 use anyhow::{Context, bail};
 use clap::Args;
@@ -59,11 +60,6 @@ pub struct Protocol {
     /// Per-method pipeline configurations.
     #[serde(default)]
     pub method_configs: BTreeMap<String, PathBuf>,
-}
-
-/// The repository root (relative paths in protocols are resolved against it).
-fn repo_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
 impl Protocol {
@@ -219,12 +215,7 @@ fn object_dirs(args: &BenchArgs, protocol: &Protocol, cameras: &[SensorId]) -> a
         }
         return Ok(dirs);
     }
-    let meshes = if args.quick {
-        None
-    } else {
-        args.meshes.clone().or_else(|| Some(PathBuf::from("../shared/data/ycb")).filter(|p| p.is_dir()))
-    };
-    let objects = default_objects(meshes.as_deref());
+    let objects = embedded_objects(args.quick, args.meshes.as_deref());
     let root = Path::new("target").join("bigbird-default");
     let angles = protocol.angles();
     let bar = progress(objects.len() as u64, "synthesising the default dataset (cached)");

@@ -8,8 +8,9 @@
 //! 1, 5, 10 are 3, 15 and 30 degrees) and scene `100 + k` (camera NP2, angles 0, 0.25, ..., 2.5:
 //! 0.25, 1.25 and 2.5 degrees), with Carmine depth noise and the real-sensor frame effects.
 
-use crate::dataset::{BopSceneSpec, DefaultObject, default_objects, ensure_bop_scene};
+use crate::dataset::{BopSceneSpec, DefaultObject, embedded_objects, ensure_bop_scene};
 use crate::pairs::{Methods, PairJob, PairResult, RunArgs, progress};
+use crate::repo_root;
 use crate::report::{ReportSpec, write_outputs};
 use crate::sequence::{Sequence, is_sequence, open_sequence};
 use anyhow::{Context, bail};
@@ -69,11 +70,6 @@ impl fmt::Display for BopKey {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(f, "{:06}/obj_{:06}", self.im_id, self.obj_id)
     }
-}
-
-/// The repository root (relative paths are resolved against it).
-fn repo_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
 /// Run the benchmark scene by scene.
@@ -267,12 +263,7 @@ fn default_scenes(k: u32, quick: bool) -> [BopSceneSpec; 2] {
 
 /// Synthesise (once, cached) the embedded dataset.
 fn default_dataset(args: &BopBenchArgs) -> anyhow::Result<(Vec<PathBuf>, BTreeMap<u32, String>)> {
-    let meshes = if args.quick {
-        None
-    } else {
-        args.meshes.clone().or_else(|| Some(PathBuf::from("../shared/data/ycb")).filter(|p| p.is_dir()))
-    };
-    let objects: Vec<DefaultObject> = default_objects(meshes.as_deref());
+    let objects: Vec<DefaultObject> = embedded_objects(args.quick, args.meshes.as_deref());
     let root = default_root(args.quick);
     let work: Vec<(u32, &DefaultObject, BopSceneSpec)> = objects
         .iter()

@@ -28,6 +28,14 @@ pub struct DefaultObject {
     pub source: ObjectSource,
 }
 
+/// The objects of an embedded dataset: with `quick` the procedural ones only, else also the
+/// meshes of `meshes` (default: `../shared/data/ycb` when present).
+pub fn embedded_objects(quick: bool, meshes: Option<&Path>) -> Vec<DefaultObject> {
+    let shared = Path::new("../shared/data/ycb");
+    let meshes = if quick { None } else { meshes.or_else(|| Some(shared).filter(|p| p.is_dir())) };
+    default_objects(meshes)
+}
+
 /// The procedural objects, plus the YCB meshes found in `meshes` (directories holding
 /// `textured.obj`).
 pub fn default_objects(meshes: Option<&Path>) -> Vec<DefaultObject> {

@@ -20,6 +20,7 @@ mod report;
 mod sequence;
 
 use clap::{Parser, Subcommand};
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 #[derive(Parser)]
@@ -39,6 +40,11 @@ enum Command {
     /// Check that every library crate packages and builds on its own, and that a crate outside
     /// the workspace can depend on one and run its README example.
     PublishCheck(publish_check::PublishCheckArgs),
+}
+
+/// The repository root (relative paths in protocols and options are resolved against it).
+pub(crate) fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
 fn main() -> ExitCode {

@@ -3,9 +3,9 @@
 //! embeds, and a scratch crate outside the workspace that depends on `flowfilter-registration`
 //! by path and version builds and runs that crate's README example.
 
+use crate::repo_root;
 use anyhow::{Context, bail};
 use clap::Args;
-use std::path::{Path, PathBuf};
 use std::process::Command;
 
 /// Arguments of `publish-check`.
@@ -40,10 +40,6 @@ fn required_files(krate: &str) -> Vec<&'static str> {
         files.push("profiles/carmine.toml");
     }
     files
-}
-
-fn repo_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
 fn cargo() -> Command {

@@ -346,14 +346,18 @@ fn pairs_csv(results: &[PairResult]) -> String {
     csv
 }
 
+/// A method's summary over every pair.
+fn overall<'s>(summary: &'s [Summary], method: &str) -> Option<&'s Summary> {
+    summary.iter().find(|s| s.object == "ALL" && s.step.is_none() && s.motion.is_none() && s.method == method)
+}
+
 /// Mean time per stage and method over all objects (ms).
 fn stage_table(summary: &[Summary], methods: &[String]) -> String {
     let mut t = String::from(
         "| method | depth (per frame) | flow | correspondences | registration | pair total | pairs with a warning |\n| --- | --- | --- | --- | --- | --- | --- |\n",
     );
     for m in methods {
-        if let Some(s) =
-            summary.iter().find(|s| s.object == "ALL" && s.step.is_none() && s.motion.is_none() && &s.method == m)
+        if let Some(s) = overall(summary, m)
             && let Some(st) = s.mean_stage_ms
         {
             let _ = writeln!(
@@ -375,8 +379,7 @@ fn stage_table(summary: &[Summary], methods: &[String]) -> String {
 fn bounds_lines(summary: &[Summary], methods: &[String]) -> String {
     let mut t = String::new();
     for m in methods {
-        if let Some(s) =
-            summary.iter().find(|s| s.object == "ALL" && s.step.is_none() && s.motion.is_none() && &s.method == m)
+        if let Some(s) = overall(summary, m)
             && let Some(cover) = s.bounds_cover
         {
             let _ = writeln!(

@@ -180,7 +180,7 @@ impl CameraFile {
             });
         };
         let (field, k) = match layout {
-            CameraFileLayout::Flowfilter => ("K", Matrix3::from_row_slice(&r.matrix_rows("K")?)),
+            CameraFileLayout::Flowfilter => ("K", Matrix3::from_row_slice(&r.square_matrix("K", 3)?)),
             CameraFileLayout::Open3d => {
                 ("intrinsic_matrix", Matrix3::from_column_slice(&r.numbers("intrinsic_matrix", 9)?))
             }
@@ -369,27 +369,20 @@ impl Reader<'_> {
             .ok_or_else(|| self.field_error(field, "a whole number of pixels", v))
     }
 
-    /// A 3x3 matrix as 9 numbers (row-major), from a flat array or from 3 rows of 3.
-    fn matrix_rows(&self, field: &'static str) -> Result<Vec<f64>, CameraFileError> {
+    /// An `n`x`n` matrix as `n * n` numbers (row-major), from a flat array or from `n` rows of
+    /// `n` (`n` is 3 or 4).
+    fn square_matrix(&self, field: &'static str, n: usize) -> Result<Vec<f64>, CameraFileError> {
         let v = self.get(field)?;
-        let rows: Option<Vec<f64>> =
-            v.as_array().filter(|a| a.len() == 3 && a.iter().all(Value::is_array)).and_then(|a| {
-                a.iter()
-                    .map(|row| {
-                        row.as_array()
-                            .filter(|r| r.len() == 3)
-                            .and_then(|r| r.iter().map(Value::as_f64).collect::<Option<Vec<f64>>>())
-                    })
-                    .collect::<Option<Vec<Vec<f64>>>>()
-                    .map(|rows| rows.concat())
-            });
-        match rows {
-            Some(values) => Ok(values),
-            None if v.as_array().is_some_and(|a| a.iter().all(Value::is_array)) => {
-                Err(self.field_error(field, "9 numbers, or 3 rows of 3 numbers", v))
+        let row = |r: &Value| r.as_array().filter(|r| r.len() == n).and_then(|r| r.iter().map(Value::as_f64).collect());
+        let values: Option<Vec<f64>> = match v.as_array() {
+            Some(rows) if rows.len() == n && rows.iter().all(Value::is_array) => {
+                rows.iter().map(row).collect::<Option<Vec<Vec<f64>>>>().map(|rows| rows.concat())
             }
-            None => self.numbers(field, 9),
-        }
+            Some(flat) if flat.len() == n * n => flat.iter().map(Value::as_f64).collect(),
+            _ => None,
+        };
+        let expected = if n == 3 { "9 numbers, or 3 rows of 3 numbers" } else { "16 numbers, or 4 rows of 4 numbers" };
+        values.ok_or_else(|| self.field_error(field, expected, v))
     }
 
     /// Optional `distortion` (5 numbers) and optional `width` and `height`.
@@ -416,10 +409,10 @@ impl Reader<'_> {
         if !entry.is_object() {
             return Err(self.field_error("depth", "an object with K, width, height", entry));
         }
-        let k = Matrix3::from_row_slice(&d.matrix_rows("K")?);
+        let k = Matrix3::from_row_slice(&d.square_matrix("K", 3)?);
         let intrinsics = Intrinsics::from_matrix(&k).map_err(|source| d.camera_error("K", source))?;
         let (distortion, size) = d.distortion_and_size()?;
-        let m = Matrix4::from_row_slice(&self.matrix4("color_from_depth")?);
+        let m = Matrix4::from_row_slice(&self.square_matrix("color_from_depth", 4)?);
         let color_from_depth = rigid_from_matrix(&m).map_err(|e| CameraFileError::Field {
             path: self.origin.into(),
             field: "color_from_depth",
@@ -427,25 +420,6 @@ impl Reader<'_> {
             found: e.to_string(),
         })?;
         Ok(DepthCamera { intrinsics, distortion, size, color_from_depth })
-    }
-
-    /// A 4x4 matrix as 16 numbers (row-major), from a flat array or from 4 rows of 4.
-    fn matrix4(&self, field: &'static str) -> Result<Vec<f64>, CameraFileError> {
-        let v = self.get(field)?;
-        let flat: Option<Vec<f64>> = match v.as_array() {
-            Some(rows) if rows.len() == 4 && rows.iter().all(Value::is_array) => rows
-                .iter()
-                .map(|r| {
-                    r.as_array()
-                        .filter(|r| r.len() == 4)
-                        .and_then(|r| r.iter().map(Value::as_f64).collect::<Option<Vec<f64>>>())
-                })
-                .collect::<Option<Vec<Vec<f64>>>>()
-                .map(|rows| rows.concat()),
-            Some(a) if a.len() == 16 => a.iter().map(Value::as_f64).collect(),
-            _ => None,
-        };
-        flat.ok_or_else(|| self.field_error(field, "16 numbers, or 4 rows of 4 numbers", v))
     }
 
     fn numbers(&self, field: &'static str, n: usize) -> Result<Vec<f64>, CameraFileError> {

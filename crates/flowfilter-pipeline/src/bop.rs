@@ -9,7 +9,7 @@
 //! `mask_visib/` (or `mask/`) `{im_id:06d}_{gt_id:06d}.png`, `gt_id` being the instance's
 //! index in the image's `scene_gt.json` list.
 
-use crate::error::PipelineError;
+use crate::error::{PipelineError, input_error};
 use crate::frame::RgbdFrame;
 use crate::source::{FrameFiles, MaskSource};
 use flowfilter_camera::CameraFile;
@@ -40,10 +40,6 @@ pub struct BopScene {
     instances: BTreeMap<u32, Vec<BopInstance>>,
     color_dir: &'static str,
     mask_dir: &'static str,
-}
-
-fn input_error(path: &Path, message: impl Into<String>) -> PipelineError {
-    PipelineError::Input { path: path.to_path_buf(), message: message.into() }
 }
 
 /// A JSON file's top-level object keyed by image id.

@@ -44,3 +44,8 @@ pub enum PipelineError {
     #[error("dataset: {0}")]
     Dataset(#[from] flowfilter_bigbird::BigBirdError),
 }
+
+/// [`PipelineError::Input`] naming `path`.
+pub(crate) fn input_error(path: &std::path::Path, message: impl Into<String>) -> PipelineError {
+    PipelineError::Input { path: path.to_path_buf(), message: message.into() }
+}

@@ -13,7 +13,7 @@
 //!   separate depth camera the depth image has that camera's size and the depth stage registers
 //!   it to colour; otherwise it must have the colour image's size and is used where it lies.
 
-use crate::error::PipelineError;
+use crate::error::{PipelineError, input_error};
 use crate::frame::RgbdFrame;
 use flowfilter_camera::CameraFile;
 use flowfilter_geometry::{Mask, RawDepth};
@@ -45,10 +45,6 @@ pub struct FrameFiles {
     pub depth: PathBuf,
     /// Object mask.
     pub mask: MaskSource,
-}
-
-fn input_error(path: &Path, message: impl Into<String>) -> PipelineError {
-    PipelineError::Input { path: path.to_path_buf(), message: message.into() }
 }
 
 fn open_image(path: &Path) -> Result<DynamicImage, PipelineError> {

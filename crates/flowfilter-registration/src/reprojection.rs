@@ -22,10 +22,6 @@ const MIN_PAIRS: usize = 8;
 /// along the rays, which rays alone hardly see, tied to depth.
 const RANGE_WEIGHT: f64 = 0.12;
 
-fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
-    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
-}
-
 /// The ray of a point: `(x/z, y/z)`; `None` behind or on the camera plane.
 fn ray(p: &Point3) -> Option<Vector2<f64>> {
     (p.z > 1e-6).then(|| Vector2::new(p.x / p.z, p.y / p.z))
@@ -58,7 +54,7 @@ fn forward(t: &Pose, p: &Point3, q: &Point3) -> Option<Term> {
     let x = t * p;
     let mut dx = SMatrix::<f64, 3, 6>::zeros();
     dx.fixed_view_mut::<3, 3>(0, 0).copy_from(&Matrix3::identity());
-    dx.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-skew(&x.coords)));
+    dx.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-x.coords.cross_matrix()));
     term(&x, q, &dx)
 }
 
@@ -68,7 +64,7 @@ fn backward(t: &Pose, p: &Point3, q: &Point3) -> Option<Term> {
     let y = inv * q;
     let mut dq = SMatrix::<f64, 3, 6>::zeros();
     dq.fixed_view_mut::<3, 3>(0, 0).copy_from(&Matrix3::identity());
-    dq.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-skew(&q.coords)));
+    dq.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-q.coords.cross_matrix()));
     let dy = -(inv.rotation.to_rotation_matrix().matrix() * dq);
     term(&y, p, &dy)
 }

@@ -24,7 +24,7 @@ use crate::rig::{RigSensor, world_from_table};
 use crate::scene::Scene;
 use flowfilter_camera::raster::NO_TRIANGLE;
 use flowfilter_camera::{CameraModel, Distortion, RgbdSensor};
-use flowfilter_geometry::{Mask, Pose, RawDepth};
+use flowfilter_geometry::{Mask, Pose, RawDepth, mask_bbox};
 use image::{ImageBuffer, Luma, RgbImage};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -127,19 +127,7 @@ pub fn render_bop_view(
 
 /// `[x, y, width, height]` of a mask's pixels (`[-1, -1, -1, -1]` when empty, as BOP writes).
 fn bbox(mask: &Mask) -> [i64; 4] {
-    let (w, h) = mask.dims();
-    let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
-    for y in 0..h {
-        for x in 0..w {
-            if *mask.at(x, y) {
-                (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x), y1.max(y));
-            }
-        }
-    }
-    if x0 == usize::MAX {
-        return [-1; 4];
-    }
-    [x0 as i64, y0 as i64, (x1 - x0 + 1) as i64, (y1 - y0 + 1) as i64]
+    mask_bbox(mask).map_or([-1; 4], |(x0, y0, x1, y1)| [x0, y0, x1 - x0 + 1, y1 - y0 + 1].map(|v| v as i64))
 }
 
 fn write_error(path: &Path, e: impl std::fmt::Display) -> SynthError {
