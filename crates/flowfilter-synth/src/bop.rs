@@ -97,32 +97,53 @@ pub fn render_bop_view(
     opts: &BopSceneOptions,
     im_id: usize,
 ) -> Result<BopView, SynthError> {
-    let angle = *opts.angles_deg.get(im_id).ok_or_else(|| SynthError::BadOption {
-        field: "angles_deg",
-        message: format!("no angle for image {im_id} ({} angles)", opts.angles_deg.len()),
-    })?;
-    let registered = bop_sensor(s, opts.depth_scale_mm)?;
-    let mut rng = ChaCha8Rng::seed_from_u64(image_seed(opts.seed, opts.obj_id, im_id));
-    let draw = opts.effects.draw(&mut rng);
-    let timing = ViewTiming { color_angle_deg: angle, depth_angle_deg: angle + draw.depth_delay_deg };
-    // Disparity is measured by the depth sensor: its focal length sets the quantisation.
-    let mut view = render_view(scene, &registered, timing, opts.noise.as_ref(), s.rgbd.depth.intrinsics.fx, &mut rng);
-    draw.apply_gain(&mut view.color);
-    let cam_from_obj = registered.h_color_from_world * world_from_table(angle);
-    let alone = render_gbuffer(&scene.object_only(), &registered.rgbd.color, &cam_from_obj);
-    let silhouette =
-        Mask::from_vec(alone.width, alone.height, alone.triangle.iter().map(|&t| t != NO_TRIANGLE).collect())
-            .expect("sized");
-    Ok(BopView {
-        color: view.color,
-        depth: view.raw_depth,
-        mask_visib: draw.perturb_mask(&view.mask),
-        mask: draw.perturb_mask(&silhouette),
-        true_mask: silhouette,
-        true_visib: view.mask,
-        cam_from_obj,
-        draw,
-    })
+    let camera = BopCamera::new(scene, s, opts)?;
+    camera.render(scene, opts, im_id)
+}
+
+/// What every image of a scene shares: the rig sensor, its registered BOP camera, and the object
+/// without the table (for the unoccluded silhouette).
+struct BopCamera<'a> {
+    sensor: &'a RigSensor,
+    registered: RigSensor,
+    alone: Scene,
+}
+
+impl<'a> BopCamera<'a> {
+    fn new(scene: &Scene, sensor: &'a RigSensor, opts: &BopSceneOptions) -> Result<Self, SynthError> {
+        Ok(Self { sensor, registered: bop_sensor(sensor, opts.depth_scale_mm)?, alone: scene.object_only() })
+    }
+
+    /// Image `im_id` (see [`render_bop_view`]).
+    fn render(&self, scene: &Scene, opts: &BopSceneOptions, im_id: usize) -> Result<BopView, SynthError> {
+        let (s, registered) = (self.sensor, &self.registered);
+        let angle = *opts.angles_deg.get(im_id).ok_or_else(|| SynthError::BadOption {
+            field: "angles_deg",
+            message: format!("no angle for image {im_id} ({} angles)", opts.angles_deg.len()),
+        })?;
+        let mut rng = ChaCha8Rng::seed_from_u64(image_seed(opts.seed, opts.obj_id, im_id));
+        let draw = opts.effects.draw(&mut rng);
+        let timing = ViewTiming { color_angle_deg: angle, depth_angle_deg: angle + draw.depth_delay_deg };
+        // Disparity is measured by the depth sensor: its focal length sets the quantisation.
+        let mut view =
+            render_view(scene, registered, timing, opts.noise.as_ref(), s.rgbd.depth.intrinsics.fx, &mut rng);
+        draw.apply_gain(&mut view.color);
+        let cam_from_obj = registered.h_color_from_world * world_from_table(angle);
+        let alone = render_gbuffer(&self.alone, &registered.rgbd.color, &cam_from_obj);
+        let silhouette =
+            Mask::from_vec(alone.width, alone.height, alone.triangle.iter().map(|&t| t != NO_TRIANGLE).collect())
+                .expect("sized");
+        Ok(BopView {
+            color: view.color,
+            depth: view.raw_depth,
+            mask_visib: draw.perturb_mask(&view.mask),
+            mask: draw.perturb_mask(&silhouette),
+            true_mask: silhouette,
+            true_visib: view.mask,
+            cam_from_obj,
+            draw,
+        })
+    }
 }
 
 /// `[x, y, width, height]` of a mask's pixels (`[-1, -1, -1, -1]` when empty, as BOP writes).
@@ -195,7 +216,7 @@ pub fn write_bop_scene(
     if opts.angles_deg.is_empty() {
         return Err(SynthError::BadOption { field: "angles_deg", message: "no angles".into() });
     }
-    let registered = bop_sensor(s, opts.depth_scale_mm)?;
+    let camera = BopCamera::new(scene, s, opts)?;
     for sub in ["rgb", "depth", "mask", "mask_visib"] {
         let d = dir.join(sub);
         std::fs::create_dir_all(&d).map_err(|e| write_error(&d, e))?;
@@ -205,14 +226,14 @@ pub fn write_bop_scene(
     let entries = (0..n)
         .into_par_iter()
         .map(|im| -> Result<(Value, Value, Value), SynthError> {
-            let view = render_bop_view(scene, s, opts, im)?;
+            let view = camera.render(scene, opts, im)?;
             let rgb = dir.join("rgb").join(format!("{im:06}.png"));
             view.color.save(&rgb).map_err(|e| write_error(&rgb, e))?;
             save_depth(&view.depth, &dir.join("depth").join(format!("{im:06}.png")))?;
             save_mask(&view.mask, &dir.join("mask").join(format!("{im:06}_000000.png")))?;
             save_mask(&view.mask_visib, &dir.join("mask_visib").join(format!("{im:06}_000000.png")))?;
             progress(done.fetch_add(1, Ordering::Relaxed) + 1, n);
-            Ok(annotations(&view, &registered, opts))
+            Ok(annotations(&view, &camera.registered, opts))
         })
         .collect::<Result<Vec<_>, _>>()?;
     let by_image = |pick: fn(&(Value, Value, Value)) -> &Value| -> Value {
