@@ -158,13 +158,10 @@ impl Sequence for YcbVideoFrames {
 /// # Errors
 /// Why the folder cannot be read.
 pub fn open_sequence(dir: &Path) -> Result<Box<dyn Sequence>, String> {
-    if dir.join("scene_gt.json").is_file() {
-        return Ok(Box::new(BopScene::open(dir).map_err(|e| e.to_string())?));
-    }
-    if is_ycbv_folder(dir) {
+    if !dir.join("scene_gt.json").is_file() && is_ycbv_folder(dir) {
         return Ok(Box::new(YcbVideoFrames::open(dir)?));
     }
-    // Neither: let the BOP reader say what is missing.
+    // A BOP scene, or neither: then the BOP reader says what is missing.
     Ok(Box::new(BopScene::open(dir).map_err(|e| e.to_string())?))
 }
 
