@@ -28,7 +28,9 @@ pub mod viz;
 pub use estimator::{FlowError, FlowEstimator, LucasKanade, WindowMatcher};
 pub use field::FlowField;
 pub use flo::FloError;
-pub use registry::{FLOW_ESTIMATOR_NAMES, check_estimator_name, flow_estimator_by_name};
+pub use registry::{
+    DIS_PRESET_NAMES, FLOW_ESTIMATOR_NAMES, check_estimator_name, flow_estimator_by_name, flow_estimator_with_presets,
+};
 
 /// The README's examples, compiled and run as doctests.
 #[cfg(doctest)]

@@ -64,6 +64,36 @@ pub fn flow_estimator_by_name(
     }
 }
 
+/// The DIS presets by name (`dis-medium`, `dis-fast`, `dis-ultrafast`), besides `dis` (the
+/// medium preset).
+pub const DIS_PRESET_NAMES: [&str; 3] = ["dis-medium", "dis-fast", "dis-ultrafast"];
+
+/// The estimator called `name` with default parameters, as `flowfilter flow --method` and the
+/// Python package's `flow()` name them: the names of [`flow_estimator_by_name`] (Lucas-Kanade
+/// with [`LucasKanade::turntable`]'s 9-pixel window, DIS with the medium preset) and the DIS
+/// presets of [`DIS_PRESET_NAMES`].
+///
+/// # Errors
+/// As [`flow_estimator_by_name`]; the message also lists the presets.
+///
+/// ```
+/// let fast = flowfilter_flow::flow_estimator_with_presets("dis-fast")?;
+/// assert_eq!(fast.name(), "dis");
+/// # Ok::<(), flowfilter_flow::FlowError>(())
+/// ```
+pub fn flow_estimator_with_presets(name: &str) -> Result<Box<dyn FlowEstimator>, FlowError> {
+    let (estimator, dis) = match name {
+        "dis-medium" => ("dis", DisParams::medium()),
+        "dis-fast" => ("dis", DisParams::fast()),
+        "dis-ultrafast" => ("dis", DisParams::ultrafast()),
+        other => (other, DisParams::medium()),
+    };
+    flow_estimator_by_name(estimator, &LucasKanade::turntable(), &dis).map_err(|e| match e {
+        FlowError::Config(m) => FlowError::Config(format!("{m} (also: {})", DIS_PRESET_NAMES.join(", "))),
+        other => other,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

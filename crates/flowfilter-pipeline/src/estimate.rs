@@ -152,3 +152,59 @@ impl Estimate {
         self
     }
 }
+
+/// The schema tag of [`RegisterReport`]'s JSON (`flowfilter register --json`).
+pub const REGISTER_SCHEMA: &str = "flowfilter register v1";
+
+/// Wall time of a registration alone, milliseconds.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct RegisterTimes {
+    /// The backend's `register` call.
+    pub registration: f64,
+    /// The same (no other stage runs).
+    pub total: f64,
+}
+
+/// One registration of two clouds, as `flowfilter register --json` and the Python package's
+/// `RegistrationResult.to_dict()` report it (the names of [`Estimate`] for the same quantities).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RegisterReport {
+    /// Always [`REGISTER_SCHEMA`].
+    pub schema: &'static str,
+    /// The backend's name.
+    pub method: String,
+    /// `T` with `target ~ T * source`, row-major.
+    pub transform: [[f64; 4]; 4],
+    /// Rotation angle of `T`.
+    pub rotation_angle_deg: f64,
+    /// Rotation axis of `T` (`[0, 0, 0]` for no rotation).
+    pub rotation_axis: [f64; 3],
+    /// Translation of `T`.
+    pub translation_m: [f64; 3],
+    /// Backend report.
+    pub registration: RegistrationSummary,
+    /// Time taken.
+    pub stage_ms: RegisterTimes,
+    /// Conditions the caller should know about.
+    pub warnings: Vec<flowfilter_registration::RegistrationWarning>,
+}
+
+impl RegisterReport {
+    /// The report of `r`, made by backend `method` from clouds of `source_points` and
+    /// `target_points` in `ms` milliseconds.
+    pub fn new(method: &str, r: &Registration, source_points: usize, target_points: usize, ms: f64) -> Self {
+        let (axis, angle) = r.transform.rotation.axis_angle().map_or(([0.0; 3], 0.0), |(a, t)| ([a.x, a.y, a.z], t));
+        let t = r.transform.translation.vector;
+        Self {
+            schema: REGISTER_SCHEMA,
+            method: method.into(),
+            transform: matrix_rows(&r.transform),
+            rotation_angle_deg: angle.to_degrees(),
+            rotation_axis: axis,
+            translation_m: [t.x, t.y, t.z],
+            registration: RegistrationSummary::new(r, source_points, target_points),
+            stage_ms: RegisterTimes { registration: ms, total: ms },
+            warnings: r.warnings.clone(),
+        }
+    }
+}

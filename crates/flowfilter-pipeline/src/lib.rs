@@ -30,9 +30,10 @@ mod warning;
 pub use config::{CloudPrepConfig, FlowStageConfig, PipelineConfig};
 pub use error::PipelineError;
 pub use estimate::{
-    CorrespondenceSummary, ESTIMATE_SCHEMA, Estimate, GroundTruth, RegistrationSummary, StageTimes, matrix_rows,
+    CorrespondenceSummary, ESTIMATE_SCHEMA, Estimate, GroundTruth, REGISTER_SCHEMA, RegisterReport, RegisterTimes,
+    RegistrationSummary, StageTimes, matrix_rows,
 };
-pub use frame::{RgbdFrame, load_bigbird_frame};
+pub use frame::{ImagesError, RgbdFrame, load_bigbird_frame};
 pub use pipeline::Pipeline;
 pub use source::{FrameFiles, MaskSource};
 pub use stages::{CorrespondenceFinder, DepthPreparer, FlowCorrespondenceFinder, FramePreparer, PreparedFrame};

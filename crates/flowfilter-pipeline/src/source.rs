@@ -14,7 +14,7 @@
 //!   it to colour; otherwise it must have the colour image's size and is used where it lies.
 
 use crate::error::{PipelineError, input_error};
-use crate::frame::RgbdFrame;
+use crate::frame::{ImagesError, RgbdFrame};
 use flowfilter_camera::CameraFile;
 use flowfilter_geometry::{Mask, RawDepth};
 use image::DynamicImage;
@@ -76,32 +76,30 @@ impl FrameFiles {
                 ),
             ));
         };
-        let (dw, dh) = depth_pixels.dimensions();
-        if camera.is_registered() && (dw, dh) != (w, h) {
-            return Err(input_error(
-                &self.depth,
-                format!(
-                    "the depth image is {dw}x{dh} but the colour image {} is {w}x{h} (depth registered to colour must \
-                     have its size; a separate depth camera needs 'depth' and 'color_from_depth' in {})",
-                    self.color.display(),
-                    camera.origin
-                ),
-            ));
-        }
-        let depth = RawDepth::from_fn(dw as usize, dh as usize, |x, y| depth_pixels.get_pixel(x as u32, y as u32).0[0]);
-        let sensor = camera.sensor(Some((w, h)), Some((dw, dh)))?;
-        let mask = self.mask(&depth, camera.is_registered(), (w, h))?;
-        Ok(RgbdFrame { label: label.into(), color: color_image.to_rgb8(), depth, mask, sensor })
+        let depth = RawDepth::from_fn(depth_pixels.width() as usize, depth_pixels.height() as usize, |x, y| {
+            depth_pixels.get_pixel(x as u32, y as u32).0[0]
+        });
+        let mask = self.mask_image((w, h))?;
+        RgbdFrame::from_images(label, color_image.to_rgb8(), depth, mask, camera).map_err(|e| match e {
+            ImagesError::Depth(message) => input_error(&self.depth, message),
+            ImagesError::Mask(message) => input_error(self.mask_path().unwrap_or(&self.color), message),
+            ImagesError::Camera(e) => PipelineError::Camera(e),
+        })
     }
 
-    /// The object mask on the colour grid (without a mask file: the pixels with registered
-    /// depth, or every pixel when the depth stage will register depth from another camera).
-    fn mask(&self, depth: &RawDepth, registered: bool, (w, h): (u32, u32)) -> Result<Mask, PipelineError> {
+    /// The mask file's path, when there is one.
+    fn mask_path(&self) -> Option<&Path> {
+        match &self.mask {
+            MaskSource::None => None,
+            MaskSource::Binary(path) | MaskSource::Label { path, .. } => Some(path),
+        }
+    }
+
+    /// The object mask read from its file, on the colour grid of size `(w, h)`; `None` without
+    /// a mask file.
+    fn mask_image(&self, (w, h): (u32, u32)) -> Result<Option<Mask>, PipelineError> {
         let (path, id) = match &self.mask {
-            MaskSource::None if registered => {
-                return Ok(Mask::from_fn(w as usize, h as usize, |x, y| *depth.at(x, y) > 0));
-            }
-            MaskSource::None => return Ok(Mask::filled(w as usize, h as usize, true)),
+            MaskSource::None => return Ok(None),
             MaskSource::Binary(path) => (path, None),
             MaskSource::Label { path, id } => (path, Some(*id)),
         };
@@ -121,15 +119,9 @@ impl FrameFiles {
             let v = if eight_bit { v / 257 } else { v };
             id.map_or(v > 0, |id| v == id)
         });
-        if !mask.as_slice().iter().any(|m| *m) {
-            return Err(input_error(
-                path,
-                match id {
-                    Some(id) => format!("label {id} does not occur in the label image"),
-                    None => "the mask is empty (no non-zero pixel)".into(),
-                },
-            ));
+        if let (Some(id), false) = (id, mask.as_slice().iter().any(|m| *m)) {
+            return Err(input_error(path, format!("label {id} does not occur in the label image")));
         }
-        Ok(mask)
+        Ok(Some(mask))
     }
 }

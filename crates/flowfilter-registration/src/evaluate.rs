@@ -1,7 +1,7 @@
 //! Shared pieces: inlier evaluation, robust kernels, the point-to-plane Gauss-Newton step.
 
 use flowfilter_geometry::{KnnIndex, Point3, Pose, Vector3, se3};
-use nalgebra::{Matrix6, Vector6};
+use nalgebra::{Matrix6, Translation3, UnitQuaternion, Vector6};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -126,17 +126,25 @@ impl RobustKernel {
 }
 
 /// One Gauss-Newton step of weighted point-to-plane alignment over `len` pairs given by
-/// `pair(i) = (x_i, y_i, n_i, w_i)` (read where they are stored, no gathered copies): the twist
-/// `xi` (left perturbation) minimising `sum w_i (n_i . (exp(xi) x_i - y_i))^2` to first order.
-/// `None` when the normal equations are singular (e.g. all normals parallel).
+/// `pair(i) = (x_i, y_i, n_i, w_i)` (read where they are stored, no gathered copies): the
+/// solution `(t, a)` of the linearised problem `min sum w_i (n_i . (x_i + a x x_i + t - y_i))^2`,
+/// composed as Open3D's point-to-plane ICP composes it: rotation `Rz(a_z) Ry(a_y) Rx(a_x)`,
+/// translation `t`. The first-order solution is the same for any composition, but the iterates
+/// are not: with the exponential map they differ at second order in the step and, on noisy
+/// clouds with a wide gate, can settle elsewhere than Open3D's. `None` when the normal
+/// equations are singular (e.g. all normals parallel).
 pub fn point_to_plane_step_by(
     len: usize,
     pair: impl Fn(usize) -> (Point3, Point3, Vector3, f64) + Sync,
 ) -> Option<Pose> {
-    gauss_newton_step(len, |i, h, g| {
+    let xi = normal_equations_solution(len, |i, h, g| {
         let (x, y, n, w) = pair(i);
         plane_term(&x, &y, &n, w, h, g)
-    })
+    })?;
+    let rotation = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), xi[5])
+        * UnitQuaternion::from_axis_angle(&Vector3::y_axis(), xi[4])
+        * UnitQuaternion::from_axis_angle(&Vector3::x_axis(), xi[3]);
+    Some(Pose::from_parts(Translation3::new(xi[0], xi[1], xi[2]), rotation))
 }
 
 /// Adds one weighted point-to-plane residual `n . (x - y)` to the normal equations.
@@ -152,6 +160,15 @@ fn plane_term(x: &Point3, y: &Point3, n: &Vector3, w: f64, h: &mut Matrix6<f64>,
 /// Solves the normal equations accumulated by `term(i, h, g)` over `0..len` (in fixed chunks
 /// summed in order: the same bits whatever the thread count) for the left twist.
 fn gauss_newton_step(len: usize, term: impl Fn(usize, &mut Matrix6<f64>, &mut Vector6<f64>) + Sync) -> Option<Pose> {
+    normal_equations_solution(len, term).map(|xi| se3::exp(&xi))
+}
+
+/// The solution `xi` (translation, then rotation) of the normal equations accumulated by
+/// `term(i, h, g)` over `0..len`, or `None` when they are singular or the solution is not finite.
+fn normal_equations_solution(
+    len: usize,
+    term: impl Fn(usize, &mut Matrix6<f64>, &mut Vector6<f64>) + Sync,
+) -> Option<Vector6<f64>> {
     let chunks = len.div_ceil(DETERMINISTIC_CHUNK);
     let (h, g) = (0..chunks)
         .into_par_iter()
@@ -168,7 +185,7 @@ fn gauss_newton_step(len: usize, term: impl Fn(usize, &mut Matrix6<f64>, &mut Ve
     // Only the lower triangle was accumulated.
     let h = Matrix6::from_fn(|r, c| if r >= c { h[(r, c)] } else { h[(c, r)] });
     let xi = h.cholesky()?.solve(&(-g));
-    xi.iter().all(|v| v.is_finite()).then(|| se3::exp(&xi))
+    xi.iter().all(|v| v.is_finite()).then_some(xi)
 }
 
 /// [`point_to_plane_step_by`] where a pair without a normal (`None`) contributes its full

@@ -2,10 +2,9 @@
 
 use anyhow::{Context, bail};
 use clap::Args;
-use flowfilter_flow::dis::DisParams;
 use flowfilter_flow::lk::to_gray;
 use flowfilter_flow::metrics::epe;
-use flowfilter_flow::{FlowEstimator, LucasKanade, flo, flow_estimator_by_name, viz};
+use flowfilter_flow::{FlowEstimator, flo, flow_estimator_with_presets, viz};
 use flowfilter_geometry::Mask;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -43,18 +42,11 @@ pub struct FlowArgs {
 /// The estimator named on the command line: the registry's names (lk, dis, net, onnx:MODEL)
 /// plus the DIS presets; LK with the pipeline's 9-pixel window.
 fn estimator(name: &str) -> anyhow::Result<Box<dyn FlowEstimator>> {
-    let (estimator, dis) = match name {
-        "dis-medium" => ("dis", DisParams::medium()),
-        "dis-fast" => ("dis", DisParams::fast()),
-        "dis-ultrafast" => ("dis", DisParams::ultrafast()),
-        other => (other, DisParams::medium()),
-    };
     #[cfg(not(feature = "onnx"))]
-    if estimator.starts_with("onnx:") || estimator == "net" {
-        bail!("--method {estimator}: ONNX networks need a build with the `onnx` feature (cargo build --features onnx)")
+    if name.starts_with("onnx:") || name == "net" {
+        bail!("--method {name}: ONNX networks need a build with the `onnx` feature (cargo build --features onnx)")
     }
-    flow_estimator_by_name(estimator, &LucasKanade::turntable(), &dis)
-        .with_context(|| format!("--method {name} (also: dis-medium, dis-fast, dis-ultrafast)"))
+    flow_estimator_with_presets(name).with_context(|| format!("--method {name}"))
 }
 
 /// Run `flow`.

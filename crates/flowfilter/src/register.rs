@@ -4,7 +4,7 @@ use anyhow::Context;
 use clap::Args;
 use flowfilter_depth::ply::read_ply;
 use flowfilter_geometry::Pose;
-use flowfilter_pipeline::{PipelineConfig, RegistrationSummary, matrix_rows};
+use flowfilter_pipeline::{PipelineConfig, RegisterReport};
 use flowfilter_registration::{RegistrationConfig, RegistrationProblem, registrar_by_name};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -38,9 +38,6 @@ pub struct RegisterArgs {
     pub json: bool,
 }
 
-/// The schema tag of `register --json`.
-pub const REGISTER_SCHEMA: &str = "flowfilter register v1";
-
 /// The backend parameters and, for a pipeline configuration, its method.
 fn read_config(path: &Path) -> anyhow::Result<(RegistrationConfig, Option<String>)> {
     let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
@@ -70,31 +67,17 @@ pub fn run(args: &RegisterArgs) -> anyhow::Result<ExitCode> {
     let start = Instant::now();
     let r = registrar.register(&RegistrationProblem::new(source, target).with_init(init))?;
     let ms = start.elapsed().as_secs_f64() * 1e3;
-    let rows = matrix_rows(&r.transform);
-    let (axis, angle) = r.transform.rotation.axis_angle().map_or(([0.0; 3], 0.0), |(a, t)| ([a.x, a.y, a.z], t));
-    let t = r.transform.translation.vector;
+    let report = RegisterReport::new(registrar.name(), &r, model_points, target_points, ms);
     if args.json {
-        // The names of `estimate --json` for the same quantities.
-        let out = serde_json::json!({
-            "schema": REGISTER_SCHEMA,
-            "method": registrar.name(),
-            "transform": rows,
-            "rotation_angle_deg": angle.to_degrees(),
-            "rotation_axis": axis,
-            "translation_m": [t.x, t.y, t.z],
-            "registration": RegistrationSummary::new(&r, model_points, target_points),
-            "stage_ms": { "registration": ms, "total": ms },
-            "warnings": r.warnings,
-        });
-        println!("{}", serde_json::to_string_pretty(&out)?);
+        println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
         println!("method: {}", registrar.name());
-        for row in &rows {
+        for row in &report.transform {
             println!("  {:>12.8} {:>12.8} {:>12.8} {:>12.8}", row[0], row[1], row[2], row[3]);
         }
         println!(
             "rotation {:.4} deg, {} iterations, converged: {}, fitness {:.4}, inlier RMSE {:.3} mm, {:.1} ms",
-            angle.to_degrees(),
+            report.rotation_angle_deg,
             r.iterations,
             r.converged,
             r.fitness,

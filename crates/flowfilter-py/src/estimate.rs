@@ -1,0 +1,235 @@
+//! `flowfilter.estimate` and `flowfilter.correspondences`: two RGB-D frames through the
+//! pipeline (`flowfilter estimate`).
+
+use crate::arrays::{self, json_object, matrix, rows_array};
+use crate::errors::pipeline;
+use crate::frame::{camera_arg, frame_arg};
+use crate::{params, threads};
+use flowfilter_pipeline::{
+    CorrespondenceFinder, DepthPreparer, FlowCorrespondenceFinder, FramePreparer, Pipeline, PipelineError, Pose,
+    RgbdFrame,
+};
+use numpy::{PyArray1, PyArray2};
+use pyo3::prelude::*;
+
+/// The pipeline's estimate: the fields of `flowfilter estimate --json` (schema
+/// "flowfilter estimate v2").
+#[pyclass(module = "flowfilter", frozen)]
+pub struct Estimate {
+    estimate: flowfilter_pipeline::Estimate,
+}
+
+#[pymethods]
+impl Estimate {
+    /// The 4x4 float64 transform `T` with `target ~ T @ model` (colour camera frame).
+    #[getter]
+    fn transform<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        matrix(py, &self.estimate.transform)
+    }
+    /// The same as `transform` (Open3D's name).
+    #[getter]
+    fn transformation<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        matrix(py, &self.estimate.transform)
+    }
+    /// Registration method.
+    #[getter]
+    fn method(&self) -> &str {
+        &self.estimate.method
+    }
+    /// Flow estimator, for methods that use flow; else None.
+    #[getter]
+    fn flow_estimator(&self) -> Option<&str> {
+        self.estimate.flow_estimator.as_deref()
+    }
+    /// Model frame's name.
+    #[getter]
+    fn model(&self) -> &str {
+        &self.estimate.model
+    }
+    /// Target frame's name.
+    #[getter]
+    fn target(&self) -> &str {
+        &self.estimate.target
+    }
+    /// Rotation angle of `T`, degrees.
+    #[getter]
+    fn rotation_angle_deg(&self) -> f64 {
+        self.estimate.rotation_angle_deg
+    }
+    /// Unit rotation axis of `T` (`[0, 0, 0]` without rotation).
+    #[getter]
+    fn rotation_axis(&self) -> [f64; 3] {
+        self.estimate.rotation_axis
+    }
+    /// Translation of `T`, metres.
+    #[getter]
+    fn translation_m(&self) -> [f64; 3] {
+        self.estimate.translation_m
+    }
+    /// The backend's report: iterations, converged, fitness, inlier_rmse_m, sigma2,
+    /// model_points, target_points and, for Flow Filter, uncertainty.
+    #[getter]
+    fn registration<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        json_object(py, &self.estimate.registration)
+    }
+    /// Flow correspondences (tracked, consistent, inliers, guided), or None without flow.
+    #[getter]
+    fn correspondences<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        json_object(py, &self.estimate.correspondences)
+    }
+    /// Milliseconds per stage.
+    #[getter]
+    fn stage_ms<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        json_object(py, &self.estimate.stage_ms)
+    }
+    /// Conditions to know about, as dicts `{"code", "message"}`.
+    #[getter]
+    fn warnings<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        json_object(py, &self.estimate.warnings)
+    }
+    /// The true transform and the errors against it, when `gt` was given; else None.
+    #[getter]
+    fn ground_truth<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        json_object(py, &self.estimate.ground_truth)
+    }
+    /// The estimate as `flowfilter estimate --json` prints it.
+    fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        json_object(py, &self.estimate)
+    }
+    fn __repr__(&self) -> String {
+        let e = &self.estimate;
+        format!(
+            "Estimate(method='{}', model='{}', target='{}', rotation_angle_deg={:.4}, converged={})",
+            e.method,
+            e.model,
+            e.target,
+            e.rotation_angle_deg,
+            if e.registration.converged { "True" } else { "False" }
+        )
+    }
+}
+
+/// Both frames as the pipeline's, with the camera argument when given.
+fn frames(
+    model: &Bound<'_, PyAny>,
+    target: &Bound<'_, PyAny>,
+    camera: Option<&Bound<'_, PyAny>>,
+) -> PyResult<(RgbdFrame, RgbdFrame)> {
+    let camera = camera.filter(|c| !c.is_none()).map(camera_arg).transpose()?;
+    let (a, b) = (frame_arg(model, "model")?, frame_arg(target, "target")?);
+    Ok((a.rgbd(camera.as_ref())?, b.rgbd(camera.as_ref())?))
+}
+
+/// The relative pose of the object between two RGB-D frames of one camera: `T` with
+/// `target ~ T @ model`.
+///
+/// `model`, `target`: `Frame`s (arrays, or read by `read_bop_frame` / `read_bigbird_frame` /
+/// `read_frame`). `camera`: a `Camera`, a camera-file path or a dict (required for frames made
+/// from arrays). `method`: the registration method (it replaces the configuration's; None
+/// keeps the configuration's). `config`: a pipeline configuration, as a TOML file path or a
+/// dict of the same tables (`configs/flowfilter.toml`). `gt`: the true 4x4 motion, for the
+/// errors in `ground_truth`.
+///
+/// Raises InputError for frames that cannot be used, ConfigError for a bad configuration.
+#[pyfunction]
+#[pyo3(signature = (model, target, camera = None, method = Some("flowfilter"), config = None, *, gt = None))]
+#[pyo3(text_signature = "(model, target, camera=None, method='flowfilter', config=None, *, gt=None)")]
+pub fn estimate(
+    py: Python<'_>,
+    model: &Bound<'_, PyAny>,
+    target: &Bound<'_, PyAny>,
+    camera: Option<&Bound<'_, PyAny>>,
+    method: Option<&str>,
+    config: Option<&Bound<'_, PyAny>>,
+    gt: Option<&Bound<'_, PyAny>>,
+) -> PyResult<Estimate> {
+    let mut config = params::pipeline_config(config)?;
+    if let Some(m) = method {
+        config.method = m.into();
+    }
+    let pipeline = Pipeline::from_config(config).map_err(|e| crate::errors::pipeline(&e))?;
+    let (fa, fb) = frames(model, target, camera)?;
+    let truth: Option<Pose> = gt.filter(|g| !g.is_none()).map(|g| arrays::pose(g, "gt")).transpose()?;
+    let result = threads::run(py, || -> Result<flowfilter_pipeline::Estimate, PipelineError> {
+        let started = std::time::Instant::now();
+        let (a, b) = (pipeline.prepare(&fa)?, pipeline.prepare(&fb)?);
+        let mut e = pipeline.estimate_prepared(&a, &b)?;
+        e.stage_ms.total = started.elapsed().as_secs_f64() * 1e3;
+        Ok(match truth {
+            Some(t) => e.with_ground_truth(&t, Some(&a.cloud.points)),
+            None => e,
+        })
+    })?;
+    result.map(|estimate| Estimate { estimate }).map_err(|e| crate::errors::pipeline(&e))
+}
+
+/// Flow correspondences between two frames: model points (colour camera frame) and where the
+/// flow puts them in the target frame.
+#[pyclass(module = "flowfilter", frozen)]
+pub struct Correspondences {
+    pairs: flowfilter_pipeline::Correspondences,
+    tracked: usize,
+}
+
+#[pymethods]
+impl Correspondences {
+    /// Model-frame points, (K, 3) float64, metres.
+    #[getter]
+    fn source<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        rows_array(py, &self.pairs.source)
+    }
+    /// Target-frame points, (K, 3) float64.
+    #[getter]
+    fn target<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        rows_array(py, &self.pairs.target)
+    }
+    /// Weights in [0, 1], (K,) float64 (0: rejected by the depth-change fit).
+    #[getter]
+    fn weights<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, &self.pairs.weights)
+    }
+    /// Model pixels tracked before any check.
+    #[getter]
+    fn tracked(&self) -> usize {
+        self.tracked
+    }
+    fn __len__(&self) -> usize {
+        self.pairs.len()
+    }
+    fn __repr__(&self) -> String {
+        format!("Correspondences({} pairs, {} usable, {} tracked)", self.pairs.len(), self.pairs.usable(), self.tracked)
+    }
+}
+
+/// The pipeline's flow correspondences between two frames (its depth stage, flow estimator
+/// and checks, from `config`); with `init` (a 4x4 predicted motion) tracking is guided by it.
+/// Pass the result to `register(..., method="flowfilter", correspondences=(c.source, c.target,
+/// c.weights))`.
+///
+/// Raises InputError for frames that cannot be used, ConfigError for a bad configuration.
+#[pyfunction]
+#[pyo3(signature = (model, target, camera = None, config = None, init = None))]
+pub fn correspondences(
+    py: Python<'_>,
+    model: &Bound<'_, PyAny>,
+    target: &Bound<'_, PyAny>,
+    camera: Option<&Bound<'_, PyAny>>,
+    config: Option<&Bound<'_, PyAny>>,
+    init: Option<&Bound<'_, PyAny>>,
+) -> PyResult<Correspondences> {
+    let config = params::pipeline_config(config)?;
+    let preparer = DepthPreparer::new(config.depth.clone(), config.cloud.clone()).map_err(|e| pipeline(&e))?;
+    let estimator = config.flow.estimator().map_err(|e| crate::errors::flow(&e))?;
+    let finder = FlowCorrespondenceFinder::new(estimator, config.flow.correspondences.clone());
+    let (fa, fb) = frames(model, target, camera)?;
+    let init: Option<Pose> = init.filter(|i| !i.is_none()).map(|i| arrays::pose(i, "init")).transpose()?;
+    let found = threads::run(py, || -> Result<_, PipelineError> {
+        let (a, b) = (preparer.prepare(&fa)?, preparer.prepare(&fb)?);
+        match init {
+            Some(pose) => finder.find_guided(&a, &b, &pose),
+            None => finder.find(&a, &b),
+        }
+    })?
+    .map_err(|e| pipeline(&e))?;
+    Ok(Correspondences { pairs: found.pairs, tracked: found.tracked })
+}
