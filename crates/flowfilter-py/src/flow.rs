@@ -52,6 +52,7 @@ pub fn flow<'py>(
 /// Raises InputError for points that cannot be used or k < 3.
 #[pyfunction]
 #[pyo3(signature = (points, k = 20, viewpoint = (0.0, 0.0, 0.0)))]
+#[pyo3(text_signature = "(points, k=20, viewpoint=(0.0, 0.0, 0.0))")]
 pub fn estimate_normals<'py>(
     py: Python<'py>,
     points: &Bound<'py, PyAny>,

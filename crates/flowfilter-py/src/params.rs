@@ -92,10 +92,19 @@ pub fn registration_config(method: &str, params: Option<&Bound<'_, PyDict>>) -> 
     if let Some(key) = SET_BY_METHOD.iter().find(|k| params.contains_key(**k)) {
         return Err(config(format!("{key}: set by the method name ('{method}'); choose the method instead")));
     }
-    let mut root = Map::new();
-    root.insert(table.into(), Value::Object(params));
-    serde_json::from_value(Value::Object(root))
-        .map_err(|e| config(format!("method '{method}': parameters of [{table}]: {e}")))
+    let parse = |params: Map<String, Value>| {
+        let mut root = Map::new();
+        root.insert(table.into(), Value::Object(params));
+        serde_json::from_value::<RegistrationConfig>(Value::Object(root))
+    };
+    parse(params.clone()).map_err(|e| {
+        // serde's message does not name the key: the first key that fails alone does.
+        let key = params.iter().find(|(k, v)| parse(Map::from_iter([((*k).clone(), (*v).clone())])).is_err());
+        match key {
+            Some((k, v)) => config(format!("method '{method}': parameter {k} = {v}: {e}")),
+            None => config(format!("method '{method}': parameters of [{table}]: {e}")),
+        }
+    })
 }
 
 /// The defaults of `method`'s parameters, as a dict of the names `register` takes.
