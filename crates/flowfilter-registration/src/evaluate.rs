@@ -238,8 +238,31 @@ mod tests {
                 ew.push(w[i]);
             }
         }
-        let want = point_to_plane_step_by(ex.len(), |i| (ex[i], ey[i], en[i], ew[i])).unwrap();
+        let want = gauss_newton_step(ex.len(), |i, h, g| plane_term(&ex[i], &ey[i], &en[i], ew[i], h, g)).unwrap();
         let got = plane_or_point_step(&x, &y, &n, &w, &pre).unwrap();
         assert!((want.to_homogeneous() - got.to_homogeneous()).abs().max() < 1e-12);
+    }
+
+    #[test]
+    fn point_to_plane_step_composes_its_solution_as_open3d() {
+        let x: Vec<Point3> =
+            (0..60).map(|i| Point3::new((i as f64 * 0.37).sin(), (i as f64 * 0.71).cos(), 0.1 * i as f64)).collect();
+        let truth =
+            Pose::from_parts(Translation3::new(0.03, -0.02, 0.01), UnitQuaternion::from_euler_angles(0.2, -0.1, 0.3));
+        let n: Vec<Vector3> =
+            (0..60).map(|i| Vector3::new((i as f64).cos(), (i as f64 * 1.3).sin(), 0.7).normalize()).collect();
+        let y: Vec<Point3> = x.iter().map(|p| truth * p).collect();
+        let step = point_to_plane_step_by(x.len(), |i| (x[i], y[i], n[i], 1.0)).unwrap();
+        let xi = normal_equations_solution(x.len(), |i, h, g| plane_term(&x[i], &y[i], &n[i], 1.0, h, g)).unwrap();
+        // Open3D's TransformVector6dToMatrix4d: R = Rz(c) Ry(b) Rx(a), t as solved.
+        let (a, b, c) = (xi[3], xi[4], xi[5]);
+        let rx = nalgebra::Matrix3::new(1.0, 0.0, 0.0, 0.0, a.cos(), -a.sin(), 0.0, a.sin(), a.cos());
+        let ry = nalgebra::Matrix3::new(b.cos(), 0.0, b.sin(), 0.0, 1.0, 0.0, -b.sin(), 0.0, b.cos());
+        let rz = nalgebra::Matrix3::new(c.cos(), -c.sin(), 0.0, c.sin(), c.cos(), 0.0, 0.0, 0.0, 1.0);
+        let r = rz * ry * rx;
+        assert!((step.rotation.to_rotation_matrix().matrix() - r).abs().max() < 1e-14);
+        assert!((step.translation.vector - Vector3::new(xi[0], xi[1], xi[2])).abs().max() < 1e-15);
+        // One step of a large motion is first-order: it moves towards the truth, not onto it.
+        assert!((step.rotation.angle() - truth.rotation.angle()).abs() < 0.2);
     }
 }
