@@ -66,3 +66,22 @@ def test_defaults_follow_the_configuration():
 def test_exceptions_are_in_the_package():
     assert flowfilter.Error.__module__ == "flowfilter" and issubclass(flowfilter.Error, Exception)
     assert flowfilter.__version__.count(".") == 2
+
+
+def python_blocks(path):
+    text = path.read_text()
+    blocks = text.split("```python\n")[1:]
+    return [b.split("```")[0] for b in blocks]
+
+
+def test_readme_examples_run(monkeypatch, capsys):
+    """The repository README's Python example and the package README's first one."""
+    root = pathlib.Path(__file__).resolve().parents[3]
+    monkeypatch.chdir(root)
+    for readme in [root / "README.md", root / "crates" / "flowfilter-py" / "README.md"]:
+        code = python_blocks(readme)[0]
+        namespace = {}
+        exec(compile(code, str(readme), "exec"), namespace)
+        assert namespace["icp"].fitness > 0.99 if "icp" in namespace else namespace["result"].fitness > 0.99
+        assert namespace["fr"].converged
+    assert "[[" in capsys.readouterr().out
