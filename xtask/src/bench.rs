@@ -5,7 +5,8 @@
 use crate::dataset::{embedded_objects, ensure_object};
 use crate::pairs::{Methods, PairJob, PairResult, RunArgs, progress};
 use crate::repo_root;
-use crate::report::{ReportSpec, write_outputs};
+use crate::report::{ReportSpec, ShardRun, write_outputs};
+use crate::shard::Shard;
 use anyhow::{Context, bail};
 use clap::Args;
 use flowfilter_bigbird::{BigBirdObject, FrameId, SensorId};
@@ -136,16 +137,16 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
     let configs = protocol.method_configs(args.run.voxel)?;
     let methods = Methods::new(&protocol.methods, &configs)?;
     let started = Instant::now();
-    let object_dirs = object_dirs(args, &protocol, &cameras)?;
+    let (all_objects, object_dirs) = object_dirs(args, &protocol, &cameras)?;
     let mut results: Vec<PairResult> = Vec::new();
-    let mut skipped: Vec<String> = Vec::new();
+    let mut skipped: Vec<(String, String)> = Vec::new();
     for dir in &object_dirs {
-        let name = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        let name = dir_name(dir);
         let obj = match BigBirdObject::open(dir) {
             Ok(o) => o,
             Err(e) => {
                 tracing::warn!(object = %name, error = %e, "skipping object");
-                skipped.push(format!("{name}: {e}"));
+                skipped.push((name, e.to_string()));
                 continue;
             }
         };
@@ -177,9 +178,22 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         appendix: paper,
         out: &args.run.out,
         check: args.run.check,
+        shard: args.run.shard.map(|shard| ShardRun {
+            shard,
+            group_field: "object",
+            groups: object_dirs.iter().map(|d| dir_name(d)).collect(),
+            all_groups: all_objects,
+            skipped: skipped.clone(),
+        }),
     };
+    let skipped: Vec<String> = skipped.iter().map(|(g, e)| format!("{g}: {e}")).collect();
     write_outputs(&spec, &results, &skipped, started.elapsed().as_secs_f64())?;
     Ok(())
+}
+
+/// A directory's last component.
+fn dir_name(dir: &Path) -> String {
+    dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default()
 }
 
 /// The protocol: `--protocol`, or the shipped quick or full one; `--methods` overrides its
@@ -199,9 +213,11 @@ fn load_protocol(args: &BenchArgs) -> anyhow::Result<Protocol> {
     Ok(protocol)
 }
 
-/// The object directories: a real download (`--data`), or the embedded dataset (synthesised
-/// once, cached under `target/bigbird-default`).
-fn object_dirs(args: &BenchArgs, protocol: &Protocol, cameras: &[SensorId]) -> anyhow::Result<Vec<PathBuf>> {
+/// Every object of the run (in its order) and the directories of this shard's objects: a real
+/// download (`--data`), or the embedded dataset (synthesised once, cached under
+/// `target/bigbird-default`; a shard synthesises only its objects).
+fn object_dirs(args: &BenchArgs, protocol: &Protocol, cameras: &[SensorId]) -> anyhow::Result<(Vec<String>, Vec<PathBuf>)> {
+    let shard = args.run.shard.unwrap_or(Shard { index: 1, count: 1 });
     if let Some(root) = &args.data {
         let mut dirs: Vec<PathBuf> = std::fs::read_dir(root)
             .with_context(|| format!("reading {}", root.display()))?
@@ -213,13 +229,15 @@ fn object_dirs(args: &BenchArgs, protocol: &Protocol, cameras: &[SensorId]) -> a
         if dirs.is_empty() {
             bail!("{}: no object directories", root.display());
         }
-        return Ok(dirs);
+        return Ok((dirs.iter().map(|d| dir_name(d)).collect(), shard.select(&dirs)));
     }
     let objects = embedded_objects(args.quick, args.meshes.as_deref());
+    let names = objects.iter().map(|o| o.name.clone()).collect();
+    let mine = shard.select(&objects);
     let root = Path::new("target").join("bigbird-default");
     let angles = protocol.angles();
-    let bar = progress(objects.len() as u64, "synthesising the default dataset (cached)");
-    let dirs = objects
+    let bar = progress(mine.len() as u64, "synthesising the default dataset (cached)");
+    let dirs = mine
         .par_iter()
         .map(|o| {
             let d = ensure_object(&root, o, cameras, &angles, 7);
@@ -228,7 +246,7 @@ fn object_dirs(args: &BenchArgs, protocol: &Protocol, cameras: &[SensorId]) -> a
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
     bar.finish();
-    Ok(dirs)
+    Ok((names, dirs))
 }
 
 /// One object's part of the benchmark.
@@ -314,7 +332,7 @@ mod tests {
             meshes: None,
             protocol: Some(protocol),
             methods: None,
-            run: RunArgs { out: out.clone(), voxel: Some(0.002), check: true },
+            run: RunArgs { out: out.clone(), voxel: Some(0.002), check: true, shard: None },
         };
         run(&args).unwrap();
         let run_dir = std::fs::read_dir(&out).unwrap().next().unwrap().unwrap().path();

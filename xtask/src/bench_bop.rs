@@ -11,7 +11,8 @@
 use crate::dataset::{BopSceneSpec, DefaultObject, embedded_objects, ensure_bop_scene};
 use crate::pairs::{Methods, PairJob, PairResult, RunArgs, progress};
 use crate::repo_root;
-use crate::report::{ReportSpec, write_outputs};
+use crate::report::{ReportSpec, ShardRun, write_outputs};
+use crate::shard::Shard;
 use crate::sequence::{Sequence, is_sequence, open_sequence};
 use anyhow::{Context, bail};
 use clap::Args;
@@ -84,22 +85,22 @@ pub fn run(args: &BopBenchArgs) -> anyhow::Result<()> {
     let configs = method_configs(args)?;
     let methods = Methods::new(&args.methods, &configs)?;
     let started = Instant::now();
-    let (scene_dirs, names) = scene_dirs(args)?;
+    let Scenes { all: all_scenes, dirs: scene_dirs, names } = scene_dirs(args)?;
     let mut results: Vec<PairResult> = vec![];
-    let mut skipped: Vec<String> = vec![];
+    let mut skipped: Vec<(String, String)> = vec![];
     for dir in &scene_dirs {
-        let label = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        let label = dir_label(dir);
         let scene = match open_sequence(dir) {
             Ok(s) => s,
             Err(e) => {
                 tracing::warn!(scene = %label, error = %e, "skipping scene");
-                skipped.push(format!("{label}: {e}"));
+                skipped.push((label, e.to_string()));
                 continue;
             }
         };
         let jobs = scene_jobs(scene.as_ref(), &label, &gaps, args.min_visib, &names);
         if jobs.is_empty() {
-            skipped.push(format!("{label}: no object is visible in two images {gaps:?} apart"));
+            skipped.push((label, format!("no object is visible in two images {gaps:?} apart")));
             continue;
         }
         let mut frames: Vec<BopKey> = jobs.iter().flat_map(|j| [j.model, j.target]).collect();
@@ -109,8 +110,11 @@ pub fn run(args: &BopBenchArgs) -> anyhow::Result<()> {
         let prepared = methods.prepare(&frames, &load, &format!("scene {label}"));
         results.append(&mut methods.run(&jobs, &prepared, &format!("scene {label}")));
     }
-    if results.is_empty() {
-        bail!("no pair to run: {}", skipped.join("; "));
+    let skipped_lines: Vec<String> = skipped.iter().map(|(g, e)| format!("{g}: {e}")).collect();
+    // A shard may hold no pair (more shards than scenes, or only skipped scenes): the merge
+    // decides whether the run as a whole has any.
+    if results.is_empty() && args.run.shard.is_none() {
+        bail!("no pair to run: {}", skipped_lines.join("; "));
     }
     let spec = ReportSpec {
         bench: "bench-bop",
@@ -119,7 +123,7 @@ pub fn run(args: &BopBenchArgs) -> anyhow::Result<()> {
             |d| d.display().to_string(),
         ),
         protocol: serde_json::json!({
-            "scenes": scene_dirs.iter().map(|d| d.display().to_string()).collect::<Vec<_>>(),
+            "scenes": all_scenes,
             "gaps": gaps,
             "methods": args.methods,
             "pipeline": args.pipeline,
@@ -128,7 +132,7 @@ pub fn run(args: &BopBenchArgs) -> anyhow::Result<()> {
         }),
         protocol_line: format!(
             "{} scene(s), gaps {:?}, visible fraction >= {}, pipeline {}",
-            scene_dirs.len(),
+            all_scenes.len(),
             gaps,
             args.min_visib,
             args.pipeline.display()
@@ -138,9 +142,21 @@ pub fn run(args: &BopBenchArgs) -> anyhow::Result<()> {
         appendix: String::new(),
         out: &args.run.out,
         check: args.run.check,
+        shard: args.run.shard.map(|shard| ShardRun {
+            shard,
+            group_field: "camera",
+            groups: scene_dirs.iter().map(|d| dir_label(d)).collect(),
+            all_groups: all_scenes.clone(),
+            skipped: skipped.clone(),
+        }),
     };
-    write_outputs(&spec, &results, &skipped, started.elapsed().as_secs_f64())?;
+    write_outputs(&spec, &results, &skipped_lines, started.elapsed().as_secs_f64())?;
     Ok(())
+}
+
+/// A scene folder's name (its label in the results).
+fn dir_label(dir: &Path) -> String {
+    dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default()
 }
 
 /// One pipeline configuration per method.
@@ -215,10 +231,26 @@ fn default_root(quick: bool) -> PathBuf {
     Path::new("target").join(if quick { "bop-quick" } else { "bop-default" }).join("test")
 }
 
-/// The scene folders (filtered by `--scenes`) and the object names known for their ids.
-fn scene_dirs(args: &BopBenchArgs) -> anyhow::Result<(Vec<PathBuf>, BTreeMap<u32, String>)> {
-    let (mut dirs, names) = match &args.data {
-        Some(root) if is_sequence(root) => (vec![root.clone()], BTreeMap::new()),
+/// The run's scenes: every scene (labels, in order), this shard's folders, and the object names
+/// known for their ids.
+struct Scenes {
+    all: Vec<String>,
+    dirs: Vec<PathBuf>,
+    names: BTreeMap<u32, String>,
+}
+
+/// Whether a scene (by folder name) is one `--scenes` asks for.
+fn wanted(args: &BopBenchArgs, label: &str) -> bool {
+    args.scenes.as_ref().is_none_or(|w| label.parse::<u32>().is_ok_and(|i| w.contains(&i)))
+}
+
+/// The scene folders (filtered by `--scenes`, then this shard's) and the object names known for
+/// their ids.
+fn scene_dirs(args: &BopBenchArgs) -> anyhow::Result<Scenes> {
+    let shard = args.run.shard.unwrap_or(Shard { index: 1, count: 1 });
+    let mut dirs = match &args.data {
+        None => return default_dataset(args, shard),
+        Some(root) if is_sequence(root) => vec![root.clone()],
         Some(root) => {
             let mut dirs: Vec<PathBuf> = std::fs::read_dir(root)
                 .with_context(|| format!("reading {}", root.display()))?
@@ -233,18 +265,16 @@ fn scene_dirs(args: &BopBenchArgs) -> anyhow::Result<(Vec<PathBuf>, BTreeMap<u32
                     root.display()
                 );
             }
-            (dirs, BTreeMap::new())
+            dirs
         }
-        None => default_dataset(args)?,
     };
-    if let Some(wanted) = &args.scenes {
-        let id = |d: &PathBuf| d.file_name().and_then(|n| n.to_str()).and_then(|n| n.parse::<u32>().ok());
-        dirs.retain(|d| id(d).is_some_and(|i| wanted.contains(&i)));
+    if args.scenes.is_some() {
+        dirs.retain(|d| wanted(args, &dir_label(d)));
         if dirs.is_empty() {
-            bail!("--scenes {wanted:?}: none of these scenes is in the dataset");
+            bail!("--scenes {:?}: none of these scenes is in the dataset", args.scenes.as_deref().unwrap_or_default());
         }
     }
-    Ok((dirs, names))
+    Ok(Scenes { all: dirs.iter().map(|d| dir_label(d)).collect(), dirs: shard.select(&dirs), names: BTreeMap::new() })
 }
 
 /// The embedded dataset's scenes of one object (see the module documentation).
@@ -261,17 +291,25 @@ fn default_scenes(k: u32, quick: bool) -> [BopSceneSpec; 2] {
     ]
 }
 
-/// Synthesise (once, cached) the embedded dataset.
-fn default_dataset(args: &BopBenchArgs) -> anyhow::Result<(Vec<PathBuf>, BTreeMap<u32, String>)> {
+/// Synthesise (once, cached) the embedded dataset's scenes of this shard.
+fn default_dataset(args: &BopBenchArgs, shard: Shard) -> anyhow::Result<Scenes> {
     let objects: Vec<DefaultObject> = embedded_objects(args.quick, args.meshes.as_deref());
     let root = default_root(args.quick);
-    let work: Vec<(u32, &DefaultObject, BopSceneSpec)> = objects
+    let mut work: Vec<(u32, &DefaultObject, BopSceneSpec)> = objects
         .iter()
         .zip(1u32..)
         .flat_map(|(o, k)| default_scenes(k, args.quick).into_iter().map(move |s| (k, o, s)))
+        .filter(|(_, _, spec)| wanted(args, &spec.scene_id.to_string()))
         .collect();
-    let bar = progress(work.len() as u64, "synthesising the default BOP scenes (cached)");
-    let mut dirs = work
+    if work.is_empty() {
+        bail!("--scenes {:?}: none of these scenes is in the dataset", args.scenes.as_deref().unwrap_or_default());
+    }
+    // Scene folders are named by their six-digit id: their order is the ids'.
+    work.sort_by_key(|(_, _, spec)| spec.scene_id);
+    let all = work.iter().map(|(_, _, spec)| format!("{:06}", spec.scene_id)).collect();
+    let mine: Vec<_> = work.iter().enumerate().filter(|(i, _)| shard.owns(*i)).map(|(_, w)| w).collect();
+    let bar = progress(mine.len() as u64, "synthesising the default BOP scenes (cached)");
+    let dirs = mine
         .par_iter()
         .map(|(k, o, spec)| {
             let d = ensure_bop_scene(&root, o, *k, spec, 7);
@@ -280,9 +318,8 @@ fn default_dataset(args: &BopBenchArgs) -> anyhow::Result<(Vec<PathBuf>, BTreeMa
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
     bar.finish();
-    dirs.sort();
     let names = objects.iter().zip(1u32..).map(|(o, k)| (k, o.name.clone())).collect();
-    Ok((dirs, names))
+    Ok(Scenes { all, dirs, names })
 }
 
 #[cfg(test)]
@@ -308,7 +345,7 @@ mod tests {
             min_visib: 0.1,
             quick: false,
             meshes: None,
-            run: RunArgs { out, voxel: Some(0.002), check: true },
+            run: RunArgs { out, voxel: Some(0.002), check: true, shard: None },
         }
     }
 
@@ -380,7 +417,7 @@ mod real_frames {
             min_visib: 0.1,
             quick: false,
             meshes: None,
-            run: RunArgs { out: tmp.path().to_path_buf(), voxel: None, check: true },
+            run: RunArgs { out: tmp.path().to_path_buf(), voxel: None, check: true, shard: None },
         };
         run(&args).unwrap();
         let run_dir = std::fs::read_dir(tmp.path()).unwrap().next().unwrap().unwrap().path();

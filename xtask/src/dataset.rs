@@ -13,6 +13,7 @@ use std::path::{Path, PathBuf};
 const DATASET_VERSION: &str = "flowfilter-default-dataset v4 (mip-mapped textures, label print at millimetre scale)";
 
 /// Where an object comes from.
+#[derive(Clone)]
 pub enum ObjectSource {
     /// A procedural object by name.
     Procedural(String),
@@ -21,6 +22,7 @@ pub enum ObjectSource {
 }
 
 /// One object of the default dataset.
+#[derive(Clone)]
 pub struct DefaultObject {
     /// Directory name.
     pub name: String,

@@ -5,6 +5,8 @@
 //!   under `target/`, or on a real BigBIRD download (`--data DIR`).
 //! - `bench-bop`: the same measurement on BOP scenes (image `i` to image `i + gap`, every
 //!   object visible in both), on a BOP dataset (`--data DIR`) or the embedded synthetic scenes.
+//! - `bench-merge`: the shards of a sharded benchmark run (`--shard K/N`, one process each,
+//!   launched by any scheduler: `deploy/`) merged into one run's outputs.
 //! - `publish-check`: every library crate packages and builds from its package; a scratch
 //!   crate outside the workspace depends on `flowfilter-registration` and runs its README
 //!   example.
@@ -13,11 +15,13 @@ mod bench;
 mod bench_bop;
 mod dataset;
 mod deps;
+mod merge;
 mod pairs;
 mod plots;
 mod publish_check;
 mod report;
 mod sequence;
+mod shard;
 
 use clap::{Parser, Subcommand};
 use std::path::{Path, PathBuf};
@@ -37,6 +41,9 @@ enum Command {
     /// Run the relative-pose benchmark on BOP scenes (a BOP dataset, or the embedded synthetic
     /// scenes) and write results/<timestamp>/.
     BenchBop(bench_bop::BopBenchArgs),
+    /// Merge the shards of a sharded benchmark run (`--shard K/N`) into the outputs one
+    /// process would have written.
+    BenchMerge(merge::MergeArgs),
     /// Check that every library crate packages and builds on its own, and that a crate outside
     /// the workspace can depend on one and run its README example.
     PublishCheck(publish_check::PublishCheckArgs),
@@ -55,6 +62,7 @@ fn main() -> ExitCode {
     let result = match Cli::parse().command {
         Command::BenchBigbird(args) => bench::run(&args),
         Command::BenchBop(args) => bench_bop::run(&args),
+        Command::BenchMerge(args) => merge::run(&args),
         Command::PublishCheck(args) => publish_check::run(&args),
     };
     match result {

@@ -8,7 +8,7 @@ use flowfilter_pipeline::{
 };
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, BTreeSet};
 use std::fmt::Display;
 use std::io::IsTerminal;
@@ -30,13 +30,18 @@ pub struct RunArgs {
     /// failed (what CI checks).
     #[arg(long)]
     pub check: bool,
+    /// Run only shard K of N (e.g. 2/3): every N-th object (BigBIRD) or scene (BOP), each
+    /// frame prepared in one shard only, written to OUT/shard-K-of-N/ with a manifest that
+    /// `cargo xtask bench-merge` checks and merges.
+    #[arg(long)]
+    pub shard: Option<crate::shard::Shard>,
 }
 
 /// The row of the identity estimate: what answering "it did not move" scores.
 pub const NO_MOTION: &str = "no-motion";
 
-/// One registration (or the "no motion" answer) of one pair.
-#[derive(Debug, Clone, Serialize)]
+/// One registration (or the "no motion" answer) of one pair (read back by `bench-merge`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct PairResult {
     /// Object (BigBIRD: directory name; BOP: `obj_000001`, or its name when known).
     pub object: String,
@@ -57,16 +62,21 @@ pub struct PairResult {
     /// Whether the method reported convergence.
     pub converged: Option<bool>,
     /// The method's error bounds, when it gives them.
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub uncertainty: Option<Uncertainty>,
     /// Time of the pair (flow, correspondences, registration), seconds.
     pub seconds: Option<f64>,
     /// Per-stage times (the two frames' depth stages included).
     pub stage_ms: Option<StageTimes>,
-    /// Warnings of the pipeline (fallbacks taken).
-    pub warnings: Vec<PipelineWarning>,
+    /// Warnings of the pipeline (fallbacks taken), as `{code, message}` objects.
+    pub warnings: Vec<serde_json::Value>,
     /// The stage that failed and why.
     pub failure: Option<String>,
+}
+
+/// A pipeline warning as its JSON object (`{code, message}`).
+fn warning_json(w: &PipelineWarning) -> serde_json::Value {
+    serde_json::to_value(w).unwrap_or_else(|e| serde_json::json!({ "code": "unserialisable", "message": e.to_string() }))
 }
 
 /// One pair of a benchmark: its names, its frames' keys and its ground truth.
@@ -259,7 +269,7 @@ impl Methods<'_> {
             row.uncertainty = e.registration.uncertainty;
             row.errors = Some(PoseErrors::new(&e.pose, truth, Some(&model.cloud.points)));
             row.stage_ms = Some(e.stage_ms);
-            row.warnings = e.warnings;
+            row.warnings = e.warnings.iter().map(warning_json).collect();
             Ok(())
         })();
         row.failure = outcome.err();

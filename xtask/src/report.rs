@@ -190,6 +190,22 @@ pub struct ReportSpec<'a> {
     pub out: &'a Path,
     /// Exit non-zero unless `results.json` is complete and no pair failed.
     pub check: bool,
+    /// When this run is one shard of a sharded run: what its manifest records.
+    pub shard: Option<ShardRun>,
+}
+
+/// A shard's part of a run, for its manifest.
+pub struct ShardRun {
+    /// Which shard.
+    pub shard: crate::shard::Shard,
+    /// Which field of a pair names its group (`object` or `camera`).
+    pub group_field: &'static str,
+    /// Every group of the run, in order.
+    pub all_groups: Vec<String>,
+    /// This shard's groups.
+    pub groups: Vec<String>,
+    /// Groups skipped, with the reason.
+    pub skipped: Vec<(String, String)>,
 }
 
 /// The cell of a table: mean rotation-angle error, success rate, failures.
@@ -264,7 +280,17 @@ pub fn write_outputs(
     skipped: &[String],
     seconds: f64,
 ) -> anyhow::Result<PathBuf> {
-    let dir = spec.out.join(timestamp());
+    let dir = match &spec.shard {
+        Some(s) => {
+            // A shard run again replaces its earlier (perhaps partial) output.
+            let dir = spec.out.join(s.shard.dir_name());
+            if dir.exists() {
+                std::fs::remove_dir_all(&dir).with_context(|| format!("removing {}", dir.display()))?;
+            }
+            dir
+        }
+        None => spec.out.join(timestamp()),
+    };
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
     let summary = summarise(results);
     let json = serde_json::json!({
@@ -314,7 +340,34 @@ pub fn write_outputs(
         check(&dir.join("results.json"), spec.methods)?;
         println!("check: results.json has every method and metric, and no pair failed");
     }
+    if let Some(s) = &spec.shard {
+        write_manifest(spec, s, results.len(), seconds, &dir)?;
+        println!("shard {}: {} of {} groups; merge with `cargo xtask bench-merge {}`", s.shard, s.groups.len(), s.all_groups.len(), spec.out.display());
+    }
     Ok(dir)
+}
+
+/// The shard's manifest, written last (atomically): its presence says the shard finished.
+fn write_manifest(spec: &ReportSpec, s: &ShardRun, rows: usize, seconds: f64, dir: &Path) -> anyhow::Result<()> {
+    let manifest = crate::shard::Manifest {
+        schema: crate::shard::MANIFEST_SCHEMA.into(),
+        bench: spec.bench.into(),
+        shard: s.shard,
+        code_version: crate::shard::code_version(),
+        dataset: spec.dataset.clone(),
+        protocol: spec.protocol.clone(),
+        protocol_line: spec.protocol_line.clone(),
+        step_label: spec.step_label.into(),
+        methods: spec.methods.to_vec(),
+        appendix: spec.appendix.clone(),
+        group_field: s.group_field.into(),
+        all_groups: s.all_groups.clone(),
+        groups: s.groups.clone(),
+        rows,
+        skipped: s.skipped.clone(),
+        seconds,
+    };
+    crate::shard::write_atomic(&dir.join("shard.json"), &(serde_json::to_string_pretty(&manifest)? + "\n"))
 }
 
 fn pairs_csv(results: &[PairResult]) -> String {

@@ -18,7 +18,7 @@ use crate::warning::PipelineWarning;
 use flowfilter_eval::PoseErrors;
 use flowfilter_geometry::{Point3, Pose};
 use flowfilter_registration::{Registration, Uncertainty};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// The schema tag of [`Estimate`]'s JSON.
 pub const ESTIMATE_SCHEMA: &str = "flowfilter estimate v2";
@@ -75,7 +75,7 @@ pub struct CorrespondenceSummary {
 }
 
 /// Wall time per stage, milliseconds.
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 pub struct StageTimes {
     /// Depth stage and cloud of the model frame.
     pub depth_model: f64,

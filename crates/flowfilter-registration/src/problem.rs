@@ -111,7 +111,7 @@ pub struct Registration {
 /// flow pairs' errors as independent: the 90% radius of a 3-D Gaussian). Correlated or systematic
 /// errors are not in it; how often the bounds hold on real and synthetic frames is measured by
 /// the benchmarks (`docs/bop.md`).
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Uncertainty {
     /// Rotation error bound, degrees.
     pub rotation_deg: f64,

@@ -1,0 +1,132 @@
+//! A benchmark run as one process and as three shards (separate processes) merged: the same
+//! per-pair errors and the same summary tables, timings aside; and the merge's refusals.
+
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn xtask(cwd: &Path, args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_xtask")).args(args).current_dir(cwd).output().expect("xtask runs")
+}
+
+fn ok(cwd: &Path, args: &[&str]) {
+    let out = xtask(cwd, args);
+    assert!(out.status.success(), "xtask {args:?} failed:\n{}", String::from_utf8_lossy(&out.stderr));
+}
+
+fn only_dir(root: &Path) -> PathBuf {
+    let mut dirs: Vec<PathBuf> = std::fs::read_dir(root).unwrap().map(|e| e.unwrap().path()).filter(|p| p.is_dir()).collect();
+    assert_eq!(dirs.len(), 1, "{dirs:?}");
+    dirs.pop().unwrap()
+}
+
+/// results.json without what measures time.
+fn untimed(path: &Path) -> (Vec<Value>, Vec<Value>) {
+    let v: Value = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+    let strip = |items: &Value, keys: &[&str]| -> Vec<Value> {
+        items
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|item| {
+                let mut item = item.clone();
+                for k in keys {
+                    item.as_object_mut().unwrap().remove(*k);
+                }
+                item
+            })
+            .collect()
+    };
+    (strip(&v["pairs"], &["seconds", "stage_ms"]), strip(&v["summary"], &["mean_seconds", "mean_stage_ms"]))
+}
+
+/// summary.md's accuracy tables (what comes before the per-stage times), the run's duration
+/// removed.
+fn tables(path: &Path) -> String {
+    let md = std::fs::read_to_string(path).unwrap();
+    let head = md.split("| method | depth (per frame)").next().unwrap();
+    head.lines().filter(|l| !l.contains(" failed, ")).collect::<Vec<_>>().join("\n")
+}
+
+#[test]
+fn three_shards_merged_are_the_single_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cwd = tmp.path();
+    // The quick protocol (CI's), without CPD (the slowest method in a debug build): CI runs
+    // the quick protocol with every method sharded in the release build (`.ci/run`).
+    let base = ["bench-bigbird", "--quick", "--methods", "icp-pt2pl,filterreg-pt2pt,flowfilter", "--check"];
+    ok(cwd, &[&base[..], &["--out", "single"]].concat());
+    // Three shards in three processes at once, as a scheduler would start them.
+    let children: Vec<_> = (1..=3)
+        .map(|k| {
+            let shard = format!("{k}/3");
+            Command::new(env!("CARGO_BIN_EXE_xtask"))
+                .args(base)
+                .args(["--out", "shards", "--shard", &shard])
+                .current_dir(cwd)
+                .output()
+        })
+        .collect();
+    for c in children {
+        let c = c.unwrap();
+        assert!(c.status.success(), "{}", String::from_utf8_lossy(&c.stderr));
+    }
+    // One shard per procedural object, each with its own manifest.
+    for k in 1..=3 {
+        let m: Value =
+            serde_json::from_str(&std::fs::read_to_string(cwd.join(format!("shards/shard-{k}-of-3/shard.json"))).unwrap())
+                .unwrap();
+        assert_eq!(m["groups"].as_array().unwrap().len(), 1, "{m}");
+    }
+    ok(cwd, &["bench-merge", "shards", "--out", "merged", "--check", "--compare", only_dir(&cwd.join("single")).to_str().unwrap()]);
+    let (single, merged) = (only_dir(&cwd.join("single")), only_dir(&cwd.join("merged")));
+    let (pairs_1, summary_1) = untimed(&single.join("results.json"));
+    let (pairs_3, summary_3) = untimed(&merged.join("results.json"));
+    // 3 objects x 3 base angles x 3 steps, 3 methods and "no motion".
+    assert_eq!(pairs_1.len(), 27 * 4);
+    assert_eq!(pairs_1, pairs_3);
+    assert_eq!(summary_1, summary_3);
+    assert_eq!(tables(&single.join("summary.md")), tables(&merged.join("summary.md")));
+    for f in ["pairs.csv", "error_vs_step.svg", "per_object.svg", "stage_times.svg"] {
+        assert!(merged.join(f).is_file(), "{f}");
+    }
+
+    // A shard killed before it finished (no manifest) is refused, naming it.
+    let partial = cwd.join("shards/shard-2-of-3/shard.json");
+    let saved = std::fs::read_to_string(&partial).unwrap();
+    std::fs::remove_file(&partial).unwrap();
+    let out = xtask(cwd, &["bench-merge", "shards", "--out", "refused"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("shard-2-of-3") && err.contains("did not finish"), "{err}");
+    // A missing shard is named.
+    std::fs::write(&partial, &saved).unwrap();
+    let out = xtask(cwd, &["bench-merge", "shards/shard-1-of-3", "shards/shard-3-of-3", "--out", "refused"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("missing shard(s) 2/3"), "{err}");
+    // A shard given twice is named.
+    let out = xtask(cwd, &["bench-merge", "shards", "shards/shard-1-of-3", "--out", "refused"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("shard 1/3 is given twice"), "{err}");
+    // Shards of another protocol are refused.
+    let mut other: Value = serde_json::from_str(&saved).unwrap();
+    other["protocol"]["steps"] = serde_json::json!([3]);
+    std::fs::write(&partial, serde_json::to_string(&other).unwrap()).unwrap();
+    let out = xtask(cwd, &["bench-merge", "shards", "--out", "refused"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("protocol differs"), "{err}");
+    // A damaged results.json (rows lost) is refused.
+    std::fs::write(&partial, &saved).unwrap();
+    let results = cwd.join("shards/shard-2-of-3/results.json");
+    let mut v: Value = serde_json::from_str(&std::fs::read_to_string(&results).unwrap()).unwrap();
+    v["pairs"].as_array_mut().unwrap().pop();
+    std::fs::write(&results, serde_json::to_string(&v).unwrap()).unwrap();
+    let out = xtask(cwd, &["bench-merge", "shards", "--out", "refused"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("damaged"), "{err}");
+    assert!(!cwd.join("refused").exists() || std::fs::read_dir(cwd.join("refused")).unwrap().next().is_none());
+    // The shard re-run alone replaces its output, and the merge is the single run again.
+    ok(cwd, &[&base[..], &["--out", "shards", "--shard", "2/3"]].concat());
+    ok(cwd, &["bench-merge", "shards", "--out", "merged-again"]);
+    let (pairs_again, _) = untimed(&only_dir(&cwd.join("merged-again")).join("results.json"));
+    assert_eq!(pairs_1, pairs_again);
+}
