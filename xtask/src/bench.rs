@@ -216,8 +216,12 @@ fn load_protocol(args: &BenchArgs) -> anyhow::Result<Protocol> {
 /// Every object of the run (in its order) and the directories of this shard's objects: a real
 /// download (`--data`), or the embedded dataset (synthesised once, cached under
 /// `target/bigbird-default`; a shard synthesises only its objects).
-fn object_dirs(args: &BenchArgs, protocol: &Protocol, cameras: &[SensorId]) -> anyhow::Result<(Vec<String>, Vec<PathBuf>)> {
-    let shard = args.run.shard.unwrap_or(Shard { index: 1, count: 1 });
+fn object_dirs(
+    args: &BenchArgs,
+    protocol: &Protocol,
+    cameras: &[SensorId],
+) -> anyhow::Result<(Vec<String>, Vec<PathBuf>)> {
+    let shard = args.run.shard.unwrap_or(Shard::ALL);
     if let Some(root) = &args.data {
         let mut dirs: Vec<PathBuf> = std::fs::read_dir(root)
             .with_context(|| format!("reading {}", root.display()))?

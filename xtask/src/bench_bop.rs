@@ -12,8 +12,8 @@ use crate::dataset::{BopSceneSpec, DefaultObject, embedded_objects, ensure_bop_s
 use crate::pairs::{Methods, PairJob, PairResult, RunArgs, progress};
 use crate::repo_root;
 use crate::report::{ReportSpec, ShardRun, write_outputs};
-use crate::shard::Shard;
 use crate::sequence::{Sequence, is_sequence, open_sequence};
+use crate::shard::Shard;
 use anyhow::{Context, bail};
 use clap::Args;
 use flowfilter_bigbird::SensorId;
@@ -247,7 +247,7 @@ fn wanted(args: &BopBenchArgs, label: &str) -> bool {
 /// The scene folders (filtered by `--scenes`, then this shard's) and the object names known for
 /// their ids.
 fn scene_dirs(args: &BopBenchArgs) -> anyhow::Result<Scenes> {
-    let shard = args.run.shard.unwrap_or(Shard { index: 1, count: 1 });
+    let shard = args.run.shard.unwrap_or(Shard::ALL);
     let mut dirs = match &args.data {
         None => return default_dataset(args, shard),
         Some(root) if is_sequence(root) => vec![root.clone()],

@@ -47,7 +47,10 @@ fn shard_dirs(dirs: &[PathBuf]) -> anyhow::Result<Vec<PathBuf>> {
             .filter(|p| p.is_dir() && is_shard(p))
             .collect();
         if children.is_empty() {
-            bail!("{}: neither a shard directory (shard.json) nor a directory of shard-K-of-N directories", d.display());
+            bail!(
+                "{}: neither a shard directory (shard.json) nor a directory of shard-K-of-N directories",
+                d.display()
+            );
         }
         children.sort();
         out.append(&mut children);
@@ -111,7 +114,12 @@ fn read_rows(dir: &Path, m: &Manifest) -> anyhow::Result<Vec<PairResult>> {
     let rows: Vec<PairResult> = serde_json::from_value(v["pairs"].clone())
         .with_context(|| format!("{}: 'pairs' is not a list of pair results", path.display()))?;
     if rows.len() != m.rows {
-        bail!("{}: {} rows, but its shard.json says {}: the shard's output is damaged; re-run it", path.display(), rows.len(), m.rows);
+        bail!(
+            "{}: {} rows, but its shard.json says {}: the shard's output is damaged; re-run it",
+            path.display(),
+            rows.len(),
+            m.rows
+        );
     }
     Ok(rows)
 }
@@ -140,7 +148,10 @@ pub fn run(args: &MergeArgs) -> anyhow::Result<()> {
     rows.sort_by_key(|r| rank(group_of(r, &first.group_field)));
     skipped.sort_by_key(|(g, _)| rank(g));
     if rows.is_empty() {
-        bail!("no pair in any shard: {}", skipped.iter().map(|(g, e)| format!("{g}: {e}")).collect::<Vec<_>>().join("; "));
+        bail!(
+            "no pair in any shard: {}",
+            skipped.iter().map(|(g, e)| format!("{g}: {e}")).collect::<Vec<_>>().join("; ")
+        );
     }
     let seconds: f64 = shards.iter().map(|(_, m)| m.seconds).sum();
     let spec = ReportSpec {
@@ -157,7 +168,12 @@ pub fn run(args: &MergeArgs) -> anyhow::Result<()> {
     };
     let skipped: Vec<String> = skipped.iter().map(|(g, e)| format!("{g}: {e}")).collect();
     let dir = write_outputs(&spec, &rows, &skipped, seconds)?;
-    println!("merged {} shards ({} rows; {seconds:.0} s of shard time) into {}", shards.len(), rows.len(), dir.display());
+    println!(
+        "merged {} shards ({} rows; {seconds:.0} s of shard time) into {}",
+        shards.len(),
+        rows.len(),
+        dir.display()
+    );
     if let Some(other) = &args.compare {
         compare(&dir.join("results.json"), &other.join("results.json"))?;
         println!("compare: the same pairs, errors and summaries as {} (times aside)", other.display());

@@ -76,7 +76,8 @@ pub struct PairResult {
 
 /// A pipeline warning as its JSON object (`{code, message}`).
 fn warning_json(w: &PipelineWarning) -> serde_json::Value {
-    serde_json::to_value(w).unwrap_or_else(|e| serde_json::json!({ "code": "unserialisable", "message": e.to_string() }))
+    serde_json::to_value(w)
+        .unwrap_or_else(|e| serde_json::json!({ "code": "unserialisable", "message": e.to_string() }))
 }
 
 /// One pair of a benchmark: its names, its frames' keys and its ground truth.

@@ -342,7 +342,13 @@ pub fn write_outputs(
     }
     if let Some(s) = &spec.shard {
         write_manifest(spec, s, results.len(), seconds, &dir)?;
-        println!("shard {}: {} of {} groups; merge with `cargo xtask bench-merge {}`", s.shard, s.groups.len(), s.all_groups.len(), spec.out.display());
+        println!(
+            "shard {}: {} of {} groups; merge with `cargo xtask bench-merge {}`",
+            s.shard,
+            s.groups.len(),
+            s.all_groups.len(),
+            spec.out.display()
+        );
     }
     Ok(dir)
 }

@@ -6,54 +6,9 @@
 
 use anyhow::{Context, bail};
 use serde::{Deserialize, Serialize};
-use std::fmt;
 use std::path::Path;
-use std::str::FromStr;
 
-/// Shard `index` (1-based) of `count`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
-pub struct Shard {
-    /// 1..=count.
-    pub index: usize,
-    /// Number of shards.
-    pub count: usize,
-}
-
-impl FromStr for Shard {
-    type Err = String;
-
-    fn from_str(s: &str) -> Result<Self, String> {
-        let parsed = s.split_once('/').and_then(|(k, n)| Some((k.trim().parse().ok()?, n.trim().parse().ok()?)));
-        match parsed {
-            Some((index, count)) if count >= 1 && (1..=count).contains(&index) => Ok(Self { index, count }),
-            _ => Err(format!("'{s}': expected K/N with 1 <= K <= N (e.g. 2/3)")),
-        }
-    }
-}
-
-impl fmt::Display for Shard {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{}/{}", self.index, self.count)
-    }
-}
-
-impl Shard {
-    /// Whether group `i` (in the run's group order) belongs to this shard: groups are dealt
-    /// round-robin (they cost about the same: one object's or one scene's pairs).
-    pub fn owns(&self, i: usize) -> bool {
-        i % self.count == self.index - 1
-    }
-
-    /// This shard's groups, in order.
-    pub fn select<T: Clone>(&self, groups: &[T]) -> Vec<T> {
-        groups.iter().enumerate().filter(|(i, _)| self.owns(*i)).map(|(_, g)| g.clone()).collect()
-    }
-
-    /// The directory a shard writes into, under the output root.
-    pub fn dir_name(&self) -> String {
-        format!("shard-{}-of-{}", self.index, self.count)
-    }
-}
+pub use flowfilter_pipeline::batch::Shard;
 
 /// Schema of `shard.json`.
 pub const MANIFEST_SCHEMA: &str = "flowfilter shard v1";
@@ -139,29 +94,10 @@ pub fn read_manifest(dir: &Path) -> anyhow::Result<Manifest> {
             dir.display()
         )
     })?;
-    let m: Manifest = serde_json::from_str(&text).with_context(|| format!("{}: not a shard manifest", path.display()))?;
+    let m: Manifest =
+        serde_json::from_str(&text).with_context(|| format!("{}: not a shard manifest", path.display()))?;
     if m.schema != MANIFEST_SCHEMA {
         bail!("{}: schema '{}', expected '{MANIFEST_SCHEMA}'", path.display(), m.schema);
     }
     Ok(m)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn shards_parse_and_partition_the_groups() {
-        assert_eq!("2/3".parse::<Shard>().unwrap(), Shard { index: 2, count: 3 });
-        for bad in ["0/3", "4/3", "1/0", "3", "a/b", "-1/2"] {
-            assert!(bad.parse::<Shard>().is_err(), "{bad}");
-        }
-        let groups: Vec<usize> = (0..10).collect();
-        let parts: Vec<Vec<usize>> = (1..=3).map(|k| Shard { index: k, count: 3 }.select(&groups)).collect();
-        assert_eq!(parts[0], [0, 3, 6, 9]);
-        let mut all: Vec<usize> = parts.concat();
-        all.sort_unstable();
-        assert_eq!(all, groups);
-        assert_eq!(Shard { index: 1, count: 1 }.select(&groups), groups);
-    }
 }

@@ -15,7 +15,8 @@ fn ok(cwd: &Path, args: &[&str]) {
 }
 
 fn only_dir(root: &Path) -> PathBuf {
-    let mut dirs: Vec<PathBuf> = std::fs::read_dir(root).unwrap().map(|e| e.unwrap().path()).filter(|p| p.is_dir()).collect();
+    let mut dirs: Vec<PathBuf> =
+        std::fs::read_dir(root).unwrap().map(|e| e.unwrap().path()).filter(|p| p.is_dir()).collect();
     assert_eq!(dirs.len(), 1, "{dirs:?}");
     dirs.pop().unwrap()
 }
@@ -73,12 +74,24 @@ fn three_shards_merged_are_the_single_run() {
     }
     // One shard per procedural object, each with its own manifest.
     for k in 1..=3 {
-        let m: Value =
-            serde_json::from_str(&std::fs::read_to_string(cwd.join(format!("shards/shard-{k}-of-3/shard.json"))).unwrap())
-                .unwrap();
+        let m: Value = serde_json::from_str(
+            &std::fs::read_to_string(cwd.join(format!("shards/shard-{k}-of-3/shard.json"))).unwrap(),
+        )
+        .unwrap();
         assert_eq!(m["groups"].as_array().unwrap().len(), 1, "{m}");
     }
-    ok(cwd, &["bench-merge", "shards", "--out", "merged", "--check", "--compare", only_dir(&cwd.join("single")).to_str().unwrap()]);
+    ok(
+        cwd,
+        &[
+            "bench-merge",
+            "shards",
+            "--out",
+            "merged",
+            "--check",
+            "--compare",
+            only_dir(&cwd.join("single")).to_str().unwrap(),
+        ],
+    );
     let (single, merged) = (only_dir(&cwd.join("single")), only_dir(&cwd.join("merged")));
     let (pairs_1, summary_1) = untimed(&single.join("results.json"));
     let (pairs_3, summary_3) = untimed(&merged.join("results.json"));

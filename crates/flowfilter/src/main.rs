@@ -1,6 +1,7 @@
 //! `flowfilter`: the command-line front end of the Flow Filter workspace.
 
 mod estimate;
+mod estimate_batch;
 mod flow;
 mod inspect;
 mod matrix_file;
@@ -29,6 +30,8 @@ enum Command {
     Register(register::RegisterArgs),
     /// Estimate an object's relative pose between two frames of one camera (the pipeline).
     Estimate(estimate::EstimateArgs),
+    /// Estimate every pair of a CSV pair list: one JSON line per pair, resumable, shardable.
+    EstimateBatch(estimate_batch::EstimateBatchArgs),
     /// Optical flow between two images (EPE against a ground-truth .flo).
     Flow(flow::FlowArgs),
     /// Render two views of a synthetic object and write their exact optical flow and occlusion.
@@ -54,6 +57,7 @@ fn main() -> ExitCode {
         Command::Synth(args) => synth::run(&args),
         Command::Register(args) => register::run(&args),
         Command::Estimate(args) => estimate::run(&args),
+        Command::EstimateBatch(args) => estimate_batch::run(&args),
         Command::Flow(args) => flow::run(&args),
         Command::TruthFlow(args) => truth_flow::run(&args),
     };
