@@ -143,3 +143,55 @@ fn three_shards_merged_are_the_single_run() {
     let (pairs_again, _) = untimed(&only_dir(&cwd.join("merged-again")).join("results.json"));
     assert_eq!(pairs_1, pairs_again);
 }
+
+/// The repository root.
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+/// `deploy/run-shard.sh` (what the Slurm and Kubernetes launchers run) takes the shard from each
+/// scheduler's variables; the manifests agree with it.
+#[test]
+fn launchers_map_scheduler_indexes_to_shards() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    let run = |script: &str, env: &[(&str, &str)]| {
+        let mut c = Command::new("bash");
+        c.arg(root().join(script)).arg(&out).args(["bench-bigbird", "--quick", "--methods", "icp-pt2pl"]);
+        c.env("FLOWFILTER_XTASK", env!("CARGO_BIN_EXE_xtask"));
+        for v in ["FLOWFILTER_SHARD", "SLURM_ARRAY_TASK_ID", "SLURM_ARRAY_TASK_COUNT", "JOB_COMPLETION_INDEX", "SHARDS"] {
+            c.env_remove(v);
+        }
+        c.envs(env.iter().copied());
+        c.output().unwrap()
+    };
+    let shard_of = |dir: &str| -> Value {
+        serde_json::from_str::<Value>(&std::fs::read_to_string(out.join(dir).join("shard.json")).unwrap()).unwrap()["shard"].clone()
+    };
+    // A Slurm array task (ids from 1), through the batch script itself.
+    let o = run("deploy/slurm/bench.sbatch", &[("SLURM_ARRAY_TASK_ID", "2"), ("SHARDS", "3"), ("SLURM_SUBMIT_DIR", root().to_str().unwrap())]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(shard_of("shard-2-of-3"), serde_json::json!({ "index": 2, "count": 3 }));
+    // A Kubernetes Indexed Job pod (indexes from 0).
+    let o = run("deploy/run-shard.sh", &[("JOB_COMPLETION_INDEX", "2"), ("SHARDS", "3")]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(shard_of("shard-3-of-3"), serde_json::json!({ "index": 3, "count": 3 }));
+    // The Ray driver's (and a user's) explicit shard.
+    let o = run("deploy/run-shard.sh", &[("FLOWFILTER_SHARD", "1/3")]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // The three merge.
+    ok(tmp.path(), &["bench-merge", out.to_str().unwrap(), "--out", "merged"]);
+    // No shard given: refused with the ways to give one.
+    let o = run("deploy/run-shard.sh", &[]);
+    assert_eq!(o.status.code(), Some(64));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("FLOWFILTER_SHARD=K/N"));
+    // The Indexed Job runs the script with as many shards as completions.
+    let job = std::fs::read_to_string(root().join("deploy/k8s/bench-indexed-job.yaml")).unwrap();
+    let value = |key: &str| job.lines().find_map(|l| l.trim().strip_prefix(key).map(|v| v.trim().trim_matches('"').to_string()));
+    assert_eq!(value("completionMode:").as_deref(), Some("Indexed"));
+    let completions = value("completions:").unwrap();
+    assert_eq!(value("parallelism:"), Some(completions.clone()));
+    let shards_line = job.lines().position(|l| l.contains("name: SHARDS")).unwrap();
+    assert!(job.lines().nth(shards_line + 1).unwrap().contains(&format!("\"{completions}\"")));
+    assert!(job.contains("deploy/run-shard.sh"));
+}
