@@ -159,7 +159,8 @@ fn launchers_map_scheduler_indexes_to_shards() {
         let mut c = Command::new("bash");
         c.arg(root().join(script)).arg(&out).args(["bench-bigbird", "--quick", "--methods", "icp-pt2pl"]);
         c.env("FLOWFILTER_XTASK", env!("CARGO_BIN_EXE_xtask"));
-        for v in ["FLOWFILTER_SHARD", "SLURM_ARRAY_TASK_ID", "SLURM_ARRAY_TASK_COUNT", "JOB_COMPLETION_INDEX", "SHARDS"] {
+        for v in ["FLOWFILTER_SHARD", "SLURM_ARRAY_TASK_ID", "SLURM_ARRAY_TASK_COUNT", "JOB_COMPLETION_INDEX", "SHARDS"]
+        {
             c.env_remove(v);
         }
         c.envs(env.iter().copied());
@@ -169,7 +170,10 @@ fn launchers_map_scheduler_indexes_to_shards() {
         serde_json::from_str::<Value>(&std::fs::read_to_string(out.join(dir).join("shard.json")).unwrap()).unwrap()["shard"].clone()
     };
     // A Slurm array task (ids from 1), through the batch script itself.
-    let o = run("deploy/slurm/bench.sbatch", &[("SLURM_ARRAY_TASK_ID", "2"), ("SHARDS", "3"), ("SLURM_SUBMIT_DIR", root().to_str().unwrap())]);
+    let o = run(
+        "deploy/slurm/bench.sbatch",
+        &[("SLURM_ARRAY_TASK_ID", "2"), ("SHARDS", "3"), ("SLURM_SUBMIT_DIR", root().to_str().unwrap())],
+    );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert_eq!(shard_of("shard-2-of-3"), serde_json::json!({ "index": 2, "count": 3 }));
     // A Kubernetes Indexed Job pod (indexes from 0).
@@ -187,7 +191,9 @@ fn launchers_map_scheduler_indexes_to_shards() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("FLOWFILTER_SHARD=K/N"));
     // The Indexed Job runs the script with as many shards as completions.
     let job = std::fs::read_to_string(root().join("deploy/k8s/bench-indexed-job.yaml")).unwrap();
-    let value = |key: &str| job.lines().find_map(|l| l.trim().strip_prefix(key).map(|v| v.trim().trim_matches('"').to_string()));
+    let value = |key: &str| {
+        job.lines().find_map(|l| l.trim().strip_prefix(key).map(|v| v.trim().trim_matches('"').to_string()))
+    };
     assert_eq!(value("completionMode:").as_deref(), Some("Indexed"));
     let completions = value("completions:").unwrap();
     assert_eq!(value("parallelism:"), Some(completions.clone()));

@@ -82,16 +82,22 @@ pub struct EstimateArgs {
 /// The two frames and, when known, the true motion.
 type Frames = (RgbdFrame, RgbdFrame, Option<Pose>);
 
-/// Run `estimate`.
-pub fn run(args: &EstimateArgs) -> anyhow::Result<ExitCode> {
-    let mut config = match &args.config {
+/// The pipeline of `--config` (default: configs/flowfilter.toml's values) with `--method`
+/// replacing its method.
+pub fn pipeline(config: Option<&Path>, method: Option<&str>) -> anyhow::Result<Pipeline> {
+    let mut config = match config {
         Some(p) => PipelineConfig::from_file(p)?,
         None => PipelineConfig::default(),
     };
-    if let Some(m) = &args.method {
-        config.method = m.clone();
+    if let Some(m) = method {
+        config.method = m.to_string();
     }
-    let pipeline = Pipeline::from_config(config).context("--method / --config")?;
+    Pipeline::from_config(config).context("--method / --config")
+}
+
+/// Run `estimate`.
+pub fn run(args: &EstimateArgs) -> anyhow::Result<ExitCode> {
+    let pipeline = pipeline(args.config.as_deref(), args.method.as_deref())?;
     let (fa, fb, truth) = match &args.object {
         Some(object) => bigbird_frames(args, object)?,
         None => file_frames(args)?,

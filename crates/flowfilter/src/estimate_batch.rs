@@ -4,7 +4,7 @@
 use anyhow::Context;
 use clap::Args;
 use flowfilter_pipeline::batch::{BatchPair, Shard, read_pairs, shard_pairs};
-use flowfilter_pipeline::{CameraFile, FrameFiles, Pipeline, PipelineConfig, PreparedFrame};
+use flowfilter_pipeline::{CameraFile, FrameFiles, Pipeline, PreparedFrame};
 use std::collections::{BTreeSet, HashMap};
 use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
@@ -106,14 +106,7 @@ fn estimate_line(pipeline: &Pipeline, cache: &mut FrameCache, pair: &BatchPair) 
 
 /// Run `estimate-batch`.
 pub fn run(args: &EstimateBatchArgs) -> anyhow::Result<ExitCode> {
-    let mut config = match &args.config {
-        Some(p) => PipelineConfig::from_file(p)?,
-        None => PipelineConfig::default(),
-    };
-    if let Some(m) = &args.method {
-        config.method = m.clone();
-    }
-    let pipeline = Pipeline::from_config(config).context("--method / --config")?;
+    let pipeline = crate::estimate::pipeline(args.config.as_deref(), args.method.as_deref())?;
     let pairs = read_pairs(&args.pairs)?;
     let shard = args.shard.unwrap_or(Shard::ALL);
     let mine = shard_pairs(&pairs, shard);
