@@ -201,3 +201,22 @@ fn launchers_map_scheduler_indexes_to_shards() {
     assert!(job.lines().nth(shards_line + 1).unwrap().contains(&format!("\"{completions}\"")));
     assert!(job.contains("deploy/run-shard.sh"));
 }
+
+/// bench-bop sharded by scene: two shards merged are the single run.
+#[test]
+fn bop_scenes_shard_and_merge() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cwd = tmp.path();
+    let base = ["bench-bop", "--quick", "--methods", "icp-pt2pl", "--gaps", "1", "--check"];
+    ok(cwd, &[&base[..], &["--out", "single"]].concat());
+    for k in ["1/2", "2/2"] {
+        ok(cwd, &[&base[..], &["--out", "shards", "--shard", k]].concat());
+    }
+    let single = only_dir(&cwd.join("single"));
+    ok(cwd, &["bench-merge", "shards", "--out", "merged", "--compare", single.to_str().unwrap()]);
+    // Scenes 1, 2, 3, 101, 102, 103 dealt round-robin.
+    let m: Value =
+        serde_json::from_str(&std::fs::read_to_string(cwd.join("shards/shard-2-of-2/shard.json")).unwrap()).unwrap();
+    assert_eq!(m["groups"], serde_json::json!(["000002", "000101", "000103"]));
+    assert_eq!(untimed(&single.join("results.json")), untimed(&only_dir(&cwd.join("merged")).join("results.json")));
+}
