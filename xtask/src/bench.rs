@@ -4,9 +4,9 @@
 
 use crate::dataset::{embedded_objects, ensure_object};
 use crate::pairs::{Methods, PairJob, PairResult, RunArgs, progress};
-use crate::repo_root;
 use crate::report::{ReportSpec, ShardRun, write_outputs};
 use crate::shard::Shard;
+use crate::{dir_name, repo_root};
 use anyhow::{Context, bail};
 use clap::Args;
 use flowfilter_bigbird::{BigBirdObject, FrameId, SensorId};
@@ -178,22 +178,10 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         appendix: paper,
         out: &args.run.out,
         check: args.run.check,
-        shard: args.run.shard.map(|shard| ShardRun {
-            shard,
-            group_field: "object",
-            groups: object_dirs.iter().map(|d| dir_name(d)).collect(),
-            all_groups: all_objects,
-            skipped: skipped.clone(),
-        }),
+        shard: args.run.shard.map(|shard| ShardRun { shard, group_field: "object", all_groups: all_objects }),
     };
-    let skipped: Vec<String> = skipped.iter().map(|(g, e)| format!("{g}: {e}")).collect();
     write_outputs(&spec, &results, &skipped, started.elapsed().as_secs_f64())?;
     Ok(())
-}
-
-/// A directory's last component.
-fn dir_name(dir: &Path) -> String {
-    dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default()
 }
 
 /// The protocol: `--protocol`, or the shipped quick or full one; `--methods` overrides its

@@ -10,10 +10,10 @@
 
 use crate::dataset::{BopSceneSpec, DefaultObject, embedded_objects, ensure_bop_scene};
 use crate::pairs::{Methods, PairJob, PairResult, RunArgs, progress};
-use crate::repo_root;
 use crate::report::{ReportSpec, ShardRun, write_outputs};
 use crate::sequence::{Sequence, is_sequence, open_sequence};
 use crate::shard::Shard;
+use crate::{dir_name, repo_root};
 use anyhow::{Context, bail};
 use clap::Args;
 use flowfilter_bigbird::SensorId;
@@ -89,7 +89,7 @@ pub fn run(args: &BopBenchArgs) -> anyhow::Result<()> {
     let mut results: Vec<PairResult> = vec![];
     let mut skipped: Vec<(String, String)> = vec![];
     for dir in &scene_dirs {
-        let label = dir_label(dir);
+        let label = dir_name(dir);
         let scene = match open_sequence(dir) {
             Ok(s) => s,
             Err(e) => {
@@ -110,11 +110,10 @@ pub fn run(args: &BopBenchArgs) -> anyhow::Result<()> {
         let prepared = methods.prepare(&frames, &load, &format!("scene {label}"));
         results.append(&mut methods.run(&jobs, &prepared, &format!("scene {label}")));
     }
-    let skipped_lines: Vec<String> = skipped.iter().map(|(g, e)| format!("{g}: {e}")).collect();
     // A shard may hold no pair (more shards than scenes, or only skipped scenes): the merge
     // decides whether the run as a whole has any.
     if results.is_empty() && args.run.shard.is_none() {
-        bail!("no pair to run: {}", skipped_lines.join("; "));
+        bail!("no pair to run: {}", skipped.iter().map(|(g, e)| format!("{g}: {e}")).collect::<Vec<_>>().join("; "));
     }
     let spec = ReportSpec {
         bench: "bench-bop",
@@ -142,21 +141,10 @@ pub fn run(args: &BopBenchArgs) -> anyhow::Result<()> {
         appendix: String::new(),
         out: &args.run.out,
         check: args.run.check,
-        shard: args.run.shard.map(|shard| ShardRun {
-            shard,
-            group_field: "camera",
-            groups: scene_dirs.iter().map(|d| dir_label(d)).collect(),
-            all_groups: all_scenes.clone(),
-            skipped: skipped.clone(),
-        }),
+        shard: args.run.shard.map(|shard| ShardRun { shard, group_field: "camera", all_groups: all_scenes.clone() }),
     };
-    write_outputs(&spec, &results, &skipped_lines, started.elapsed().as_secs_f64())?;
+    write_outputs(&spec, &results, &skipped, started.elapsed().as_secs_f64())?;
     Ok(())
-}
-
-/// A scene folder's name (its label in the results).
-fn dir_label(dir: &Path) -> String {
-    dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default()
 }
 
 /// One pipeline configuration per method.
@@ -269,12 +257,12 @@ fn scene_dirs(args: &BopBenchArgs) -> anyhow::Result<Scenes> {
         }
     };
     if args.scenes.is_some() {
-        dirs.retain(|d| wanted(args, &dir_label(d)));
+        dirs.retain(|d| wanted(args, &dir_name(d)));
         if dirs.is_empty() {
             bail!("--scenes {:?}: none of these scenes is in the dataset", args.scenes.as_deref().unwrap_or_default());
         }
     }
-    Ok(Scenes { all: dirs.iter().map(|d| dir_label(d)).collect(), dirs: shard.select(&dirs), names: BTreeMap::new() })
+    Ok(Scenes { all: dirs.iter().map(|d| dir_name(d)).collect(), dirs: shard.select(&dirs), names: BTreeMap::new() })
 }
 
 /// The embedded dataset's scenes of one object (see the module documentation).

@@ -166,7 +166,6 @@ pub fn run(args: &MergeArgs) -> anyhow::Result<()> {
         check: args.check,
         shard: None,
     };
-    let skipped: Vec<String> = skipped.iter().map(|(g, e)| format!("{g}: {e}")).collect();
     let dir = write_outputs(&spec, &rows, &skipped, seconds)?;
     println!(
         "merged {} shards ({} rows; {seconds:.0} s of shard time) into {}",

@@ -200,12 +200,8 @@ pub struct ShardRun {
     pub shard: crate::shard::Shard,
     /// Which field of a pair names its group (`object` or `camera`).
     pub group_field: &'static str,
-    /// Every group of the run, in order.
+    /// Every group of the run, in order (the shard's are those it owns).
     pub all_groups: Vec<String>,
-    /// This shard's groups.
-    pub groups: Vec<String>,
-    /// Groups skipped, with the reason.
-    pub skipped: Vec<(String, String)>,
 }
 
 /// The cell of a table: mean rotation-angle error, success rate, failures.
@@ -272,12 +268,13 @@ fn tables(summary: &[Summary], columns: &[String], step_label: &str) -> [String;
 }
 
 /// Write `results.json`, `pairs.csv`, `summary.md` and the plots into a new timestamped
-/// directory under `spec.out`, print the tables, and check the JSON when asked. Returns the
-/// directory.
+/// directory under `spec.out` (a shard's: `shard-K-of-N`, then its manifest), print the tables,
+/// and check the JSON when asked. `skipped` holds the groups skipped, with the reason. Returns
+/// the directory.
 pub fn write_outputs(
     spec: &ReportSpec,
     results: &[PairResult],
-    skipped: &[String],
+    skipped: &[(String, String)],
     seconds: f64,
 ) -> anyhow::Result<PathBuf> {
     let dir = match &spec.shard {
@@ -298,7 +295,7 @@ pub fn write_outputs(
         "dataset": spec.dataset,
         "protocol": spec.protocol,
         "seconds": seconds,
-        "skipped": skipped,
+        "skipped": skipped.iter().map(|(g, e)| format!("{g}: {e}")).collect::<Vec<_>>(),
         "summary": summary,
         "pairs": results,
     });
@@ -341,11 +338,12 @@ pub fn write_outputs(
         println!("check: results.json has every method and metric, and no pair failed");
     }
     if let Some(s) = &spec.shard {
-        write_manifest(spec, s, results.len(), seconds, &dir)?;
+        let groups = s.shard.select(&s.all_groups);
+        write_manifest(spec, s, &groups, results.len(), skipped, seconds, &dir)?;
         println!(
             "shard {}: {} of {} groups; merge with `cargo xtask bench-merge {}`",
             s.shard,
-            s.groups.len(),
+            groups.len(),
             s.all_groups.len(),
             spec.out.display()
         );
@@ -354,7 +352,15 @@ pub fn write_outputs(
 }
 
 /// The shard's manifest, written last (atomically): its presence says the shard finished.
-fn write_manifest(spec: &ReportSpec, s: &ShardRun, rows: usize, seconds: f64, dir: &Path) -> anyhow::Result<()> {
+fn write_manifest(
+    spec: &ReportSpec,
+    s: &ShardRun,
+    groups: &[String],
+    rows: usize,
+    skipped: &[(String, String)],
+    seconds: f64,
+    dir: &Path,
+) -> anyhow::Result<()> {
     let manifest = crate::shard::Manifest {
         schema: crate::shard::MANIFEST_SCHEMA.into(),
         bench: spec.bench.into(),
@@ -368,9 +374,9 @@ fn write_manifest(spec: &ReportSpec, s: &ShardRun, rows: usize, seconds: f64, di
         appendix: spec.appendix.clone(),
         group_field: s.group_field.into(),
         all_groups: s.all_groups.clone(),
-        groups: s.groups.clone(),
+        groups: groups.to_vec(),
         rows,
-        skipped: s.skipped.clone(),
+        skipped: skipped.to_vec(),
         seconds,
     };
     crate::shard::write_atomic(&dir.join("shard.json"), &(serde_json::to_string_pretty(&manifest)? + "\n"))

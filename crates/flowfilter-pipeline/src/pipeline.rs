@@ -6,6 +6,7 @@ use crate::estimate::{CorrespondenceSummary, ESTIMATE_SCHEMA, Estimate, Registra
 use crate::frame::RgbdFrame;
 use crate::stages::{CorrespondenceFinder, DepthPreparer, FlowCorrespondenceFinder, FramePreparer, PreparedFrame};
 use crate::warning::PipelineWarning;
+use flowfilter_geometry::Pose;
 use flowfilter_registration::{Registrar, Registration, RegistrationProblem, registrar_by_name};
 use std::time::Instant;
 
@@ -129,12 +130,29 @@ impl Pipeline {
     /// # Ok::<(), Box<dyn std::error::Error>>(())
     /// ```
     pub fn estimate(&self, model: &RgbdFrame, target: &RgbdFrame) -> Result<Estimate, PipelineError> {
+        self.estimate_against(model, target, None).map(|(e, _, _)| e)
+    }
+
+    /// [`Pipeline::estimate`], scored against the true motion when it is known (ADD-S on the
+    /// model cloud), with both prepared frames (to write or draw their clouds).
+    ///
+    /// # Errors
+    /// As [`Pipeline::estimate`].
+    pub fn estimate_against(
+        &self,
+        model: &RgbdFrame,
+        target: &RgbdFrame,
+        truth: Option<&Pose>,
+    ) -> Result<(Estimate, PreparedFrame, PreparedFrame), PipelineError> {
         let t0 = Instant::now();
         let a = self.prepare(model)?;
         let b = self.prepare(target)?;
         let mut e = self.estimate_prepared(&a, &b)?;
         e.stage_ms.total = t0.elapsed().as_secs_f64() * 1e3;
-        Ok(e)
+        if let Some(truth) = truth {
+            e = e.with_ground_truth(truth, Some(&a.cloud.points));
+        }
+        Ok((e, a, b))
     }
 
     /// Estimate from frames already prepared (their preparation times are reported).

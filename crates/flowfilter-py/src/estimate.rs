@@ -150,17 +150,8 @@ pub fn estimate(
     let pipeline = Pipeline::from_config(config).map_err(|e| crate::errors::pipeline(&e))?;
     let (fa, fb) = frames(model, target, camera)?;
     let truth: Option<Pose> = gt.filter(|g| !g.is_none()).map(|g| arrays::pose(g, "gt")).transpose()?;
-    let result = threads::run(py, || -> Result<flowfilter_pipeline::Estimate, PipelineError> {
-        let started = std::time::Instant::now();
-        let (a, b) = (pipeline.prepare(&fa)?, pipeline.prepare(&fb)?);
-        let mut e = pipeline.estimate_prepared(&a, &b)?;
-        e.stage_ms.total = started.elapsed().as_secs_f64() * 1e3;
-        Ok(match truth {
-            Some(t) => e.with_ground_truth(&t, Some(&a.cloud.points)),
-            None => e,
-        })
-    })?;
-    result.map(|estimate| Estimate { estimate }).map_err(|e| crate::errors::pipeline(&e))
+    let result = threads::run(py, || pipeline.estimate_against(&fa, &fb, truth.as_ref()))?;
+    result.map(|(estimate, _, _)| Estimate { estimate }).map_err(|e| crate::errors::pipeline(&e))
 }
 
 /// Flow correspondences between two frames: model points (colour camera frame) and where the

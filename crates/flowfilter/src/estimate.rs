@@ -102,13 +102,7 @@ pub fn run(args: &EstimateArgs) -> anyhow::Result<ExitCode> {
         Some(object) => bigbird_frames(args, object)?,
         None => file_frames(args)?,
     };
-    let started = std::time::Instant::now();
-    let (a, b) = (pipeline.prepare(&fa)?, pipeline.prepare(&fb)?);
-    let mut e = pipeline.estimate_prepared(&a, &b)?;
-    e.stage_ms.total = started.elapsed().as_secs_f64() * 1e3;
-    if let Some(truth) = truth {
-        e = e.with_ground_truth(&truth, Some(&a.cloud.points));
-    }
+    let (e, a, b) = pipeline.estimate_against(&fa, &fb, truth.as_ref())?;
     if let Some(dir) = &args.save_ply {
         save_clouds(dir, &a, &b, &e)?;
     }

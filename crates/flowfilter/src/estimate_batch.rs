@@ -6,7 +6,7 @@ use clap::Args;
 use flowfilter_pipeline::batch::{BatchPair, Shard, read_pairs, shard_pairs};
 use flowfilter_pipeline::{CameraFile, FrameFiles, Pipeline, PreparedFrame};
 use std::collections::{BTreeSet, HashMap};
-use std::io::{IsTerminal, Write};
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -62,6 +62,8 @@ fn done_ids(out: &Path) -> anyhow::Result<BTreeSet<String>> {
 /// their files and camera.
 struct FrameCache {
     frames: HashMap<String, PreparedFrame>,
+    /// Camera files read, by path (most batches have one camera).
+    cameras: HashMap<PathBuf, CameraFile>,
 }
 
 impl FrameCache {
@@ -73,10 +75,13 @@ impl FrameCache {
         if let Some(f) = self.frames.get(&key) {
             return Ok(f.clone());
         }
-        let camera = CameraFile::from_file(camera_path)?;
+        if !self.cameras.contains_key(camera_path) {
+            self.cameras.insert(camera_path.to_path_buf(), CameraFile::from_file(camera_path)?);
+        }
+        let camera = &self.cameras[camera_path];
         let stem =
             files.color.file_stem().map_or_else(|| files.color.display().to_string(), |s| s.to_string_lossy().into());
-        let prepared = pipeline.prepare(&files.load(&camera, &stem)?)?;
+        let prepared = pipeline.prepare(&files.load(camera, &stem)?)?;
         if self.frames.len() >= Self::CAPACITY {
             self.frames.clear();
         }
@@ -128,9 +133,9 @@ pub fn run(args: &EstimateBatchArgs) -> anyhow::Result<ExitCode> {
         args.out.display(),
         todo.len()
     );
-    let bar = indicatif::ProgressBar::new(todo.len() as u64);
-    let plain = !std::io::stderr().is_terminal();
-    let mut cache = FrameCache { frames: HashMap::new() };
+    let bar = crate::progress::bar(todo.len(), "pairs");
+    bar.set_message("estimate-batch");
+    let mut cache = FrameCache { frames: HashMap::new(), cameras: HashMap::new() };
     let mut failed = 0;
     for (i, pair) in todo.iter().enumerate() {
         let line = estimate_line(&pipeline, &mut cache, pair);
@@ -139,11 +144,7 @@ pub fn run(args: &EstimateBatchArgs) -> anyhow::Result<ExitCode> {
         out.write_all((serde_json::to_string(&line)? + "\n").as_bytes())
             .and_then(|()| out.flush())
             .with_context(|| format!("writing {}", args.out.display()))?;
-        bar.inc(1);
-        let tenth = todo.len().div_ceil(10).max(1);
-        if plain && (i + 1) % tenth == 0 {
-            eprintln!("estimate-batch: {}/{}", i + 1, todo.len());
-        }
+        crate::progress::advance(&bar, i + 1);
     }
     bar.finish_and_clear();
     eprintln!("estimate-batch: {} pairs run, {failed} failed; results in {}", todo.len(), args.out.display());

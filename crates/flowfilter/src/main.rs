@@ -5,6 +5,7 @@ mod estimate_batch;
 mod flow;
 mod inspect;
 mod matrix_file;
+mod progress;
 mod register;
 mod synth;
 mod truth_flow;

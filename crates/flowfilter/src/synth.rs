@@ -8,8 +8,6 @@ use flowfilter_synth::{
     BopSceneOptions, CaptureOptions, FrameEffects, NoiseProfile, Rig, Scene, TexturedMesh, contact_sheet, parse_angles,
     parse_fractional_angles, procedural, render_frame, write_bop_scene, write_capture,
 };
-use indicatif::{ProgressBar, ProgressStyle};
-use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
@@ -124,10 +122,10 @@ pub fn run(args: &SynthArgs) -> anyhow::Result<ExitCode> {
         seed: args.object.seed,
     };
     let total = sensors.len() * angles.len();
-    let bar = progress(total, "frames");
+    let bar = crate::progress::bar(total, "frames");
     bar.set_message(format!("synth {}", args.out.display()));
     let start = Instant::now();
-    write_capture(&args.out, &scene, &rig, &opts, &|done, _| advance(&bar, done))
+    write_capture(&args.out, &scene, &rig, &opts, &|done, _| crate::progress::advance(&bar, done))
         .with_context(|| format!("writing {}", args.out.display()))?;
     bar.finish();
     let secs = start.elapsed().as_secs_f64();
@@ -155,27 +153,6 @@ pub fn run(args: &SynthArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// A progress bar over `total` items; when stderr is not a terminal (logs, CI) indicatif draws
-/// nothing and [`advance`] prints a plain line at every tenth instead.
-fn progress(total: usize, unit: &str) -> ProgressBar {
-    let bar = ProgressBar::new(total as u64);
-    bar.set_style(
-        ProgressStyle::with_template(&format!("{{msg}} [{{bar:40}}] {{pos}}/{{len}} {unit}, {{elapsed}}, eta {{eta}}"))
-            .expect("valid template"),
-    );
-    bar
-}
-
-/// Move the bar to `done` items (called from worker threads, in any order).
-fn advance(bar: &ProgressBar, done: usize) {
-    let (before, len) = (bar.position(), bar.length().unwrap_or(0));
-    bar.set_position(before.max(done as u64));
-    let tenth = len.div_ceil(10).max(1);
-    if !std::io::stderr().is_terminal() && (done as u64) / tenth > before / tenth {
-        eprintln!("{}: {done}/{len}", bar.message());
-    }
-}
-
 /// `synth --format bop`: one BOP scene folder per camera.
 fn run_bop(args: &SynthArgs, sensors: &[SensorId]) -> anyhow::Result<ExitCode> {
     let opts = BopSceneOptions {
@@ -192,14 +169,16 @@ fn run_bop(args: &SynthArgs, sensors: &[SensorId]) -> anyhow::Result<ExitCode> {
     let scene = args.object.scene()?;
     let rig = Rig::bigbird_like();
     let total = sensors.len() * opts.angles_deg.len();
-    let bar = progress(total, "images");
+    let bar = crate::progress::bar(total, "images");
     let start = Instant::now();
     for (k, sensor) in sensors.iter().enumerate() {
         let dir = args.out.join(format!("{:06}", sensor.index()));
         bar.set_message(format!("synth {}", dir.display()));
         let base = k * opts.angles_deg.len();
-        write_bop_scene(&dir, &scene, &rig.sensors[sensor], &opts, &|done, _| advance(&bar, base + done))
-            .with_context(|| format!("writing {}", dir.display()))?;
+        write_bop_scene(&dir, &scene, &rig.sensors[sensor], &opts, &|done, _| {
+            crate::progress::advance(&bar, base + done)
+        })
+        .with_context(|| format!("writing {}", dir.display()))?;
     }
     bar.finish();
     println!(
