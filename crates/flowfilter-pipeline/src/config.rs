@@ -100,6 +100,9 @@ impl Default for PipelineConfig {
 impl PipelineConfig {
     /// Parse TOML text; `origin` names the source in errors.
     pub fn from_toml_str(text: &str, origin: &Path) -> Result<Self, PipelineError> {
+        let config_error = |message: String| PipelineError::Config { path: origin.to_path_buf(), message };
+        let table: toml::Table = toml::from_str(text).map_err(|e| config_error(describe_toml_error(&e, text)))?;
+        flowfilter_geometry::params::reject_non_finite(&table).map_err(|e| config_error(e.to_string()))?;
         let config: Self = toml::from_str(text).map_err(|e| PipelineError::Config {
             path: origin.to_path_buf(),
             message: describe_toml_error(&e, text),
@@ -126,7 +129,7 @@ impl PipelineConfig {
     /// # Errors
     /// A message naming the key or table at fault.
     pub fn validate(&self) -> Result<(), String> {
-        registrar_by_name(&self.method, &self.registration).map_err(|e| format!("key 'method': {e}"))?;
+        check_method_name(&self.method)?;
         flowfilter_flow::check_estimator_name(&self.flow.estimator)
             .map_err(|e| format!("key 'flow.estimator': {e}"))?;
         self.validate_stages()
@@ -142,9 +145,18 @@ impl PipelineConfig {
         self.flow.lk.validate().map_err(|e| format!("table [flow.lk]: {e}"))?;
         self.flow.dis.validate().map_err(|e| format!("table [flow.dis]: {e}"))?;
         self.flow.correspondences.validate().map_err(|e| format!("table [flow.correspondences]: {e}"))?;
-        Ok(())
+        self.registration.validate().map_err(|e| e.within("registration").to_string())
     }
 }
+
+/// `Ok` for a name [`registrar_by_name`] knows.
+fn check_method_name(name: &str) -> Result<(), String> {
+    match registrar_by_name(name, &Default::default()) {
+        Err(flowfilter_registration::RegistrationError::Config(e)) => Err(format!("key 'method': {e}")),
+        _ => Ok(()),
+    }
+}
+
 
 /// toml's message with the line number, as one line a user can act on.
 fn describe_toml_error(e: &toml::de::Error, text: &str) -> String {

@@ -3,6 +3,7 @@
 //! optional scale) to explain the target; sigma^2 is updated in closed form.
 
 use crate::error::RegistrationError;
+use flowfilter_geometry::{ParamError, params};
 use crate::evaluate::evaluate;
 use crate::gmm::{mean_pair_distance2, outlier_term};
 use crate::problem::{IterationRecord, Registrar, Registration, RegistrationProblem, in_pool, validate_problem};
@@ -80,15 +81,34 @@ pub struct Cpd {
 
 impl Cpd {
     /// CPD with the given parameters.
+    ///
+    /// # Errors
+    /// [`RegistrationError::Param`] for a value out of range ([`CpdConfig::validate`]).
     pub fn new(config: CpdConfig) -> Result<Self, RegistrationError> {
-        if !(0.0..1.0).contains(&config.w)
-            || config.max_iterations == 0
-            || config.tolerance.is_nan()
-            || config.tolerance <= 0.0
-        {
-            return Err(RegistrationError::Config("cpd needs 0 <= w < 1, max_iterations > 0, tolerance > 0".into()));
-        }
+        config.validate().map_err(|e| e.within("cpd"))?;
         Ok(Self { config })
+    }
+}
+
+impl CpdConfig {
+    /// Check every value: finite and in range.
+    ///
+    /// # Errors
+    /// The first key at fault (keys relative to the `[cpd]` table).
+    pub fn validate(&self) -> Result<(), ParamError> {
+        params::in_half_open("w", self.w, 0.0, 1.0)?;
+        params::count_positive("max_iterations", self.max_iterations)?;
+        params::positive("tolerance", self.tolerance)?;
+        if let Some(s2) = self.init_sigma2 {
+            params::positive("init_sigma2", s2)?;
+        }
+        params::positive("evaluation_distance", self.evaluation_distance)?;
+        match self.e_step {
+            CpdEStep::Truncated { radius_sigmas } => params::positive("e_step.radius_sigmas", radius_sigmas)?,
+            CpdEStep::Auto { max_pairs } => params::count_positive("e_step.max_pairs", max_pairs)?,
+            CpdEStep::Exact => {}
+        }
+        Ok(())
     }
 }
 

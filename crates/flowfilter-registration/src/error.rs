@@ -42,7 +42,11 @@ pub enum RegistrationError {
     /// The correspondences are malformed.
     #[error(transparent)]
     BadCorrespondences(#[from] flowfilter_geometry::CorrespondenceError),
-    /// A configuration value is out of range, or a method name is unknown.
+    /// A method name is unknown, or a problem's setting is unusable.
     #[error("registration config: {0}")]
     Config(String),
+    /// A configuration value is NaN, infinite or out of range (the key is relative to the
+    /// `[registration]` table: `flowfilter.inlier_threshold_m`).
+    #[error("registration config: {0}")]
+    Param(#[from] flowfilter_geometry::ParamError),
 }

@@ -15,6 +15,7 @@
 mod solve;
 
 use crate::error::RegistrationError;
+use flowfilter_geometry::{ParamError, params};
 use crate::evaluate::plane_or_point_step;
 use crate::lattice::Lattice;
 use crate::problem::{Correspondences, Registrar, Registration, RegistrationProblem, in_pool};
@@ -447,23 +448,38 @@ fn kernel_sums<const VD: usize>(c: &ListChunk, qs: &[Point3], values: &[f64], in
 
 impl FilterReg {
     /// FilterReg with the given parameters.
+    ///
+    /// # Errors
+    /// [`RegistrationError::Param`] for a value out of range ([`FilterRegConfig::validate`]).
     pub fn new(config: FilterRegConfig) -> Result<Self, RegistrationError> {
-        let ok_sigma = match config.sigma {
-            SigmaSchedule::Update { min_sigma } => min_sigma > 0.0,
-            SigmaSchedule::Anneal { factor, min_sigma } => factor > 0.0 && factor < 1.0 && min_sigma > 0.0,
-        };
-        if !(0.0..1.0).contains(&config.w)
-            || config.max_iterations == 0
-            || !ok_sigma
-            || config.correspondence_weight < 0.0
-            || !(0.0..=1.0).contains(&config.merge_fraction)
-        {
-            return Err(RegistrationError::Config(
-                "filterreg needs 0 <= w < 1, max_iterations > 0, a valid sigma schedule, correspondence_weight >= 0 and 0 <= merge_fraction <= 1"
-                    .into(),
-            ));
-        }
+        config.validate().map_err(|e| e.within("filterreg"))?;
         Ok(Self { config })
+    }
+}
+
+impl FilterRegConfig {
+    /// Check every value: finite and in range.
+    ///
+    /// # Errors
+    /// The first key at fault (keys relative to the `[filterreg]` table).
+    pub fn validate(&self) -> Result<(), ParamError> {
+        params::in_half_open("w", self.w, 0.0, 1.0)?;
+        params::count_positive("max_iterations", self.max_iterations)?;
+        params::non_negative("tolerance", self.tolerance)?;
+        match self.sigma {
+            SigmaSchedule::Update { min_sigma } => params::positive("sigma.min_sigma", min_sigma)?,
+            SigmaSchedule::Anneal { factor, min_sigma } => {
+                params::in_open("sigma.factor", factor, 0.0, 1.0)?;
+                params::positive("sigma.min_sigma", min_sigma)?;
+            }
+        }
+        if let Some(s2) = self.init_sigma2 {
+            params::positive("init_sigma2", s2)?;
+        }
+        params::count_positive("gauss_newton_steps", self.gauss_newton_steps)?;
+        params::non_negative("correspondence_weight", self.correspondence_weight)?;
+        params::positive("evaluation_distance", self.evaluation_distance)?;
+        params::in_closed("merge_fraction", self.merge_fraction, 0.0, 1.0)
     }
 }
 

@@ -7,6 +7,7 @@
 //! degrades to plain FilterReg and says so in the result's warnings.
 
 use crate::error::RegistrationError;
+use flowfilter_geometry::{ParamError, params};
 use crate::evaluate::visible_residual;
 use crate::filterreg::{FilterReg, FilterRegConfig};
 use crate::icp::{Icp, IcpConfig, IcpVariant};
@@ -199,34 +200,36 @@ impl FlowFilterConfig {
 
 impl FlowFilter {
     /// Flow Filter with the given parameters.
+    ///
+    /// # Errors
+    /// [`RegistrationError::Param`] for a value out of range ([`FlowFilterConfig::validate`]).
     pub fn new(config: FlowFilterConfig) -> Result<Self, RegistrationError> {
-        FilterReg::new(config.filterreg.clone())?;
-        if config.ransac_iterations == 0
-            || config.inlier_threshold_m <= 0.0
-            || config.correspondence_weight < 0.0
-            || !(0.0..=1.0).contains(&config.min_inlier_fraction)
-            || config.geometric_margin_m < 0.0
-            || config.geometric_ratio < 1.0
-            || config.geometric_tau_m <= 0.0
-            || config.polish_distance_m < 0.0
-            || config.motion_margin_deg.is_nan()
-            || config.motion_icp_distance_m.is_nan()
-            || config.motion_icp_distance_m < 0.0
-            || config.motion_fit_tolerance.is_nan()
-            || config.motion_fit_tolerance < 0.0
-            || config.polish_flow_slack_m.is_nan()
-            || config.polish_flow_slack_m < 0.0
-            || config.reprojection_max_change_deg.is_nan()
-            || config.reprojection_max_change_deg < 0.0
-        {
-            return Err(RegistrationError::Config(
-                "flowfilter needs ransac_iterations > 0, inlier_threshold_m > 0, correspondence_weight >= 0, \
-                 min_inlier_fraction in [0, 1], geometric_margin_m >= 0, geometric_ratio >= 1, \
-                 geometric_tau_m > 0, polish_distance_m >= 0, a motion_margin_deg that is a number, motion_icp_distance_m >= 0, motion_fit_tolerance >= 0, polish_flow_slack_m >= 0 and reprojection_max_change_deg >= 0"
-                    .into(),
-            ));
-        }
+        config.validate().map_err(|e| e.within("flowfilter"))?;
         Ok(Self { config })
+    }
+}
+
+impl FlowFilterConfig {
+    /// Check every value: finite and in range (the inner `[filterreg]` table too).
+    ///
+    /// # Errors
+    /// The first key at fault (keys relative to the `[flowfilter]` table).
+    pub fn validate(&self) -> Result<(), ParamError> {
+        self.filterreg.validate().map_err(|e| e.within("filterreg"))?;
+        params::count_positive("ransac_iterations", self.ransac_iterations)?;
+        params::positive("inlier_threshold_m", self.inlier_threshold_m)?;
+        params::in_closed("min_inlier_fraction", self.min_inlier_fraction, 0.0, 1.0)?;
+        params::non_negative("correspondence_weight", self.correspondence_weight)?;
+        params::non_negative("geometric_margin_m", self.geometric_margin_m)?;
+        params::at_least("geometric_ratio", self.geometric_ratio, 1.0)?;
+        params::positive("geometric_tau_m", self.geometric_tau_m)?;
+        // Negative turns the motion check off: any finite number.
+        params::finite("motion_margin_deg", self.motion_margin_deg)?;
+        params::non_negative("motion_fit_tolerance", self.motion_fit_tolerance)?;
+        params::non_negative("motion_icp_distance_m", self.motion_icp_distance_m)?;
+        params::non_negative("polish_distance_m", self.polish_distance_m)?;
+        params::non_negative("polish_flow_slack_m", self.polish_flow_slack_m)?;
+        params::non_negative("reprojection_max_change_deg", self.reprojection_max_change_deg)
     }
 }
 

@@ -2,6 +2,7 @@
 //! (Chen & Medioni 1992), with robust kernels and Open3D's convergence criteria.
 
 use crate::error::RegistrationError;
+use flowfilter_geometry::{ParamError, params};
 use crate::evaluate::{RobustKernel, point_to_plane_step_by};
 use crate::problem::{IterationRecord, Registrar, Registration, RegistrationProblem, in_pool, validate_problem};
 use crate::warning::RegistrationWarning;
@@ -65,16 +66,30 @@ pub struct Icp {
 
 impl Icp {
     /// ICP with the given parameters.
+    ///
+    /// # Errors
+    /// [`RegistrationError::Param`] for a value out of range ([`IcpConfig::validate`]).
     pub fn new(config: IcpConfig) -> Result<Self, RegistrationError> {
-        if config.max_correspondence_distance.is_nan()
-            || config.max_correspondence_distance <= 0.0
-            || config.max_iterations == 0
-        {
-            return Err(RegistrationError::Config(
-                "icp needs max_correspondence_distance > 0 and max_iterations > 0".into(),
-            ));
-        }
+        config.validate().map_err(|e| e.within("icp"))?;
         Ok(Self { config })
+    }
+}
+
+impl IcpConfig {
+    /// Check every value: finite and in range.
+    ///
+    /// # Errors
+    /// The first key at fault (keys relative to the `[icp]` table).
+    pub fn validate(&self) -> Result<(), ParamError> {
+        params::positive("max_correspondence_distance", self.max_correspondence_distance)?;
+        params::count_positive("max_iterations", self.max_iterations)?;
+        params::non_negative("relative_fitness", self.relative_fitness)?;
+        params::non_negative("relative_rmse", self.relative_rmse)?;
+        params::non_negative("min_update", self.min_update)?;
+        match self.kernel {
+            RobustKernel::None => Ok(()),
+            RobustKernel::Huber { k } | RobustKernel::Tukey { k } => params::positive("kernel.k", k),
+        }
     }
 }
 

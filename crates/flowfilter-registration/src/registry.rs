@@ -6,6 +6,7 @@ use crate::filterreg::{FilterReg, FilterRegConfig, FilterRegVariant};
 use crate::flowfilter::{FlowFilter, FlowFilterConfig, FlowFilterMode};
 use crate::icp::{Icp, IcpConfig, IcpVariant};
 use crate::problem::Registrar;
+use flowfilter_geometry::ParamError;
 use serde::{Deserialize, Serialize};
 
 /// Names accepted by [`registrar_by_name`] (besides the aliases `icp` for `icp-pt2pt` and
@@ -34,6 +35,19 @@ pub struct RegistrationConfig {
     pub filterreg: FilterRegConfig,
     /// Flow Filter.
     pub flowfilter: FlowFilterConfig,
+}
+
+impl RegistrationConfig {
+    /// Check every backend's table (keys relative to `[registration]`: `cpd.w`).
+    ///
+    /// # Errors
+    /// The first key at fault.
+    pub fn validate(&self) -> Result<(), ParamError> {
+        self.icp.validate().map_err(|e| e.within("icp"))?;
+        self.cpd.validate().map_err(|e| e.within("cpd"))?;
+        self.filterreg.validate().map_err(|e| e.within("filterreg"))?;
+        self.flowfilter.validate().map_err(|e| e.within("flowfilter"))
+    }
 }
 
 /// The backend called `name`, configured by `config`.

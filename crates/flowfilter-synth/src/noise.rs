@@ -70,6 +70,8 @@ impl NoiseProfile {
     /// Parse and validate a TOML profile; `source_name` is used in error messages.
     pub fn from_toml(text: &str, source_name: &str) -> Result<Self, SynthError> {
         let err = |message: String| SynthError::NoiseProfile { source_name: source_name.into(), message };
+        let table: toml::Table = toml::from_str(text).map_err(|e| err(e.to_string()))?;
+        flowfilter_geometry::params::reject_non_finite(&table).map_err(|e| err(e.to_string()))?;
         let p: NoiseProfile = toml::from_str(text).map_err(|e| err(e.to_string()))?;
         let d = &p.depth;
         let checks = [

@@ -29,10 +29,10 @@ pub struct EstimateArgs {
     #[arg(long)]
     pub camera: String,
     /// Turntable angle of the model frame (degrees; with --object).
-    #[arg(long, allow_negative_numbers = true)]
+    #[arg(long, allow_negative_numbers = true, value_parser = crate::args::turntable_angle)]
     pub from: Option<u32>,
     /// Turntable angle of the target frame (degrees; with --object).
-    #[arg(long, allow_negative_numbers = true)]
+    #[arg(long, allow_negative_numbers = true, value_parser = crate::args::turntable_angle)]
     pub to: Option<u32>,
     /// Colour image of the model frame (PNG or JPEG).
     #[arg(long, requires_all = ["model_depth", "target_color", "target_depth"])]

@@ -1,5 +1,6 @@
 //! `flowfilter`: the command-line front end of the Flow Filter workspace.
 
+mod args;
 mod estimate;
 mod estimate_batch;
 mod flow;

@@ -26,8 +26,8 @@ pub struct ObjectArgs {
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Offset of the object from the turntable centre, metres, `dx,dy`.
-    #[arg(long, default_value = "0.01,-0.005", value_delimiter = ',', num_args = 2, allow_hyphen_values = true)]
-    pub offset: Vec<f32>,
+    #[arg(long, default_value = "0.01,-0.005", allow_hyphen_values = true, value_parser = crate::args::offset_pair)]
+    pub offset: [f32; 2],
 }
 
 impl ObjectArgs {
@@ -68,7 +68,7 @@ pub struct SynthArgs {
     #[arg(long, default_value_t = 1)]
     pub obj_id: u32,
     /// BOP: millimetres per depth unit (`depth_scale` of `scene_camera.json`).
-    #[arg(long, default_value_t = 0.1)]
+    #[arg(long, default_value_t = 0.1, value_parser = crate::args::positive_f64)]
     pub depth_scale_mm: f64,
     /// BOP: per-frame effects of real captures (`real`: exposure +-12%, white balance +-4%,
     /// masks up to 2 px off and 2 px too large or small, depth up to 0.1 deg of rotation away

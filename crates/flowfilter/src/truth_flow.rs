@@ -25,16 +25,16 @@ pub struct TruthFlowArgs {
     #[arg(long)]
     pub to_camera: Option<String>,
     /// Turntable angle of the first view (degrees).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true, value_parser = crate::args::turntable_angle)]
     pub from: u32,
     /// Turntable angle of the second view (degrees).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true, value_parser = crate::args::turntable_angle)]
     pub to: u32,
     /// Noise of the written colour images: `none` (default), `carmine`, or a TOML profile.
     #[arg(long, default_value = "none")]
     pub noise: String,
     /// Depth tolerance of the visibility test, metres.
-    #[arg(long, default_value_t = 0.003)]
+    #[arg(long, default_value_t = 0.003, value_parser = crate::args::positive_f64)]
     pub tolerance: f64,
     /// Output directory: from.png, to.png, flow.flo (object pixels; unknown elsewhere),
     /// occlusion.png (255 = occluded in the second view), object.png, flow.png (colour wheel).
