@@ -37,6 +37,18 @@ impl SensorCalibration {
         self.h_from_np5 * self.h_ir_from_np5.inverse()
     }
 
+    /// A note for people when `NP{c}_ir_depth_bias` is not 0: it is recorded, and the
+    /// documented conversion (`raw x scale x 1e-4`) does not apply it. `sensor` names the key.
+    pub fn depth_bias_note(&self, sensor: SensorId) -> Option<String> {
+        (self.ir_depth_bias != 0.0).then(|| {
+            format!(
+                "{sensor}_ir_depth_bias = {} is not applied: depth is raw x {sensor}_ir_depth_scale x 1e-4 m, as \
+                 BigBIRD documents it",
+                self.ir_depth_bias
+            )
+        })
+    }
+
     /// Metres per raw depth unit.
     pub fn metres_per_unit(&self) -> f64 {
         self.ir_depth_scale * 1e-4
@@ -108,10 +120,14 @@ impl Calibration {
                 })?;
             let scale_key = format!("NP{c}_ir_depth_scale");
             let ir_depth_scale = h5.scalar(&scale_key)?;
-            if ir_depth_scale <= 0.0 {
+            // The documented scale is close to 1 (raw units of 100 micrometres).
+            if !(0.01..=100.0).contains(&ir_depth_scale) {
                 return Err(BigBirdError::Invalid {
                     path: path.into(),
-                    message: format!("dataset '{scale_key}' must be positive, found {ir_depth_scale}"),
+                    message: format!(
+                        "dataset '{scale_key}' must be in [0.01, 100] (raw depth x scale x 1e-4 = metres; \
+                         BigBIRD's scales are close to 1), found {ir_depth_scale:e}"
+                    ),
                 });
             }
             let sensor = SensorCalibration {

@@ -13,6 +13,12 @@ pub enum BigBirdError {
         /// The missing path.
         path: PathBuf,
     },
+    /// The path is a file where an object directory is expected.
+    #[error("{}: is a file, not an object directory (give the directory holding calibration.h5 and the frames)", path.display())]
+    NotADirectory {
+        /// The path given.
+        path: PathBuf,
+    },
     /// The operating system could not read or write a file.
     #[error("{}: {source}", path.display())]
     Io {

@@ -1,6 +1,7 @@
 //! Validation of a whole object directory, collecting every problem.
 
 use crate::calibration::Calibration;
+use crate::capture_status::{CaptureStatus, capture_status_path};
 use crate::error::BigBirdError;
 use crate::layout::{FrameId, SensorId, calibration_path, table_pose_path, turntable_path};
 use crate::object::{TablePose, Turntable, discover_frames, load_frame_files};
@@ -63,12 +64,20 @@ pub fn inspect(dir: impl AsRef<Path>) -> InspectReport {
     let dir = dir.as_ref();
     let mut report =
         InspectReport { summary: ObjectSummary { dir: dir.into(), ..Default::default() }, problems: vec![] };
+    if dir.is_file() {
+        report.problems.push(BigBirdError::NotADirectory { path: dir.into() });
+        return report;
+    }
     if !dir.is_dir() {
         report.problems.push(BigBirdError::NotFound { path: dir.into() });
         return report;
     }
     let s = &mut report.summary;
     let p = &mut report.problems;
+    let status = CaptureStatus::read(dir).unwrap_or_else(|e| {
+        p.push(e);
+        None
+    });
     match discover_frames(dir) {
         Ok(frames) if frames.is_empty() => p.push(BigBirdError::NoFrames { dir: dir.into() }),
         Ok(frames) => s.frames = frames,
@@ -102,6 +111,10 @@ pub fn inspect(dir: impl AsRef<Path>) -> InspectReport {
     }
     for id in s.frames.clone() {
         match load_frame_files(dir, id) {
+            Ok(frame) if !frame.mask.as_slice().iter().any(|&m| m) => p.push(BigBirdError::Invalid {
+                path: id.mask_path(dir),
+                message: "the mask is empty: no object pixel".into(),
+            }),
             Ok(frame) => {
                 s.valid_frames += 1;
                 s.color_sizes.entry(id.sensor).or_default().insert((frame.color.width(), frame.color.height()));
@@ -112,6 +125,21 @@ pub fn inspect(dir: impl AsRef<Path>) -> InspectReport {
             }
             Err(e) => p.push(e),
         }
+    }
+    match status {
+        Some(CaptureStatus { complete: false, frames }) => p.push(BigBirdError::Invalid {
+            path: capture_status_path(dir),
+            message: format!(
+                "the capture is incomplete: its writer stopped before the end ({} of {frames} frames present); \
+                 write it again",
+                s.frames.len()
+            ),
+        }),
+        Some(CaptureStatus { complete: true, frames }) if frames != s.frames.len() => p.push(BigBirdError::Invalid {
+            path: capture_status_path(dir),
+            message: format!("the capture was written with {frames} frames, {} are present", s.frames.len()),
+        }),
+        _ => {}
     }
     for (what, sizes) in [("colour", &s.color_sizes), ("depth", &s.depth_sizes)] {
         for (sensor, set) in sizes {

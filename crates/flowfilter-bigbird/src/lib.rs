@@ -18,6 +18,7 @@
 #![warn(missing_docs)]
 
 mod calibration;
+mod capture_status;
 mod error;
 mod h5;
 mod inspect;
@@ -27,6 +28,7 @@ pub mod pbm;
 mod writer;
 
 pub use calibration::{Calibration, CanonCalibration, SensorCalibration};
+pub use capture_status::{CAPTURE_STATUS_FILE, CaptureStatus, capture_status_path};
 pub use error::BigBirdError;
 pub use inspect::{InspectReport, ObjectSummary, inspect};
 pub use layout::{FrameId, SensorId};

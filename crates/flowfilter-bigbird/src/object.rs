@@ -122,6 +122,9 @@ impl BigBirdObject {
     /// [`crate::inspect`] to collect all of them.
     pub fn open(dir: impl AsRef<Path>) -> Result<Self> {
         let dir = dir.as_ref().to_path_buf();
+        if dir.is_file() {
+            return Err(BigBirdError::NotADirectory { path: dir });
+        }
         if !dir.is_dir() {
             return Err(BigBirdError::NotFound { path: dir });
         }

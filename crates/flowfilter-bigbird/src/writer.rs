@@ -1,10 +1,12 @@
 //! Writing the BigBIRD layout (HDF5 through `hdf5-pure`, JPEG and PNG through `image`, PBM).
 
 use crate::calibration::Calibration;
+use crate::capture_status::{CaptureStatus, capture_status_path};
 use crate::error::BigBirdError;
 use crate::layout::{FrameId, calibration_path, table_pose_path, turntable_path};
 use crate::object::{TablePose, Turntable};
 use crate::{Result, pbm};
+use flowfilter_geometry::atomic::{write_atomic, write_atomic_with};
 use flowfilter_geometry::{Mask, Pose, RawDepth};
 use hdf5_pure::{FileBuilder, LibVer};
 use image::RgbImage;
@@ -73,7 +75,7 @@ impl ObjectWriter {
     }
 
     fn finish(&self, b: FileBuilder, path: &Path) -> Result<()> {
-        b.write(path).map_err(|e| write_error(path, e))
+        write_atomic_with(path, |p| b.write(p).map_err(std::io::Error::other)).map_err(|e| write_error(path, e))
     }
 
     /// Write `calibration.h5`.
@@ -83,9 +85,11 @@ impl ObjectWriter {
             let c = id.index();
             b.create_dataset(&format!("NP{c}_rgb_K")).with_f64_data(&row_major3(&s.rgb_k.matrix())).with_shape(&[3, 3]);
             b.create_dataset(&format!("NP{c}_rgb_d")).with_f64_data(&s.rgb_d.to_array()).with_shape(&[5]);
-            b.create_dataset(&format!("NP{c}_ir_K"))
-                .with_f64_data(&row_major3(&s.depth_k.matrix()))
-                .with_shape(&[3, 3]);
+            // Real BigBIRD files hold the depth camera's intrinsics under both names, and public
+            // loaders read either.
+            for key in [format!("NP{c}_ir_K"), format!("NP{c}_depth_K")] {
+                b.create_dataset(&key).with_f64_data(&row_major3(&s.depth_k.matrix())).with_shape(&[3, 3]);
+            }
             b.create_dataset(&format!("NP{c}_ir_depth_scale")).with_f64_data(&[s.ir_depth_scale]).with_shape(&[1]);
             b.create_dataset(&format!("NP{c}_ir_depth_bias")).with_f64_data(&[s.ir_depth_bias]).with_shape(&[1]);
             b.create_dataset(&format!("H_NP{c}_from_NP5")).with_f64_data(&pose_rows(&s.h_from_np5)).with_shape(&[4, 4]);
@@ -136,15 +140,23 @@ impl ObjectWriter {
     /// Write the colour image `NP{c}_{angle}.jpg`.
     pub fn write_color(&self, id: FrameId, color: &RgbImage) -> Result<()> {
         let path = id.color_path(&self.dir);
-        let file = std::fs::File::create(&path).map_err(|source| BigBirdError::Io { path: path.clone(), source })?;
-        let mut enc =
-            image::codecs::jpeg::JpegEncoder::new_with_quality(std::io::BufWriter::new(file), self.jpeg_quality);
-        enc.encode_image(color).map_err(|e| write_error(&path, e))
+        let mut bytes = Vec::new();
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut bytes, self.jpeg_quality)
+            .encode_image(color)
+            .map_err(|e| write_error(&path, e))?;
+        write_atomic(&path, &bytes).map_err(|source| BigBirdError::Io { path, source })
+    }
+
+    /// Write `capture-status.txt` ([`CaptureStatus`]): incomplete before the first frame of a
+    /// capture, complete after the last.
+    pub fn write_status(&self, status: CaptureStatus) -> Result<()> {
+        let path = capture_status_path(&self.dir);
+        write_atomic(&path, status.to_text().as_bytes()).map_err(|source| BigBirdError::Io { path, source })
     }
 
     /// Write the mask `masks/NP{c}_{angle}_mask.pbm` (binary PBM, object = set bit).
     pub fn write_mask(&self, id: FrameId, mask: &Mask) -> Result<()> {
         let path = id.mask_path(&self.dir);
-        std::fs::write(&path, pbm::encode(mask)).map_err(|source| BigBirdError::Io { path, source })
+        write_atomic(&path, &pbm::encode(mask)).map_err(|source| BigBirdError::Io { path, source })
     }
 }

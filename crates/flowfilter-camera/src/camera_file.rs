@@ -209,9 +209,13 @@ impl CameraFile {
             CameraFileLayout::Open3d => None,
         };
         if let Some(unit) = metres_per_unit
-            && !(unit.is_finite() && unit > 0.0)
+            && !(crate::MIN_METRES_PER_UNIT..=crate::MAX_METRES_PER_UNIT).contains(&unit)
         {
-            let field = if layout == CameraFileLayout::Bop { "depth_scale" } else { "depth_unit_m" };
+            let field = match layout {
+                CameraFileLayout::Bop => "depth_scale",
+                _ if object.contains_key("depth_png_units_per_metre") => "depth_png_units_per_metre",
+                _ => "depth_unit_m",
+            };
             return Err(r.camera_error(field, CameraError::BadDepthScale { value: unit }));
         }
         Ok(Self { layout, intrinsics, distortion, size, metres_per_unit, depth, origin: origin.into() })

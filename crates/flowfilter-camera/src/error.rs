@@ -19,6 +19,16 @@ pub enum CameraError {
         /// Value found.
         value: f64,
     },
+    /// A parameter is finite but absurd (a unit or file error).
+    #[error("camera parameter '{name}' = {value:e} is beyond {limit:e}: wrong unit or a damaged file")]
+    OutOfRange {
+        /// Parameter name.
+        name: &'static str,
+        /// Value found.
+        value: f64,
+        /// The limit.
+        limit: f64,
+    },
     /// A 3x3 intrinsic matrix does not have the pinhole form `[fx 0 cx; 0 fy cy; 0 0 1]`.
     #[error("intrinsic matrix entry ({row}, {col}) must be {expected}, found {found}")]
     NotPinhole {
@@ -45,8 +55,9 @@ pub enum CameraError {
         /// Number of coefficients found.
         found: usize,
     },
-    /// The depth scale is not a positive finite number.
-    #[error("depth scale must be positive and finite, found {value}")]
+    /// The depth unit is not a finite number of metres per raw unit in
+    /// [`crate::MIN_METRES_PER_UNIT`, `crate::MAX_METRES_PER_UNIT`].
+    #[error("depth unit must be between 1e-6 and 1 metre per raw unit, found {value:e} m")]
     BadDepthScale {
         /// Value found.
         value: f64,

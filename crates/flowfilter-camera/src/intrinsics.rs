@@ -4,6 +4,10 @@ use crate::error::{CameraError, finite};
 use nalgebra::Matrix3;
 use serde::{Deserialize, Serialize};
 
+/// The largest focal length or principal-point coordinate accepted, pixels: 10^6 (a 600 mm lens
+/// on 4 micrometre pixels is 1.5 x 10^5); a larger value is a unit or file error.
+pub const MAX_PIXELS: f64 = 1e6;
+
 /// Pinhole intrinsics in pixels (no skew), OpenCV convention: `u = fx * x + cx`, `v = fy * y + cy`
 /// for normalised coordinates `(x, y) = (X/Z, Y/Z)`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -27,6 +31,11 @@ impl Intrinsics {
         }
         if fy <= 0.0 {
             return Err(CameraError::NonPositiveFocal { name: "fy", value: fy });
+        }
+        for (name, value) in [("fx", fx), ("fy", fy), ("cx", cx), ("cy", cy)] {
+            if value.abs() > MAX_PIXELS {
+                return Err(CameraError::OutOfRange { name, value, limit: MAX_PIXELS });
+            }
         }
         Ok(k)
     }
@@ -70,6 +79,7 @@ mod tests {
         assert!(matches!(Intrinsics::from_matrix(&m), Err(CameraError::NotPinhole { row: 0, col: 1, .. })));
         assert!(matches!(Intrinsics::new(-1.0, 1.0, 0.0, 0.0), Err(CameraError::NonPositiveFocal { name: "fx", .. })));
         assert!(matches!(Intrinsics::new(1.0, 1.0, f64::NAN, 0.0), Err(CameraError::NonFinite { name: "cx", .. })));
+        assert!(matches!(Intrinsics::new(1e300, 1.0, 0.0, 0.0), Err(CameraError::OutOfRange { name: "fx", .. })));
     }
 
     #[test]

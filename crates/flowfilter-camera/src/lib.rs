@@ -30,7 +30,7 @@ pub use error::CameraError;
 pub use intrinsics::Intrinsics;
 pub use model::{CameraModel, ImageSize};
 pub use rays::RayTable;
-pub use sensor::RgbdSensor;
+pub use sensor::{MAX_METRES_PER_UNIT, MIN_METRES_PER_UNIT, RgbdSensor};
 
 /// A 2-D pixel position `(u, v)` in pixels.
 pub type Pixel = nalgebra::Point2<f64>;

@@ -4,6 +4,13 @@ use crate::{CameraError, CameraModel, Pixel};
 use flowfilter_geometry::{Point3, Pose};
 use serde::{Deserialize, Serialize};
 
+/// The smallest depth unit accepted: a micrometre per raw unit.
+pub const MIN_METRES_PER_UNIT: f64 = 1e-6;
+
+/// The largest depth unit accepted: a metre per raw unit (16-bit depth in metres would not
+/// resolve an object).
+pub const MAX_METRES_PER_UNIT: f64 = 1.0;
+
 /// A depth (IR) camera and a colour camera of one RGB-D sensor, with their relative pose and
 /// the conversion from raw depth values to metres.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -19,14 +26,18 @@ pub struct RgbdSensor {
 }
 
 impl RgbdSensor {
-    /// A validated sensor (the depth scale must be positive and finite).
+    /// A validated sensor (the depth unit must be in [`MIN_METRES_PER_UNIT`,
+    /// `MAX_METRES_PER_UNIT`]).
+    ///
+    /// # Errors
+    /// [`CameraError::BadDepthScale`] otherwise.
     pub fn new(
         depth: CameraModel,
         color: CameraModel,
         color_from_depth: Pose,
         metres_per_unit: f64,
     ) -> Result<Self, CameraError> {
-        if !(metres_per_unit.is_finite() && metres_per_unit > 0.0) {
+        if !(MIN_METRES_PER_UNIT..=MAX_METRES_PER_UNIT).contains(&metres_per_unit) {
             return Err(CameraError::BadDepthScale { value: metres_per_unit });
         }
         Ok(Self { depth, color, color_from_depth, metres_per_unit })

@@ -6,7 +6,6 @@
 
 use crate::error::DepthError;
 use flowfilter_geometry::{Point3, PointCloud, Vector3};
-use std::io::Write;
 use std::path::Path;
 
 /// PLY encoding.
@@ -72,8 +71,7 @@ pub fn write_ply(cloud: &PointCloud, path: &Path, format: PlyFormat) -> Result<(
             }
         }
     }
-    let mut f = std::fs::File::create(path).map_err(|e| ply_err(path, format!("cannot create: {e}")))?;
-    f.write_all(&out).map_err(|e| ply_err(path, format!("cannot write: {e}")))
+    flowfilter_geometry::atomic::write_atomic(path, &out).map_err(|e| ply_err(path, format!("cannot write: {e}")))
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -209,11 +207,16 @@ pub fn read_ply(path: &Path) -> Result<PointCloud, DepthError> {
         }
         let has_n = is_vertex && normals.iter().all(Option::is_some);
         let has_c = is_vertex && colors.iter().all(Option::is_some);
+        // A damaged header may declare any count: reserve no more than the data can hold.
+        let reserve = e.count.min(bytes.len());
+        if is_vertex {
+            cloud.points.reserve(reserve);
+        }
         if has_n {
-            cloud.normals = Some(Vec::with_capacity(e.count));
+            cloud.normals = Some(Vec::with_capacity(reserve));
         }
         if has_c {
-            cloud.colors = Some(Vec::with_capacity(e.count));
+            cloud.colors = Some(Vec::with_capacity(reserve));
         }
         let mut vals = vec![0.0f64; e.props.len()];
         for _ in 0..e.count {
@@ -262,6 +265,20 @@ pub fn read_ply(path: &Path) -> Result<PointCloud, DepthError> {
             }
         }
     }
+    let trailing = match &mut text {
+        Some(t) => t.next().is_some(),
+        None => body.iter().any(|b| !b.is_ascii_whitespace()),
+    };
+    if trailing {
+        let declared: Vec<String> = elements.iter().map(|e| format!("{} {}", e.count, e.name)).collect();
+        return Err(ply_err(
+            path,
+            format!("data continues after the elements the header declares ({}): wrong count or a damaged file", declared.join(", ")),
+        ));
+    }
+    if let Some(i) = cloud.normals.as_ref().and_then(|n| n.iter().position(|v| !v.iter().all(|c| c.is_finite()))) {
+        return Err(ply_err(path, format!("vertex {i}: the normal (nx, ny, nz) is not finite")));
+    }
     cloud.validate().map_err(|e| ply_err(path, e.to_string()))?;
     Ok(cloud)
 }
@@ -300,5 +317,15 @@ mod tests {
         std::fs::write(&p, b"hello").unwrap();
         assert!(read_ply(&p).unwrap_err().to_string().contains("end_header"));
         assert!(read_ply(&dir.path().join("none.ply")).is_err());
+        let header = "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\n";
+        std::fs::write(&p, format!("{header}end_header\n0 0 0\n1 1 1\n2 2 2\n")).unwrap();
+        assert!(read_ply(&p).unwrap_err().to_string().contains("data continues after the elements"));
+        let normals = "property float nx\nproperty float ny\nproperty float nz\n";
+        std::fs::write(&p, format!("{header}{normals}end_header\n0 0 0 0 0 1\n1 1 1 nan 0 1\n")).unwrap();
+        let e = read_ply(&p).unwrap_err().to_string();
+        assert!(e.contains("bad.ply") && e.contains("vertex 1: the normal"), "{e}");
+        let huge = "ply\nformat binary_little_endian 1.0\nelement vertex 999999999999999\nproperty float x\nproperty float y\nproperty float z\nproperty float nx\nproperty float ny\nproperty float nz\nend_header\n";
+        std::fs::write(&p, huge).unwrap();
+        assert!(read_ply(&p).unwrap_err().to_string().contains("data ends"));
     }
 }

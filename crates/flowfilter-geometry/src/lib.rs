@@ -8,6 +8,7 @@
 
 #![warn(missing_docs)]
 
+pub mod atomic;
 pub mod cloud;
 pub mod correspondences;
 pub mod fastmath;
@@ -38,6 +39,11 @@ pub use rigid::{RigidTransformError, matrix_from_pose, nearest_rotation, rigid_f
 /// (`p_a = T_ab * p_b`), and the relative object motion `T_12` maps model-frame points onto the
 /// same object points in the target frame (`P_target = T_12 * P_model`).
 pub type Pose = nalgebra::Isometry3<f64>;
+
+/// The largest coordinate or translation (metres) any input may hold: 10 km. No scene an RGB-D
+/// camera sees spans more, and beyond it squared distances in f64 lose the millimetres the
+/// registrations work in (a larger value is a unit or file error, reported as such).
+pub const MAX_COORDINATE_M: f64 = 1e4;
 
 /// A 3-D point in metres.
 pub type Point3 = nalgebra::Point3<f64>;

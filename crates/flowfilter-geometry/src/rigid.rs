@@ -30,6 +30,14 @@ pub enum RigidTransformError {
         /// Tolerance used.
         tolerance: f64,
     },
+    /// The translation is longer than [`crate::MAX_COORDINATE_M`] (a unit or file error).
+    #[error("translation is {norm:e} m long, beyond the {limit:e} m any scene spans (wrong unit or a damaged file?)")]
+    TranslationTooLarge {
+        /// Length of the translation found.
+        norm: f64,
+        /// The limit.
+        limit: f64,
+    },
     /// The determinant of the rotation block is not +1 (a reflection, or scaling).
     #[error("rotation block has determinant {det:.6}, expected +1")]
     BadDeterminant {
@@ -69,6 +77,10 @@ pub fn rigid_from_matrix(m: &Matrix4<f64>) -> Result<Pose, RigidTransformError> 
         return Err(RigidTransformError::BadDeterminant { det });
     }
     let t = Translation3::new(m[(0, 3)], m[(1, 3)], m[(2, 3)]);
+    let norm = t.vector.norm();
+    if norm > crate::MAX_COORDINATE_M {
+        return Err(RigidTransformError::TranslationTooLarge { norm, limit: crate::MAX_COORDINATE_M });
+    }
     Ok(Pose::from_parts(t, UnitQuaternion::from_rotation_matrix(&nearest_rotation(&r))))
 }
 

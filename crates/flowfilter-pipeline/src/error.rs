@@ -23,6 +23,14 @@ pub enum PipelineError {
         #[source]
         source: flowfilter_depth::DepthError,
     },
+    /// A frame's data are implausible: depth outside any sensor's range, no usable point.
+    #[error("frame {frame}: {message}")]
+    Frame {
+        /// The frame's label.
+        frame: String,
+        /// What is wrong and what to check.
+        message: String,
+    },
     /// The flow stage failed in a way that is not a recoverable degradation.
     #[error("flow stage: {0}")]
     Flow(#[from] flowfilter_flow::FlowError),

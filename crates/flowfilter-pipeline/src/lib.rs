@@ -23,6 +23,7 @@ mod config;
 mod error;
 mod estimate;
 mod frame;
+pub mod frame_checks;
 mod pipeline;
 mod source;
 mod stages;

@@ -163,7 +163,8 @@ impl Pipeline {
         let t0 = Instant::now();
         let mut times =
             StageTimes { depth_model: model.seconds * 1e3, depth_target: target.seconds * 1e3, ..Default::default() };
-        let mut warnings = vec![];
+        let mut warnings: Vec<PipelineWarning> =
+            [model, target].into_iter().filter_map(crate::frame_checks::mask_coverage).collect();
         let mut problem = RegistrationProblem::new(model.cloud.clone(), target.cloud.clone());
         let found = self.finder().and_then(|finder| {
             let tf = Instant::now();
@@ -175,8 +176,9 @@ impl Pipeline {
             found
         });
         let tr = Instant::now();
-        let reg = self.registrar.register(&problem)?;
+        let mut reg = self.registrar.register(&problem)?;
         times.registration = tr.elapsed().as_secs_f64() * 1e3;
+        flowfilter_registration::assess(&problem, &mut reg);
         times.total = times.depth_model + times.depth_target + t0.elapsed().as_secs_f64() * 1e3;
         let summary = found.map(|f| correspondence_summary(&f, &reg));
         warnings.extend(reg.warnings.iter().cloned().map(PipelineWarning::from));

@@ -76,6 +76,7 @@ impl DepthPreparer {
 impl FramePreparer for DepthPreparer {
     fn prepare(&self, frame: &RgbdFrame) -> Result<PreparedFrame, PipelineError> {
         let t0 = Instant::now();
+        crate::frame_checks::check_depth(frame)?;
         let p = self
             .stage
             .process(&frame.depth, &frame.color, &frame.mask, &frame.sensor)
@@ -83,7 +84,7 @@ impl FramePreparer for DepthPreparer {
         let mut cloud =
             if self.cloud.voxel_m > 0.0 { voxel_downsample(&p.cloud, self.cloud.voxel_m) } else { p.cloud.clone() };
         cloud.colors = None;
-        Ok(PreparedFrame {
+        let prepared = PreparedFrame {
             label: frame.label.clone(),
             gray: to_gray(&frame.color),
             depth: p.depth,
@@ -93,7 +94,9 @@ impl FramePreparer for DepthPreparer {
             sensor: frame.sensor,
             rays: self.stage.rays(&frame.sensor.color),
             seconds: t0.elapsed().as_secs_f64(),
-        })
+        };
+        crate::frame_checks::check_cloud(frame, &prepared)?;
+        Ok(prepared)
     }
 }
 

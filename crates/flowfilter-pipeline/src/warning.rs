@@ -23,6 +23,13 @@ pub enum PipelineWarning {
         /// Why.
         message: String,
     },
+    /// A frame's mask covers (nearly) the whole image: the registration aligns the scene.
+    MaskCoversFrame {
+        /// The frame's label.
+        frame: String,
+        /// Fraction of the image in the mask.
+        fraction: f64,
+    },
     /// The registration backend's warning.
     Registration(RegistrationWarning),
 }
@@ -33,8 +40,15 @@ impl PipelineWarning {
         match self {
             Self::FlowSkipped { .. } => "flow_skipped",
             Self::FlowFailed { .. } => "flow_failed",
+            Self::MaskCoversFrame { .. } => "mask_covers_frame",
             Self::Registration(w) => w.code(),
         }
+    }
+
+    /// Whether the condition means the estimate is not supported by the data (see
+    /// [`RegistrationWarning::is_implausible`]).
+    pub fn is_implausible(&self) -> bool {
+        matches!(self, Self::Registration(w) if w.is_implausible())
     }
 }
 
@@ -51,6 +65,11 @@ impl fmt::Display for PipelineWarning {
                 write!(f, "flow skipped: frames {model} and {target} come from different colour cameras or image sizes")
             }
             Self::FlowFailed { message } => write!(f, "flow failed: {message}"),
+            Self::MaskCoversFrame { frame, fraction } => write!(
+                f,
+                "the mask of frame {frame} covers {:.1}% of the image: the registration aligns the scene, not an object",
+                fraction * 100.0
+            ),
             Self::Registration(w) => w.fmt(f),
         }
     }

@@ -173,7 +173,10 @@ pub fn register(
     let (points_s, points_t) = (problem.source.len(), problem.target.len());
     let (result, seconds) = threads::run(py, || {
         let start = Instant::now();
-        let r = registrar.register(&problem);
+        let r = registrar.register(&problem).map(|mut r| {
+            flowfilter_registration::assess(&problem, &mut r);
+            r
+        });
         (r, start.elapsed().as_secs_f64())
     })?;
     let r = result.map_err(|e| registration(&e))?;

@@ -31,6 +31,26 @@ pub enum RegistrationError {
         /// First bad point.
         index: usize,
     },
+    /// A normal is NaN or infinite.
+    #[error("the {which} cloud has a non-finite normal at point {index}")]
+    NonFiniteNormal {
+        /// `source` or `target`.
+        which: &'static str,
+        /// First bad point.
+        index: usize,
+    },
+    /// A coordinate is beyond [`flowfilter_geometry::MAX_COORDINATE_M`] (a unit or file error).
+    #[error("the {which} cloud has a coordinate of {value:e} m at point {index}, beyond the {limit:e} m any scene spans (wrong unit?)")]
+    OutOfRange {
+        /// `source` or `target`.
+        which: &'static str,
+        /// First bad point.
+        index: usize,
+        /// Its largest absolute coordinate.
+        value: f64,
+        /// The limit.
+        limit: f64,
+    },
     /// A method needs normals the cloud does not have.
     #[error("{method} needs normals on the {which} cloud, which has none")]
     MissingNormals {

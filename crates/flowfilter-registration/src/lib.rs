@@ -13,6 +13,7 @@ mod filterreg;
 mod flowfilter;
 mod gmm;
 mod icp;
+pub mod plausibility;
 pub mod lattice;
 mod problem;
 mod registry;
@@ -26,6 +27,7 @@ pub use filterreg::{FilterReg, FilterRegConfig, FilterRegEStep, FilterRegVariant
 pub use flowfilter::{FlowFilter, FlowFilterConfig, FlowFilterMode, ransac_kabsch};
 pub use gmm::mean_pair_distance2;
 pub use icp::{Icp, IcpConfig, IcpVariant};
+pub use plausibility::{Plausibility, assess, assess_with};
 pub use problem::{
     Correspondences, IterationRecord, Registrar, Registration, RegistrationProblem, Uncertainty, validate_cloud,
     validate_problem,

@@ -106,6 +106,26 @@ pub struct Registration {
     pub uncertainty: Option<Uncertainty>,
 }
 
+impl Registration {
+    /// A bare result holding `transform`: no iterations, not converged, fitness 0, nothing else
+    /// (for custom backends to fill in).
+    pub fn with_transform(transform: Pose) -> Self {
+        Self {
+            transform,
+            iterations: 0,
+            converged: false,
+            fitness: 0.0,
+            inlier_rmse: 0.0,
+            sigma2: None,
+            scale: None,
+            history: vec![],
+            warnings: vec![],
+            correspondence_set: None,
+            uncertainty: None,
+        }
+    }
+}
+
 /// Bounds on a pose's error under the backend's noise model (Flow Filter: 2.5 standard
 /// deviations, along the worst axis, of the reprojection refinement's covariance, which takes the
 /// flow pairs' errors as independent: the 90% radius of a 3-D Gaussian). Correlated or systematic
@@ -212,6 +232,10 @@ pub fn validate_cloud(
     if let Some(index) = cloud.points.iter().position(|p| !p.coords.iter().all(|c| c.is_finite())) {
         return Err(RegistrationError::NonFinite { which, index });
     }
+    let limit = flowfilter_geometry::MAX_COORDINATE_M;
+    if let Some((index, p)) = cloud.points.iter().enumerate().find(|(_, p)| p.coords.amax() > limit) {
+        return Err(RegistrationError::OutOfRange { which, index, value: p.coords.amax(), limit });
+    }
     // Degenerate: the spread's second principal axis vanishes.
     let c = cloud.centroid().expect("non-empty");
     let cov = cloud.points.iter().fold(nalgebra::Matrix3::zeros(), |a, p| {
@@ -229,7 +253,7 @@ pub fn validate_cloud(
             return Err(RegistrationError::MissingNormals { method, which });
         }
         if let Some(index) = normals.iter().position(|v| !v.iter().all(|c| c.is_finite())) {
-            return Err(RegistrationError::NonFinite { which, index });
+            return Err(RegistrationError::NonFiniteNormal { which, index });
         }
     }
     Ok(())
@@ -247,6 +271,13 @@ pub fn validate_problem(
     }
     if !p.init.to_homogeneous().iter().all(|v| v.is_finite()) {
         return Err(RegistrationError::Config("the initial pose is not finite".into()));
+    }
+    let norm = p.init.translation.vector.norm();
+    if norm > flowfilter_geometry::MAX_COORDINATE_M {
+        return Err(RegistrationError::Config(format!(
+            "the initial pose's translation is {norm:e} m long, beyond {:e} m",
+            flowfilter_geometry::MAX_COORDINATE_M
+        )));
     }
     Ok(())
 }

@@ -69,6 +69,29 @@ pub enum RegistrationWarning {
         /// The translation bound, metres.
         translation_m: f64,
     },
+    /// After the initial pose the clouds are far apart for their size: the result is a guess.
+    FarApart {
+        /// Centroid distance after the initial pose, metres.
+        distance_m: f64,
+        /// The larger cloud's bounding-box diagonal, metres.
+        size_m: f64,
+    },
+    /// Few moved source points have a target point near them: the clouds do not support the pose.
+    PoorFit {
+        /// Fraction of source points within the gate.
+        fitness: f64,
+        /// The gate, metres.
+        gate_m: f64,
+    },
+    /// The source fits, but most target points in its region have no source point near them.
+    OneSidedOverlap {
+        /// Fraction of source points within the gate.
+        fitness: f64,
+        /// Fraction of the target points in the source's box within the gate.
+        support: f64,
+        /// The gate, metres.
+        gate_m: f64,
+    },
     /// Flow Filter's geometric check kept a flow-free registration that fits the clouds clearly
     /// better than the flow result.
     GeometricCheck {
@@ -94,7 +117,16 @@ impl RegistrationWarning {
             Self::FlowFallback { .. } => "flow_fallback",
             Self::MotionCheck { .. } => "motion_check",
             Self::GeometricCheck { .. } => "geometric_check",
+            Self::FarApart { .. } => "far_apart",
+            Self::PoorFit { .. } => "poor_fit",
+            Self::OneSidedOverlap { .. } => "one_sided_overlap",
         }
+    }
+
+    /// Whether the condition means the clouds do not support the result (the result is then not
+    /// converged, and the CLI exits with code 3).
+    pub fn is_implausible(&self) -> bool {
+        matches!(self, Self::FarApart { .. } | Self::PoorFit { .. } | Self::OneSidedOverlap { .. })
     }
 }
 
@@ -132,6 +164,27 @@ impl fmt::Display for RegistrationWarning {
                  ({rotation_deg:.3} deg, {:.2} mm): it cannot be told from no motion",
                 moved_m * 1e3,
                 translation_m * 1e3
+            ),
+            Self::FarApart { distance_m, size_m } => write!(
+                f,
+                "the clouds start {distance_m:.3} m apart, {:.0} times their size ({size_m:.3} m): the result is a \
+                 guess; give an initial pose that brings them together",
+                distance_m / size_m
+            ),
+            Self::PoorFit { fitness, gate_m } => write!(
+                f,
+                "only {:.1}% of the source points lie within {:.1} mm of the target after alignment: the clouds do \
+                 not support this pose",
+                fitness * 100.0,
+                gate_m * 1e3
+            ),
+            Self::OneSidedOverlap { fitness, support, gate_m } => write!(
+                f,
+                "one-sided overlap: {:.1}% of the source points fit the target, but only {:.1}% of the target points \
+                 in the source's region lie within {:.1} mm of it: the pose is not supported by the target",
+                fitness * 100.0,
+                support * 100.0,
+                gate_m * 1e3
             ),
             Self::GeometricCheck { kept, residual_m, flow_residual_m } => write!(
                 f,

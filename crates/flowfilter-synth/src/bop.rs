@@ -24,6 +24,7 @@ use crate::rig::{RigSensor, world_from_table};
 use crate::scene::Scene;
 use flowfilter_camera::raster::NO_TRIANGLE;
 use flowfilter_camera::{CameraModel, Distortion, RgbdSensor};
+use flowfilter_geometry::atomic::{write_atomic, write_atomic_with};
 use flowfilter_geometry::{Mask, Pose, RawDepth, mask_bbox};
 use image::{ImageBuffer, Luma, RgbImage};
 use rand::SeedableRng;
@@ -159,19 +160,29 @@ fn save_mask(mask: &Mask, path: &Path) -> Result<(), SynthError> {
     let (w, h) = mask.dims();
     let img: ImageBuffer<Luma<u8>, Vec<u8>> =
         ImageBuffer::from_fn(w as u32, h as u32, |x, y| Luma([if *mask.at(x as usize, y as usize) { 255 } else { 0 }]));
-    img.save(path).map_err(|e| write_error(path, e))
+    save_image(&img, path)
 }
 
 fn save_depth(depth: &RawDepth, path: &Path) -> Result<(), SynthError> {
     let (w, h) = depth.dims();
     let img: ImageBuffer<Luma<u16>, Vec<u16>> =
         ImageBuffer::from_fn(w as u32, h as u32, |x, y| Luma([*depth.at(x as usize, y as usize)]));
-    img.save(path).map_err(|e| write_error(path, e))
+    save_image(&img, path)
 }
 
 fn write_json(path: &Path, value: &Value) -> Result<(), SynthError> {
     let text = serde_json::to_string_pretty(value).map_err(|e| write_error(path, e))?;
-    std::fs::write(path, text + "\n").map_err(|e| write_error(path, e))
+    write_atomic(path, (text + "\n").as_bytes()).map_err(|e| write_error(path, e))
+}
+
+/// Save an image (format by extension) whole or not at all.
+fn save_image<P, C>(img: &ImageBuffer<P, C>, path: &Path) -> Result<(), SynthError>
+where
+    P: image::PixelWithColorType,
+    [P::Subpixel]: image::EncodableLayout,
+    C: std::ops::Deref<Target = [P::Subpixel]>,
+{
+    write_atomic_with(path, |p| img.save(p).map_err(std::io::Error::other)).map_err(|e| write_error(path, e))
 }
 
 /// The three annotation entries of one image.
@@ -228,7 +239,7 @@ pub fn write_bop_scene(
         .map(|im| -> Result<(Value, Value, Value), SynthError> {
             let view = camera.render(scene, opts, im)?;
             let rgb = dir.join("rgb").join(format!("{im:06}.png"));
-            view.color.save(&rgb).map_err(|e| write_error(&rgb, e))?;
+            save_image(&view.color, &rgb)?;
             save_depth(&view.depth, &dir.join("depth").join(format!("{im:06}.png")))?;
             save_mask(&view.mask, &dir.join("mask").join(format!("{im:06}_000000.png")))?;
             save_mask(&view.mask_visib, &dir.join("mask_visib").join(format!("{im:06}_000000.png")))?;

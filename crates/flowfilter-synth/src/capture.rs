@@ -4,7 +4,7 @@ use crate::error::SynthError;
 use crate::noise::{DepthNoiseInput, DepthNoiseTruth, NoiseProfile, add_color_noise, apply_depth_noise, gaussian_blur};
 use crate::rig::{Rig, RigSensor, world_from_table};
 use crate::scene::Scene;
-use flowfilter_bigbird::{FrameId, H5Format, ObjectWriter, SensorId};
+use flowfilter_bigbird::{CaptureStatus, FrameId, H5Format, ObjectWriter, SensorId};
 use flowfilter_camera::CameraModel;
 use flowfilter_camera::raster::{GBuffer, NO_TRIANGLE, ScreenVertex, rasterize};
 use flowfilter_geometry::{DepthMap, Mask, Pose, RawDepth};
@@ -351,6 +351,8 @@ pub fn write_capture(
 ) -> Result<(), SynthError> {
     let quality = opts.noise.as_ref().map_or(100, |p| p.color.jpeg_quality);
     let writer = ObjectWriter::create(dir, H5Format::V110)?.with_jpeg_quality(quality);
+    let frames = opts.sensors.len() * opts.angles.len();
+    writer.write_status(CaptureStatus { complete: false, frames })?;
     writer.write_calibration(&rig.calibration())?;
     writer.write_turntable(&rig.turntable())?;
     for &a in &opts.angles {
@@ -366,7 +368,9 @@ pub fn write_capture(
         writer.write_mask(f.id, &f.mask)?;
         progress(done.fetch_add(1, Ordering::Relaxed) + 1, jobs.len());
         Ok(())
-    })
+    })?;
+    writer.write_status(CaptureStatus { complete: true, frames })?;
+    Ok(())
 }
 
 /// A turbo-like colour map of `t` in [0, 1].

@@ -5,9 +5,10 @@ use anyhow::Context;
 use clap::Args;
 use flowfilter_bigbird::{BigBirdObject, FrameId, SensorId};
 use flowfilter_depth::ply::{PlyFormat, write_ply};
+use flowfilter_geometry::atomic::{check_writable_dir, check_writable_file, write_atomic_with};
 use flowfilter_geometry::{PointCloud, Pose};
 use flowfilter_pipeline::{
-    CameraFile, Estimate, FrameFiles, MaskSource, Pipeline, PipelineConfig, PreparedFrame, RgbdFrame,
+    CameraFile, Estimate, FrameFiles, MaskSource, Pipeline, PipelineConfig, PipelineWarning, PreparedFrame, RgbdFrame,
     load_bigbird_frame,
 };
 use image::{Rgb, RgbImage};
@@ -98,17 +99,13 @@ pub fn pipeline(config: Option<&Path>, method: Option<&str>) -> anyhow::Result<P
 /// Run `estimate`.
 pub fn run(args: &EstimateArgs) -> anyhow::Result<ExitCode> {
     let pipeline = pipeline(args.config.as_deref(), args.method.as_deref())?;
+    check_outputs(args)?;
     let (fa, fb, truth) = match &args.object {
         Some(object) => bigbird_frames(args, object)?,
         None => file_frames(args)?,
     };
     let (e, a, b) = pipeline.estimate_against(&fa, &fb, truth.as_ref())?;
-    if let Some(dir) = &args.save_ply {
-        save_clouds(dir, &a, &b, &e)?;
-    }
-    if let Some(path) = &args.viz {
-        overlay(&fb.color, &a, &b, &e).save(path).with_context(|| format!("writing {}", path.display()))?;
-    }
+    // The estimate first: a file that then cannot be written does not lose it.
     if args.json {
         println!("{}", serde_json::to_string_pretty(&e)?);
     } else {
@@ -117,7 +114,26 @@ pub fn run(args: &EstimateArgs) -> anyhow::Result<ExitCode> {
     for w in &e.warnings {
         eprintln!("warning: {w}");
     }
-    Ok(ExitCode::SUCCESS)
+    if let Some(dir) = &args.save_ply {
+        save_clouds(dir, &a, &b, &e)?;
+    }
+    if let Some(path) = &args.viz {
+        let image = overlay(&fb.color, &a, &b, &e);
+        write_atomic_with(path, |p| image.save(p).map_err(std::io::Error::other))
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(crate::exit_code(e.warnings.iter().any(PipelineWarning::is_implausible)))
+}
+
+/// The output paths can be written: checked before any work.
+fn check_outputs(args: &EstimateArgs) -> anyhow::Result<()> {
+    if let Some(dir) = &args.save_ply {
+        check_writable_dir(dir).context("--save-ply")?;
+    }
+    if let Some(path) = &args.viz {
+        check_writable_file(path).context("--viz")?;
+    }
+    Ok(())
 }
 
 /// Two frames of one camera of a BigBIRD-layout object, with the turntable's ground truth.
@@ -129,6 +145,9 @@ fn bigbird_frames(args: &EstimateArgs, dir: &Path) -> anyhow::Result<Frames> {
     let (from, to) =
         (args.from.context("--from is required with --object")?, args.to.context("--to is required with --object")?);
     let object = BigBirdObject::open(dir)?;
+    if let Some(note) = object.calibration.sensors.get(&camera).and_then(|c| c.depth_bias_note(camera)) {
+        eprintln!("warning: {note}");
+    }
     let load = |angle: u32| -> anyhow::Result<RgbdFrame> {
         let id = FrameId { sensor: camera, angle };
         if !object.has_frame(id) {

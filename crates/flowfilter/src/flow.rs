@@ -1,5 +1,6 @@
 //! `flowfilter flow`: optical flow between two images, with EPE against ground truth.
 
+use flowfilter_geometry::atomic::check_writable_file;
 use anyhow::{Context, bail};
 use clap::Args;
 use flowfilter_flow::lk::to_gray;
@@ -52,6 +53,12 @@ fn estimator(name: &str) -> anyhow::Result<Box<dyn FlowEstimator>> {
 /// Run `flow`.
 pub fn run(args: &FlowArgs) -> anyhow::Result<ExitCode> {
     let est = estimator(&args.method)?;
+    if let Some(out) = &args.out {
+        check_writable_file(out).context("--out")?;
+    }
+    if let Some(viz) = &args.viz {
+        check_writable_file(viz).context("--viz")?;
+    }
     let open = |p: &PathBuf| -> anyhow::Result<image::RgbImage> {
         Ok(image::open(p).with_context(|| format!("reading {}", p.display()))?.to_rgb8())
     };
@@ -62,15 +69,24 @@ pub fn run(args: &FlowArgs) -> anyhow::Result<ExitCode> {
     println!("{}: {}x{} in {ms:.1} ms", est.name(), field.width(), field.height());
     if let Some(gt) = &args.gt {
         let truth = flo::read(gt)?;
+        anyhow::ensure!(
+            (truth.width(), truth.height()) == (field.width(), field.height()),
+            "{}: ground truth is {}x{}, the images {}x{}",
+            gt.display(),
+            truth.width(),
+            truth.height(),
+            field.width(),
+            field.height()
+        );
         match epe(&field, &truth, None) {
             Some((e, n)) => println!("EPE {e:.4} px over {n} pixels"),
             None => bail!(
-                "{}: ground truth is {}x{}, the estimate {}x{}",
-                gt.display(),
-                truth.width(),
-                truth.height(),
-                field.width(),
-                field.height()
+                "no pixel has both an estimate and a ground truth ({} of {} pixels estimated, {} with ground truth): \
+                 {} found nothing to track (textureless images?)",
+                field.valid.as_slice().iter().filter(|&&v| v).count(),
+                field.valid.as_slice().len(),
+                truth.valid.as_slice().iter().filter(|&&v| v).count(),
+                est.name()
             ),
         }
         if let Some(occ_path) = &args.occlusion {
@@ -96,7 +112,7 @@ pub fn run(args: &FlowArgs) -> anyhow::Result<ExitCode> {
         flo::write(&field, out)?;
     }
     if let Some(path) = &args.viz {
-        viz::colorize(&field, None).save(path).with_context(|| format!("writing {}", path.display()))?;
+        crate::save_image(&viz::colorize(&field, None), path)?;
     }
     Ok(ExitCode::SUCCESS)
 }

@@ -82,6 +82,9 @@ fn summary_text(report: &InspectReport) -> String {
                 t.y,
                 t.z
             );
+            if let Some(note) = c.depth_bias_note(sensor) {
+                let _ = write!(out, "\n         note: {note}");
+            }
         }
         out.push('\n');
     }

@@ -48,6 +48,47 @@ fn method_parser() -> clap::builder::PossibleValuesParser {
     )
 }
 
+/// Exit code of a command whose estimate the data do not support (documented in docs/limits.md).
+pub const EXIT_NOT_TRUSTWORTHY: u8 = 3;
+
+/// Success, or [`EXIT_NOT_TRUSTWORTHY`] (with a line saying so) when `implausible`.
+fn exit_code(implausible: bool) -> ExitCode {
+    if implausible {
+        eprintln!("the estimate is not trustworthy: the data do not support it (see the warnings); exit code 3");
+        ExitCode::from(EXIT_NOT_TRUSTWORTHY)
+    } else {
+        ExitCode::SUCCESS
+    }
+}
+
+/// Save an image (format by extension) whole or not at all.
+fn save_image<P, C>(img: &image::ImageBuffer<P, C>, path: &std::path::Path) -> anyhow::Result<()>
+where
+    P: image::PixelWithColorType,
+    [P::Subpixel]: image::EncodableLayout,
+    C: std::ops::Deref<Target = [P::Subpixel]>,
+{
+    use anyhow::Context;
+    flowfilter_geometry::atomic::write_atomic_with(path, |p| img.save(p).map_err(std::io::Error::other))
+        .with_context(|| format!("writing {}", path.display()))
+}
+
+/// The error and its causes joined by ": ", leaving out a cause whose message the text already
+/// holds (typed errors often print their source in their own message).
+fn error_chain(e: &anyhow::Error) -> String {
+    let mut text = String::new();
+    for cause in e.chain() {
+        let message = cause.to_string();
+        if !text.contains(&message) {
+            if !text.is_empty() {
+                text.push_str(": ");
+            }
+            text.push_str(&message);
+        }
+    }
+    text
+}
+
 fn main() -> ExitCode {
     tracing_subscriber::fmt()
         .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn".into()))
@@ -66,7 +107,7 @@ fn main() -> ExitCode {
     match result {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", error_chain(&e));
             ExitCode::FAILURE
         }
     }

@@ -2,10 +2,11 @@
 
 use anyhow::Context;
 use clap::Args;
+use flowfilter_depth::cloud::knn_normals;
 use flowfilter_depth::ply::read_ply;
-use flowfilter_geometry::Pose;
+use flowfilter_geometry::{Point3, PointCloud, Pose};
 use flowfilter_pipeline::{PipelineConfig, RegisterReport};
-use flowfilter_registration::{RegistrationConfig, RegistrationProblem, registrar_by_name};
+use flowfilter_registration::{RegistrationConfig, RegistrationError, RegistrationProblem, registrar_by_name};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
@@ -36,6 +37,20 @@ pub struct RegisterArgs {
     /// Print the result as JSON (schema "flowfilter register v1").
     #[arg(long)]
     pub json: bool,
+    /// Estimate both clouds' normals (PCA over the `--normals-k` nearest neighbours, facing the
+    /// origin, as Open3D's `estimate_normals` + `orient_normals_towards_camera_location`),
+    /// replacing any the files hold. Without it, normals a method needs and a file lacks are
+    /// estimated the same way, with a warning.
+    #[arg(long)]
+    pub estimate_normals: bool,
+    /// Neighbours of the normal estimation.
+    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u32).range(3..))]
+    pub normals_k: u32,
+}
+
+/// Give `cloud` PCA normals from its `k` nearest neighbours, facing the origin.
+fn estimate_normals(cloud: &mut PointCloud, k: u32) {
+    cloud.normals = Some(knn_normals(&cloud.points, k as usize, &Point3::origin()));
 }
 
 /// The backend parameters and, for a pipeline configuration, its method.
@@ -62,12 +77,41 @@ pub fn run(args: &RegisterArgs) -> anyhow::Result<ExitCode> {
     };
     let method = args.method.clone().or(config_method).unwrap_or_else(|| "filterreg-pt2pt".into());
     let registrar = registrar_by_name(&method, &config).context("--method / --config")?;
-    let source = read_ply(&args.source)?;
-    let target = read_ply(&args.target)?;
+    let mut source = read_ply(&args.source)?;
+    let mut target = read_ply(&args.target)?;
+    if args.estimate_normals {
+        estimate_normals(&mut source, args.normals_k);
+        estimate_normals(&mut target, args.normals_k);
+    }
     let init = args.init.as_deref().map(crate::matrix_file::read_pose).transpose()?.unwrap_or_else(Pose::identity);
     let (model_points, target_points) = (source.len(), target.len());
     let start = Instant::now();
-    let r = registrar.register(&RegistrationProblem::new(source, target).with_init(init))?;
+    let mut problem = RegistrationProblem::new(source, target).with_init(init);
+    let mut notes = Vec::new();
+    let r = match registrar.register(&problem) {
+        Err(RegistrationError::MissingNormals { .. }) => {
+            for (cloud, which, path) in
+                [(&mut problem.source, "source", &args.source), (&mut problem.target, "target", &args.target)]
+            {
+                if cloud.normals.is_none() {
+                    estimate_normals(cloud, args.normals_k);
+                    notes.push(format!(
+                        "{} ({which}) has no normals, which {} needs: estimated from each point's {} nearest neighbours (--estimate-normals to do so always)",
+                        path.display(),
+                        registrar.name(),
+                        args.normals_k
+                    ));
+                }
+            }
+            registrar.register(&problem)?
+        }
+        other => other?,
+    };
+    let mut r = r;
+    flowfilter_registration::assess(&problem, &mut r);
+    for note in &notes {
+        eprintln!("warning: {note}");
+    }
     let ms = start.elapsed().as_secs_f64() * 1e3;
     let report = RegisterReport::new(registrar.name(), &r, model_points, target_points, ms);
     if args.json {
@@ -90,5 +134,5 @@ pub fn run(args: &RegisterArgs) -> anyhow::Result<ExitCode> {
             eprintln!("warning: {w}");
         }
     }
-    Ok(ExitCode::SUCCESS)
+    Ok(crate::exit_code(r.warnings.iter().any(|w| w.is_implausible())))
 }

@@ -145,9 +145,7 @@ pub fn run(args: &SynthArgs) -> anyhow::Result<ExitCode> {
             .map(|&s| render_frame(&scene, &rig, s, angles[0], noise.as_ref(), args.object.seed))
             .collect();
         let unit = rig.sensors[&sensors[0]].rgbd.metres_per_unit;
-        contact_sheet(&frames.iter().collect::<Vec<_>>(), unit)
-            .save(png)
-            .with_context(|| format!("writing {}", png.display()))?;
+        crate::save_image(&contact_sheet(&frames.iter().collect::<Vec<_>>(), unit), png)?;
         println!("contact sheet: {}", png.display());
     }
     Ok(ExitCode::SUCCESS)

@@ -67,17 +67,15 @@ pub fn run(args: &TruthFlowArgs) -> anyhow::Result<ExitCode> {
     let path = |name: &str| args.out.join(name);
     for (id, name) in [(from, "from.png"), (to, "to.png")] {
         let frame = render_frame(&scene, &rig, id.sensor, id.angle, noise.as_ref(), args.object.seed);
-        frame.color.save(path(name)).with_context(|| format!("writing {}", path(name).display()))?;
+        crate::save_image(&frame.color, &path(name))?;
     }
     let object = truth.object();
     let field = FlowField { flow: truth.flow.clone(), valid: object.clone() };
     flo::write(&field, &path("flow.flo"))?;
     for (mask, name) in [(&truth.occluded, "occlusion.png"), (&object, "object.png")] {
-        mask_png(mask).save(path(name)).with_context(|| format!("writing {}", path(name).display()))?;
+        crate::save_image(&mask_png(mask), &path(name))?;
     }
-    viz::colorize(&field, None)
-        .save(path("flow.png"))
-        .with_context(|| format!("writing {}", path("flow.png").display()))?;
+    crate::save_image(&viz::colorize(&field, None), &path("flow.png"))?;
     println!(
         "{} -> {}: {} object pixels, {:.1}% occluded; wrote {}",
         from,
