@@ -54,10 +54,12 @@ pub struct PairResult {
     /// Rotation step in degrees (BigBIRD) or image gap (BOP).
     pub step: u32,
     /// Rotation angle of the true motion, degrees (what "no motion" misses by).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub motion_deg: Option<f64>,
     /// Method (or [`NO_MOTION`]).
     pub method: String,
     /// Errors, when the pair ran.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub errors: Option<PoseErrors>,
     /// Whether the method reported convergence.
     pub converged: Option<bool>,
@@ -67,10 +69,12 @@ pub struct PairResult {
     /// Time of the pair (flow, correspondences, registration), seconds.
     pub seconds: Option<f64>,
     /// Per-stage times (the two frames' depth stages included).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub stage_ms: Option<StageTimes>,
     /// Warnings of the pipeline (fallbacks taken), as `{code, message}` objects.
     pub warnings: Vec<serde_json::Value>,
     /// The stage that failed and why.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub failure: Option<String>,
 }
 

@@ -55,6 +55,7 @@ pub struct PoseErrors {
     /// Translation error, metres.
     pub translation_error_m: f64,
     /// ADD-S, metres (when model points were given).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub add_s_m: Option<f64>,
     /// Geodesic error < 2 deg and translation error < 1 cm.
     pub success: bool,

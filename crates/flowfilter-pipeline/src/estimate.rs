@@ -1,17 +1,17 @@
 //! The pipeline's result and its JSON schema (`flowfilter estimate --json`).
 //!
-//! Schema `flowfilter estimate v2` (all lengths in metres, angles in degrees, times in ms):
-//! - `schema`: the string `"flowfilter estimate v2"`;
-//! - `method`, `flow_estimator` (null when the method uses no flow), `model`, `target` (frame labels);
+//! Schema `flowfilter estimate v3` (all lengths in metres, angles in degrees, times in ms):
+//! - `schema`: the string `"flowfilter estimate v3"`;
+//! - `method`, `flow_estimator` (absent when the method uses no flow), `model`, `target` (frame labels);
 //! - `transform`: the 4x4 row-major matrix `T` with `target ~ T * model` (colour camera frame);
 //! - `rotation_angle_deg`, `rotation_axis` (unit, `[0,0,0]` for no rotation), `translation_m`;
-//! - `registration`: `iterations`, `converged`, `fitness`, `inlier_rmse_m`, `sigma2` (or null),
+//! - `registration`: `iterations`, `converged`, `fitness`, `inlier_rmse_m`, `sigma2` (absent for methods without a kernel width),
 //!   `model_points`, `target_points`;
-//! - `correspondences` (null without flow): `tracked`, `consistent`, `inliers`, `guided`;
+//! - `correspondences` (absent without flow): `tracked`, `consistent`, `inliers`, `guided`;
 //! - `stage_ms`: `depth_model`, `depth_target`, `flow`, `correspondences`, `registration`, `total`;
 //! - `warnings`: objects `{code, message}` (a fallback taken, flow that failed; the codes are
 //!   those of [`crate::PipelineWarning::code`]);
-//! - `ground_truth` (null when unknown): `transform` and `errors` (`angle_error_deg`,
+//! - `ground_truth` (absent when unknown): `transform` and `errors` (`angle_error_deg`,
 //!   `geodesic_error_deg`, `translation_error_m`, `add_s_m`, `success`).
 
 use crate::warning::PipelineWarning;
@@ -21,7 +21,7 @@ use flowfilter_registration::{Registration, Uncertainty};
 use serde::{Deserialize, Serialize};
 
 /// The schema tag of [`Estimate`]'s JSON.
-pub const ESTIMATE_SCHEMA: &str = "flowfilter estimate v2";
+pub const ESTIMATE_SCHEMA: &str = "flowfilter estimate v3";
 
 /// What the registration backend reported.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -35,6 +35,7 @@ pub struct RegistrationSummary {
     /// RMSE of those pairs, metres.
     pub inlier_rmse_m: f64,
     /// Final sigma^2 of GMM backends.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub sigma2: Option<f64>,
     /// Points of the model cloud given to the backend.
     pub model_points: usize,
@@ -108,6 +109,7 @@ pub struct Estimate {
     /// Registration method.
     pub method: String,
     /// Flow estimator (methods that use flow).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub flow_estimator: Option<String>,
     /// Model frame label.
     pub model: String,
@@ -124,12 +126,14 @@ pub struct Estimate {
     /// Backend report.
     pub registration: RegistrationSummary,
     /// Flow correspondences.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub correspondences: Option<CorrespondenceSummary>,
     /// Time per stage.
     pub stage_ms: StageTimes,
     /// Conditions the caller should know about.
     pub warnings: Vec<PipelineWarning>,
     /// Ground truth, when known.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub ground_truth: Option<GroundTruth>,
     /// The estimate as a pose.
     #[serde(skip)]

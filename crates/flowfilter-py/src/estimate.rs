@@ -13,7 +13,7 @@ use numpy::{PyArray1, PyArray2};
 use pyo3::prelude::*;
 
 /// The pipeline's estimate: the fields of `flowfilter estimate --json` (schema
-/// "flowfilter estimate v2").
+/// "flowfilter estimate v3").
 #[pyclass(module = "flowfilter", frozen)]
 pub struct Estimate {
     estimate: flowfilter_pipeline::Estimate,

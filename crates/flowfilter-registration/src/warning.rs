@@ -69,6 +69,17 @@ pub enum RegistrationWarning {
         /// The translation bound, metres.
         translation_m: f64,
     },
+    /// A cloud was larger than the backend's work limit and was registered on an even subset.
+    Subsampled {
+        /// `source` or `target`.
+        which: &'static str,
+        /// Its points.
+        points: usize,
+        /// Points kept.
+        kept: usize,
+        /// The limit (`max_points`).
+        limit: usize,
+    },
     /// After the initial pose the clouds are far apart for their size: the result is a guess.
     FarApart {
         /// Centroid distance after the initial pose, metres.
@@ -117,6 +128,7 @@ impl RegistrationWarning {
             Self::FlowFallback { .. } => "flow_fallback",
             Self::MotionCheck { .. } => "motion_check",
             Self::GeometricCheck { .. } => "geometric_check",
+            Self::Subsampled { .. } => "subsampled",
             Self::FarApart { .. } => "far_apart",
             Self::PoorFit { .. } => "poor_fit",
             Self::OneSidedOverlap { .. } => "one_sided_overlap",
@@ -164,6 +176,11 @@ impl fmt::Display for RegistrationWarning {
                  ({rotation_deg:.3} deg, {:.2} mm): it cannot be told from no motion",
                 moved_m * 1e3,
                 translation_m * 1e3
+            ),
+            Self::Subsampled { which, points, kept, limit } => write!(
+                f,
+                "the {which} cloud has {points} points, above CPD's work limit of {limit} (max_points): registered on \
+                 an even subset of {kept} (max_points = 0 lifts the limit, at about M x N work per iteration)"
             ),
             Self::FarApart { distance_m, size_m } => write!(
                 f,

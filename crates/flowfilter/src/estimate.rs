@@ -68,7 +68,7 @@ pub struct EstimateArgs {
     /// Pipeline configuration (TOML; see configs/). Default: configs/flowfilter.toml's values.
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Print the estimate as JSON (schema "flowfilter estimate v2").
+    /// Print the estimate as JSON (schema "flowfilter estimate v3").
     #[arg(long)]
     pub json: bool,
     /// Write model.ply, target.ply and aligned.ply (the registration clouds) to this directory.

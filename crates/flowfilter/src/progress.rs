@@ -24,3 +24,17 @@ pub fn advance(bar: &ProgressBar, done: usize) {
         eprintln!("{}: {done}/{len}", bar.message());
     }
 }
+
+/// A spinner with the elapsed time for one long step (`message`): drawn on a terminal; in logs
+/// and CI one plain line says the step started. Finish it with `finish_and_clear`.
+pub fn spinner(message: String) -> ProgressBar {
+    if !std::io::stderr().is_terminal() {
+        eprintln!("{message} ...");
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::new_spinner();
+    bar.set_style(ProgressStyle::with_template("{spinner} {msg} {elapsed}").expect("valid template"));
+    bar.set_message(message);
+    bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    bar
+}

@@ -48,6 +48,9 @@ pub struct RegisterArgs {
     pub normals_k: u32,
 }
 
+/// Source x target pairs above which a CPD run shows a spinner (about 0.1 s per iteration).
+const LONG_RUN_PAIRS: f64 = 2e7;
+
 /// Give `cloud` PCA normals from its `k` nearest neighbours, facing the origin.
 fn estimate_normals(cloud: &mut PointCloud, k: u32) {
     cloud.normals = Some(knn_normals(&cloud.points, k as usize, &Point3::origin()));
@@ -88,6 +91,11 @@ pub fn run(args: &RegisterArgs) -> anyhow::Result<ExitCode> {
     let start = Instant::now();
     let mut problem = RegistrationProblem::new(source, target).with_init(init);
     let mut notes = Vec::new();
+    // A spinner for runs long enough to wonder about (CPD's iterations visit every pair).
+    let long = registrar.name() == "cpd" && (model_points as f64) * (target_points as f64) > LONG_RUN_PAIRS;
+    let spinner = long.then(|| {
+        crate::progress::spinner(format!("register: {} on {model_points} x {target_points} points", registrar.name()))
+    });
     let r = match registrar.register(&problem) {
         Err(RegistrationError::MissingNormals { .. }) => {
             for (cloud, which, path) in
@@ -107,6 +115,9 @@ pub fn run(args: &RegisterArgs) -> anyhow::Result<ExitCode> {
         }
         other => other?,
     };
+    if let Some(s) = spinner {
+        s.finish_and_clear();
+    }
     let mut r = r;
     flowfilter_registration::assess(&problem, &mut r);
     for note in &notes {

@@ -140,7 +140,7 @@ class Frame:
 
 class Estimate:
     """The pipeline's estimate: the fields of `flowfilter estimate --json` (schema
-    "flowfilter estimate v2")."""
+    "flowfilter estimate v3")."""
 
     @property
     def transform(self) -> npt.NDArray[np.float64]:
