@@ -16,6 +16,7 @@ mod bench_bop;
 mod dataset;
 mod deps;
 mod merge;
+mod mutate;
 mod pairs;
 mod plots;
 mod publish_check;
@@ -47,6 +48,9 @@ enum Command {
     /// Check that every library crate packages and builds on its own, and that a crate outside
     /// the workspace can depend on one and run its README example.
     PublishCheck(publish_check::PublishCheckArgs),
+    /// Feed randomly mutated files of every input format to the parsers (seeded); fail on any
+    /// panic.
+    Mutate(mutate::MutateArgs),
 }
 
 /// The repository root (relative paths in protocols and options are resolved against it).
@@ -69,6 +73,7 @@ fn main() -> ExitCode {
         Command::BenchBop(args) => bench_bop::run(&args),
         Command::BenchMerge(args) => merge::run(&args),
         Command::PublishCheck(args) => publish_check::run(&args),
+        Command::Mutate(args) => mutate::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

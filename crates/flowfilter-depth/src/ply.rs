@@ -273,7 +273,10 @@ pub fn read_ply(path: &Path) -> Result<PointCloud, DepthError> {
         let declared: Vec<String> = elements.iter().map(|e| format!("{} {}", e.count, e.name)).collect();
         return Err(ply_err(
             path,
-            format!("data continues after the elements the header declares ({}): wrong count or a damaged file", declared.join(", ")),
+            format!(
+                "data continues after the elements the header declares ({}): wrong count or a damaged file",
+                declared.join(", ")
+            ),
         ));
     }
     if let Some(i) = cloud.normals.as_ref().and_then(|n| n.iter().position(|v| !v.iter().all(|c| c.is_finite()))) {

@@ -111,7 +111,8 @@ pub fn encode(field: &FlowField) -> Vec<u8> {
 
 /// Write a `.flo` file.
 pub fn write(field: &FlowField, path: &Path) -> Result<(), FloError> {
-    flowfilter_geometry::atomic::write_atomic(path, &encode(field)).map_err(|source| FloError::Io { path: path.into(), source })
+    flowfilter_geometry::atomic::write_atomic(path, &encode(field))
+        .map_err(|source| FloError::Io { path: path.into(), source })
 }
 
 #[cfg(test)]

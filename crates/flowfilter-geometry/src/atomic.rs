@@ -73,14 +73,16 @@ pub fn check_writable_file(path: &Path) -> io::Result<()> {
 /// # Errors
 /// An I/O error whose message names the directory and the reason.
 pub fn check_writable_dir(dir: &Path) -> io::Result<()> {
-    std::fs::create_dir_all(dir).map_err(|e| io::Error::new(e.kind(), format!("{}: cannot create: {e}", dir.display())))?;
+    std::fs::create_dir_all(dir)
+        .map_err(|e| io::Error::new(e.kind(), format!("{}: cannot create: {e}", dir.display())))?;
     probe(dir)
 }
 
 /// Create and remove a probe file in `dir`.
 fn probe(dir: &Path) -> io::Result<()> {
     let p = dir.join(format!(".flowfilter-probe-{}", std::process::id()));
-    std::fs::write(&p, b"").map_err(|e| io::Error::new(e.kind(), format!("{}: cannot write there: {e}", dir.display())))?;
+    std::fs::write(&p, b"")
+        .map_err(|e| io::Error::new(e.kind(), format!("{}: cannot write there: {e}", dir.display())))?;
     std::fs::remove_file(&p)
 }
 
@@ -108,7 +110,9 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         assert!(check_writable_file(&dir.path().join("x.png")).is_ok());
         assert!(check_writable_file(dir.path()).unwrap_err().to_string().contains("is a directory"));
-        assert!(check_writable_file(&dir.path().join("no/x.png")).unwrap_err().to_string().contains("no such directory"));
+        assert!(
+            check_writable_file(&dir.path().join("no/x.png")).unwrap_err().to_string().contains("no such directory")
+        );
         assert!(check_writable_dir(&dir.path().join("a/b")).is_ok());
         assert!(check_writable_file(Path::new("/proc/x.png")).is_err());
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);

@@ -157,7 +157,6 @@ fn check_method_name(name: &str) -> Result<(), String> {
     }
 }
 
-
 /// toml's message with the line number, as one line a user can act on.
 fn describe_toml_error(e: &toml::de::Error, text: &str) -> String {
     let msg = e.message().trim().to_string();

@@ -13,6 +13,9 @@ pub const MIN_MEDIAN_DEPTH_M: f64 = 0.05;
 /// The farthest median depth accepted, metres: beyond every RGB-D sensor's range.
 pub const MAX_MEDIAN_DEPTH_M: f64 = 20.0;
 
+/// A depth image with at least this fraction of its readings at 65535 is saturated.
+pub const MAX_SATURATED_FRACTION: f64 = 0.5;
+
 /// A mask covering at least this fraction of the image is the scene's, not an object's.
 pub const FULL_MASK_FRACTION: f64 = 0.99;
 
@@ -26,9 +29,21 @@ fn frame_error(frame: &str, message: String) -> PipelineError {
 /// # Errors
 /// [`PipelineError::Frame`] naming the frame, the median found and the depth unit.
 pub fn check_depth(frame: &RgbdFrame) -> Result<(), PipelineError> {
+    check_principal_points(frame)?;
     let mut raw: Vec<u16> = frame.depth.as_slice().iter().copied().filter(|&d| d > 0).collect();
     if raw.is_empty() {
         return Err(frame_error(&frame.label, "the depth image has no reading (every pixel is 0)".into()));
+    }
+    let saturated = raw.iter().filter(|&&d| d == u16::MAX).count() as f64 / raw.len() as f64;
+    if saturated >= MAX_SATURATED_FRACTION {
+        return Err(frame_error(
+            &frame.label,
+            format!(
+                "the depth image is saturated: {:.0}% of its readings are 65535, the 16-bit maximum (an overflow or \
+                 a 'no reading' marker, not a depth): check the depth file and its unit",
+                saturated * 100.0
+            ),
+        ));
     }
     let mid = raw.len() / 2;
     let median = f64::from(*raw.select_nth_unstable(mid).1);
@@ -43,6 +58,29 @@ pub fn check_depth(frame: &RgbdFrame) -> Result<(), PipelineError> {
                  (the camera's depth scale) or the depth file"
             ),
         ));
+    }
+    Ok(())
+}
+
+/// Each image fits its camera: the principal point lies inside the image (an image of another
+/// shape than the calibration's camera, e.g. a depth dataset of the wrong size, does not).
+fn check_principal_points(frame: &RgbdFrame) -> Result<(), PipelineError> {
+    let sensor = &frame.sensor;
+    for (which, camera, (w, h)) in [
+        ("colour", &sensor.color, (frame.color.width() as usize, frame.color.height() as usize)),
+        ("depth", &sensor.depth, frame.depth.dims()),
+    ] {
+        let k = camera.intrinsics;
+        if !(0.0..=w as f64).contains(&k.cx) || !(0.0..=h as f64).contains(&k.cy) {
+            return Err(frame_error(
+                &frame.label,
+                format!(
+                    "the {which} image is {w}x{h}, but its camera's principal point ({}, {}) lies outside it: \
+                     the image does not belong to this camera (wrong shape?)",
+                    k.cx, k.cy
+                ),
+            ));
+        }
     }
     Ok(())
 }

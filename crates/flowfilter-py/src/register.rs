@@ -174,7 +174,7 @@ pub fn register(
     let (result, seconds) = threads::run(py, || {
         let start = Instant::now();
         let r = registrar.register(&problem).map(|mut r| {
-            flowfilter_registration::assess(&problem, &mut r);
+            flowfilter_pipeline::registration::assess(&problem, &mut r);
             r
         });
         (r, start.elapsed().as_secs_f64())

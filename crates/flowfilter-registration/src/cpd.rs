@@ -3,12 +3,12 @@
 //! optional scale) to explain the target; sigma^2 is updated in closed form.
 
 use crate::error::RegistrationError;
-use flowfilter_geometry::{ParamError, params};
 use crate::evaluate::evaluate;
 use crate::gmm::{mean_pair_distance2, outlier_term};
 use crate::problem::{IterationRecord, Registrar, Registration, RegistrationProblem, in_pool, validate_problem};
 use crate::warning::RegistrationWarning;
 use flowfilter_geometry::{KnnIndex, Point3, PointCloud, Pose, Vector3, nearest_rotation, spatial_order};
+use flowfilter_geometry::{ParamError, params};
 use nalgebra::{Matrix3, Translation3, UnitQuaternion};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -206,10 +206,16 @@ impl Registrar for Cpd {
                     return PointCloud::from_points(cloud.points.clone());
                 }
                 let subset = even_subset(&cloud.points, limit);
-                warnings.push(RegistrationWarning::Subsampled { which, points: cloud.len(), kept: subset.len(), limit });
+                warnings.push(RegistrationWarning::Subsampled {
+                    which,
+                    points: cloud.len(),
+                    kept: subset.len(),
+                    limit,
+                });
                 PointCloud::from_points(subset)
             };
-            let small = RegistrationProblem::new(limited(source, "source"), limited(target, "target")).with_init(p.init);
+            let small =
+                RegistrationProblem::new(limited(source, "source"), limited(target, "target")).with_init(p.init);
             let mut r = self.solve(&small)?;
             r.warnings.splice(0..0, warnings);
             Ok(r)

@@ -40,7 +40,9 @@ pub enum RegistrationError {
         index: usize,
     },
     /// A coordinate is beyond [`flowfilter_geometry::MAX_COORDINATE_M`] (a unit or file error).
-    #[error("the {which} cloud has a coordinate of {value:e} m at point {index}, beyond the {limit:e} m any scene spans (wrong unit?)")]
+    #[error(
+        "the {which} cloud has a coordinate of {value:e} m at point {index}, beyond the {limit:e} m any scene spans (wrong unit?)"
+    )]
     OutOfRange {
         /// `source` or `target`.
         which: &'static str,

@@ -15,11 +15,11 @@
 mod solve;
 
 use crate::error::RegistrationError;
-use flowfilter_geometry::{ParamError, params};
 use crate::evaluate::plane_or_point_step;
 use crate::lattice::Lattice;
 use crate::problem::{Correspondences, Registrar, Registration, RegistrationProblem, in_pool};
 use flowfilter_geometry::{KnnIndex, Point3, Pose, RadiusGrid, Vector3, fastmath, weighted_kabsch};
+use flowfilter_geometry::{ParamError, params};
 use nalgebra::{DVector, Translation3, UnitQuaternion};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};

@@ -7,7 +7,6 @@
 //! degrades to plain FilterReg and says so in the result's warnings.
 
 use crate::error::RegistrationError;
-use flowfilter_geometry::{ParamError, params};
 use crate::evaluate::visible_residual;
 use crate::filterreg::{FilterReg, FilterRegConfig};
 use crate::icp::{Icp, IcpConfig, IcpVariant};
@@ -16,6 +15,7 @@ use crate::problem::{Correspondences, Registrar, Registration, RegistrationProbl
 use crate::reprojection::refine_by_reprojection;
 use crate::warning::RegistrationWarning;
 use flowfilter_geometry::{KnnIndex, Point3, Pose, weighted_kabsch};
+use flowfilter_geometry::{ParamError, params};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};

@@ -2,11 +2,11 @@
 //! (Chen & Medioni 1992), with robust kernels and Open3D's convergence criteria.
 
 use crate::error::RegistrationError;
-use flowfilter_geometry::{ParamError, params};
 use crate::evaluate::{RobustKernel, point_to_plane_step_by};
 use crate::problem::{IterationRecord, Registrar, Registration, RegistrationProblem, in_pool, validate_problem};
 use crate::warning::RegistrationWarning;
 use flowfilter_geometry::{KnnIndex, Neighbourhoods, Point3, Pose, RadiusGrid, spatial_order, weighted_kabsch_by};
+use flowfilter_geometry::{ParamError, params};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 

@@ -16,9 +16,9 @@
 
 use crate::problem::{Registration, RegistrationProblem};
 use crate::warning::RegistrationWarning;
-use flowfilter_geometry::{KnnIndex, Point3};
 #[cfg(test)]
 use flowfilter_geometry::PointCloud;
+use flowfilter_geometry::{KnnIndex, Point3};
 use rayon::prelude::*;
 
 /// Thresholds of [`assess`]. The defaults pass every pair of the benchmarks whose estimate is
@@ -115,21 +115,17 @@ fn diagonal(points: &[Point3]) -> f64 {
 }
 
 fn bounds(points: &[Point3]) -> (Point3, Point3) {
-    points.iter().fold(
-        (Point3::from([f64::INFINITY; 3]), Point3::from([f64::NEG_INFINITY; 3])),
-        |(lo, hi), p| (lo.inf(p), hi.sup(p)),
-    )
+    points.iter().fold((Point3::from([f64::INFINITY; 3]), Point3::from([f64::NEG_INFINITY; 3])), |(lo, hi), p| {
+        (lo.inf(p), hi.sup(p))
+    })
 }
 
 /// Median distance to the nearest other point, over an even sample of the points.
 fn median_spacing(points: &[Point3]) -> f64 {
     let index = KnnIndex::new(points);
     let step = points.len().div_ceil(SPACING_SAMPLES).max(1);
-    let mut d: Vec<f64> = points
-        .iter()
-        .step_by(step)
-        .filter_map(|p| index.k_nearest(p, 2).get(1).map(|n| n.dist2.sqrt()))
-        .collect();
+    let mut d: Vec<f64> =
+        points.iter().step_by(step).filter_map(|p| index.k_nearest(p, 2).get(1).map(|n| n.dist2.sqrt())).collect();
     if d.is_empty() {
         return 0.0;
     }

@@ -1,12 +1,12 @@
 //! `flowfilter flow`: optical flow between two images, with EPE against ground truth.
 
-use flowfilter_geometry::atomic::check_writable_file;
 use anyhow::{Context, bail};
 use clap::Args;
 use flowfilter_flow::lk::to_gray;
 use flowfilter_flow::metrics::epe;
 use flowfilter_flow::{FlowEstimator, flo, flow_estimator_with_presets, viz};
 use flowfilter_geometry::Mask;
+use flowfilter_geometry::atomic::check_writable_file;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;

@@ -64,7 +64,8 @@ fn read_config(path: &Path) -> anyhow::Result<(RegistrationConfig, Option<String
         let config = PipelineConfig::from_toml_str(&text, path)?;
         return Ok((config.registration, Some(config.method)));
     }
-    flowfilter_pipeline::geometry::params::reject_non_finite(&table).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    flowfilter_pipeline::geometry::params::reject_non_finite(&table)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     let config: RegistrationConfig = toml::from_str(&text).with_context(|| {
         format!("{}: invalid registration config (tables [icp], [cpd], [filterreg], [flowfilter])", path.display())
     })?;
