@@ -30,22 +30,35 @@ pub struct Summary {
     /// Rows that failed.
     pub failed: usize,
     /// Mean rotation angle of the true motions, degrees.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub mean_motion_deg: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     mean_angle_error_deg: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     median_angle_error_deg: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     mean_geodesic_error_deg: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     median_geodesic_error_deg: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     mean_translation_error_mm: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     median_translation_error_mm: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     mean_add_s_mm: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     median_add_s_mm: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     success_rate: Option<f64>,
     /// Rows with error bounds, and the fraction of them whose rotation and translation errors
     /// are both within the bounds.
     bounded: usize,
+    #[serde(skip_serializing_if = "Option::is_none")]
     bounds_cover: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     mean_seconds: Option<f64>,
     /// Mean time per stage over the pairs that ran, ms.
+    #[serde(skip_serializing_if = "Option::is_none")]
     mean_stage_ms: Option<StageTimes>,
     /// Pairs with a pipeline warning (a fallback taken).
     warned: usize,

@@ -23,6 +23,16 @@ fn rewriting_the_h5py_fixture_reads_back_identically() {
             w.write_mask(id, &f.mask).unwrap();
         }
         assert!(inspect(w.dir()).is_ok(), "{format:?}: {:?}", inspect(w.dir()).problems);
+        // The depth intrinsics under both names real BigBIRD files use (public loaders read
+        // `NP{c}_depth_K`).
+        let bytes = std::fs::read(w.dir().join("calibration.h5")).unwrap();
+        let file = hdf5_reader::Hdf5File::from_vec(bytes).unwrap();
+        let (_, names) = file.root_group().unwrap().member_names().unwrap();
+        for id in src.calibration.sensors.keys() {
+            for key in [format!("{id}_ir_K"), format!("{id}_depth_K")] {
+                assert!(names.contains(&key), "{format:?}: no {key} in {names:?}");
+            }
+        }
         let back = BigBirdObject::open(w.dir()).unwrap();
         let close = |a: &Pose, b: &Pose| (a.to_homogeneous() - b.to_homogeneous()).abs().max() < 1e-12;
         assert_eq!(back.calibration.sensors.len(), src.calibration.sensors.len());

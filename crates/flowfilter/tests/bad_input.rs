@@ -550,3 +550,33 @@ fn empty_garbage_and_truncated_files_of_every_format_are_errors_naming_the_file(
         }
     }
 }
+
+// ---- JSON outputs ----
+
+#[test]
+fn json_outputs_leave_out_what_they_cannot_give() {
+    // ICP has no kernel width and no flow: `sigma2`, `flow_estimator` and `correspondences` are
+    // absent, never null.
+    let (code, stdout, err) = run(&[
+        "estimate",
+        "--object",
+        s(capture()),
+        "--camera",
+        "NP3",
+        "--from",
+        "0",
+        "--to",
+        "15",
+        "--method",
+        "icp-pt2pl",
+        "--json",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert!(!stdout.contains("null") && !stdout.contains("NaN"), "{stdout}");
+    let v: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert_eq!(v["schema"], "flowfilter estimate v3");
+    let o = v.as_object().unwrap();
+    assert!(!o.contains_key("correspondences") && !o.contains_key("flow_estimator"), "{stdout}");
+    assert!(!v["registration"].as_object().unwrap().contains_key("sigma2"), "{stdout}");
+    assert!(o.contains_key("ground_truth"));
+}
