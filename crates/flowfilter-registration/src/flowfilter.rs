@@ -545,17 +545,10 @@ impl FlowFilter {
 /// The flow-only mode's result: the RANSAC pose itself.
 fn flow_only(pose: Pose, agreeing: usize, pairs: usize) -> Registration {
     Registration {
-        transform: pose,
         iterations: 1,
         converged: true,
         fitness: agreeing as f64 / pairs as f64,
-        inlier_rmse: 0.0,
-        sigma2: None,
-        scale: None,
-        history: vec![],
-        warnings: vec![],
-        correspondence_set: None,
-        uncertainty: None,
+        ..Registration::with_transform(pose)
     }
 }
 

@@ -81,10 +81,20 @@ fn estimate_args(dir: &Path) -> Vec<String> {
     ["estimate", "--object", s(dir), "--camera", "NP3", "--from", "0", "--to", "15"].map(String::from).to_vec()
 }
 
-fn estimate(dir: &Path, extra: &[&str], code: i32, words: &[&str]) -> String {
+fn with_estimate_args<R>(dir: &Path, extra: &[&str], f: impl FnOnce(&[&str]) -> R) -> R {
     let mut args = estimate_args(dir);
     args.extend(extra.iter().map(|a| a.to_string()));
-    expect(&args.iter().map(String::as_str).collect::<Vec<_>>(), code, words)
+    f(&args.iter().map(String::as_str).collect::<Vec<_>>())
+}
+
+/// `estimate` on NP3 0 -> 15 of `dir` with `extra` arguments, asserting code and key words.
+fn estimate(dir: &Path, extra: &[&str], code: i32, words: &[&str]) -> String {
+    with_estimate_args(dir, extra, |args| expect(args, code, words))
+}
+
+/// `estimate` on NP3 0 -> 15 of `dir` with `extra` arguments.
+fn run_estimate(dir: &Path, extra: &[&str]) -> (i32, String, String) {
+    with_estimate_args(dir, extra, run)
 }
 
 /// A box-shaped cloud of `n` points (no normals) at 0.6 m.
@@ -188,40 +198,11 @@ fn nan_infinite_and_out_of_range_settings_name_file_key_and_rule() {
         &["reg.toml", "icp.max_correspondence_distance"],
     );
     // Command-line numbers.
-    expect(
-        &[
-            "truth-flow",
-            "--procedural",
-            "box",
-            "--from",
-            "0",
-            "--to",
-            "10",
-            "--tolerance",
-            "nan",
-            "--out",
-            s(&tmp.path().join("tf")),
-        ],
-        2,
-        &["--tolerance", "finite"],
-    );
-    expect(
-        &[
-            "truth-flow",
-            "--procedural",
-            "box",
-            "--from",
-            "0",
-            "--to",
-            "10",
-            "--tolerance",
-            "0",
-            "--out",
-            s(&tmp.path().join("tf")),
-        ],
-        2,
-        &["> 0"],
-    );
+    let tf = tmp.path().join("tf");
+    for (tolerance, rule) in [("nan", "finite"), ("0", "> 0")] {
+        let args = ["truth-flow", "--procedural", "box", "--from", "0", "--to", "10", "--out", s(&tf)];
+        expect(&[&args[..], &["--tolerance", tolerance]].concat(), 2, &["--tolerance", rule]);
+    }
     assert!(!tmp.path().join("tf").exists());
 }
 
@@ -514,19 +495,7 @@ fn empty_garbage_and_truncated_files_of_every_format_are_errors_naming_the_file(
     for (kind, bytes) in variants(&good_toml) {
         let p = tmp.path().join(format!("{kind}.toml"));
         std::fs::write(&p, bytes).unwrap();
-        let (c, _, err) = run(&[
-            "estimate",
-            "--object",
-            s(capture()),
-            "--camera",
-            "NP3",
-            "--from",
-            "0",
-            "--to",
-            "15",
-            "--config",
-            s(&p),
-        ]);
+        let (c, _, err) = run_estimate(capture(), &["--config", s(&p)]);
         // An empty or half configuration may still be valid TOML with defaults.
         assert!(c == 0 || (c == 1 && err.contains(&format!("{kind}.toml"))), "{kind}: {c} {err}");
     }
@@ -557,20 +526,7 @@ fn empty_garbage_and_truncated_files_of_every_format_are_errors_naming_the_file(
 fn json_outputs_leave_out_what_they_cannot_give() {
     // ICP has no kernel width and no flow: `sigma2`, `flow_estimator` and `correspondences` are
     // absent, never null.
-    let (code, stdout, err) = run(&[
-        "estimate",
-        "--object",
-        s(capture()),
-        "--camera",
-        "NP3",
-        "--from",
-        "0",
-        "--to",
-        "15",
-        "--method",
-        "icp-pt2pl",
-        "--json",
-    ]);
+    let (code, stdout, err) = run_estimate(capture(), &["--method", "icp-pt2pl", "--json"]);
     assert_eq!(code, 0, "{err}");
     assert!(!stdout.contains("null") && !stdout.contains("NaN"), "{stdout}");
     let v: serde_json::Value = serde_json::from_str(&stdout).unwrap();
