@@ -217,3 +217,29 @@ def test_the_gil_is_released():
         counter.join()
     assert r.seconds > 0.05, "the registration was too short to tell"
     assert during > 1000, f"the other thread ran {during} times during {r.seconds:.2f} s"
+
+
+@pytest.mark.parametrize("method", ["filterreg-pt2pt", "icp-pt2pt"])
+def test_a_result_the_clouds_do_not_support_is_not_converged(method):
+    # Clouds a kilometre apart: the CLI exits with 3; here the result says so.
+    source, target, _ = load("case_0")
+    far = target + np.array([1000.0, 0.0, 0.0])
+    r = flowfilter.register(source, far, method=method)
+    assert not r.converged
+    codes = [w["code"] for w in r.to_dict()["warnings"]]
+    assert "far_apart" in codes, codes
+    assert "null" not in json.dumps(r.to_dict())
+
+
+def test_cpd_above_its_work_limit_says_so():
+    source, target, _ = load("case_0")
+    limit = len(source) // 2
+    r = flowfilter.register(source, target, method="cpd", max_points=limit, max_iterations=5)
+    codes = [w["code"] for w in r.to_dict()["warnings"]]
+    assert "subsampled" in codes, codes
+
+
+def test_nan_parameters_name_the_key():
+    source, target, _ = load("case_0")
+    with pytest.raises(flowfilter.ConfigError, match="tolerance"):
+        flowfilter.register(source, target, method="filterreg-pt2pt", tolerance=float("nan"))
