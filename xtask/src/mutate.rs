@@ -44,6 +44,9 @@ type Parser = dyn Fn(&Path, &Path) -> bool;
 /// One format: its seed files and how its parser is called on a (mutated) file.
 struct Target {
     name: &'static str,
+    /// The seeds are the files of one directory (an object, a frame): each case holds all of
+    /// them, one mutated. Otherwise a case is the one mutated file.
+    together: bool,
     /// Seed inputs: (file name, bytes).
     seeds: Vec<(String, Vec<u8>)>,
     /// Parse the file at the given path inside the scratch directory: whether it was accepted
@@ -129,7 +132,7 @@ fn check_seeds(targets: &[Target], scratch: &Path) -> anyhow::Result<()> {
 
 /// Write one case: the BigBIRD target copies its whole object and replaces one file.
 fn write_case(case: &Path, target: &Target, name: &str, input: &[u8]) -> anyhow::Result<()> {
-    if target.name == "bigbird" || target.name == "png-frame" {
+    if target.together {
         for (other, bytes) in &target.seeds {
             let p = case.join(other);
             std::fs::create_dir_all(p.parent().expect("inside the case"))?;
@@ -247,21 +250,29 @@ fn targets(root: &Path, scratch: &Path) -> anyhow::Result<Vec<Target>> {
         b"id,model_color,model_depth,target_color,target_depth,camera\na,m.png,md.png,t.png,td.png,cam.json\n".to_vec(),
     )];
     Ok(vec![
-        Target { name: "ply", seeds: ply, parse: Box::new(|_, f| read_ply(f).is_ok()) },
+        Target { name: "ply", together: false, seeds: ply, parse: Box::new(|_, f| read_ply(f).is_ok()) },
         Target {
             name: "flo",
+            together: false,
             seeds: vec![("seed.flo".into(), flo::encode(&field))],
             parse: Box::new(|_, f| flo::decode(&std::fs::read(f).unwrap_or_default(), f).is_ok()),
         },
         Target {
             name: "pbm",
+            together: false,
             seeds: masks,
             parse: Box::new(|_, f| pbm::decode(&std::fs::read(f).unwrap_or_default()).is_ok()),
         },
-        Target { name: "bigbird", seeds: bigbird, parse: Box::new(|dir, _| parse_bigbird(dir)) },
-        Target { name: "png-frame", seeds: png_frame()?, parse: Box::new(|dir, _| parse_png_frame(dir)) },
+        Target { name: "bigbird", together: true, seeds: bigbird, parse: Box::new(|dir, _| parse_bigbird(dir)) },
+        Target {
+            name: "png-frame",
+            together: true,
+            seeds: png_frame()?,
+            parse: Box::new(|dir, _| parse_png_frame(dir)),
+        },
         Target {
             name: "pipeline-toml",
+            together: false,
             seeds: configs,
             parse: Box::new(|_, f| {
                 PipelineConfig::from_toml_str(&String::from_utf8_lossy(&std::fs::read(f).unwrap_or_default()), f)
@@ -270,6 +281,7 @@ fn targets(root: &Path, scratch: &Path) -> anyhow::Result<Vec<Target>> {
         },
         Target {
             name: "noise-toml",
+            together: false,
             seeds: vec![("carmine.toml".into(), flowfilter_synth::CARMINE_TOML.as_bytes().to_vec())],
             parse: Box::new(|_, f| {
                 NoiseProfile::from_toml(&String::from_utf8_lossy(&std::fs::read(f).unwrap_or_default()), "mutated")
@@ -278,10 +290,11 @@ fn targets(root: &Path, scratch: &Path) -> anyhow::Result<Vec<Target>> {
         },
         Target {
             name: "camera-json",
+            together: false,
             seeds: cameras,
             parse: Box::new(|_, f| CameraFile::from_file(f).is_ok_and(|c| c.model(Some((640, 480))).is_ok())),
         },
-        Target { name: "pairs-csv", seeds: pairs, parse: Box::new(|_, f| read_pairs(f).is_ok()) },
+        Target { name: "pairs-csv", together: false, seeds: pairs, parse: Box::new(|_, f| read_pairs(f).is_ok()) },
     ])
 }
 

@@ -101,13 +101,12 @@ impl PipelineConfig {
     /// Parse TOML text; `origin` names the source in errors.
     pub fn from_toml_str(text: &str, origin: &Path) -> Result<Self, PipelineError> {
         let config_error = |message: String| PipelineError::Config { path: origin.to_path_buf(), message };
+        // Parsed twice: the table for the finiteness walk, then the struct from the text, whose
+        // errors keep their line numbers (deserialising the table would lose the spans).
         let table: toml::Table = toml::from_str(text).map_err(|e| config_error(describe_toml_error(&e, text)))?;
         flowfilter_geometry::params::reject_non_finite(&table).map_err(|e| config_error(e.to_string()))?;
-        let config: Self = toml::from_str(text).map_err(|e| PipelineError::Config {
-            path: origin.to_path_buf(),
-            message: describe_toml_error(&e, text),
-        })?;
-        config.validate().map_err(|message| PipelineError::Config { path: origin.to_path_buf(), message })?;
+        let config: Self = toml::from_str(text).map_err(|e| config_error(describe_toml_error(&e, text)))?;
+        config.validate().map_err(config_error)?;
         Ok(config)
     }
 

@@ -176,9 +176,8 @@ impl Pipeline {
             found
         });
         let tr = Instant::now();
-        let mut reg = self.registrar.register(&problem)?;
+        let reg = self.registrar.register_checked(&problem)?;
         times.registration = tr.elapsed().as_secs_f64() * 1e3;
-        flowfilter_registration::assess(&problem, &mut reg);
         times.total = times.depth_model + times.depth_target + t0.elapsed().as_secs_f64() * 1e3;
         let summary = found.map(|f| correspondence_summary(&f, &reg));
         warnings.extend(reg.warnings.iter().cloned().map(PipelineWarning::from));

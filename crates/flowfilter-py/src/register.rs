@@ -173,10 +173,7 @@ pub fn register(
     let (points_s, points_t) = (problem.source.len(), problem.target.len());
     let (result, seconds) = threads::run(py, || {
         let start = Instant::now();
-        let r = registrar.register(&problem).map(|mut r| {
-            flowfilter_pipeline::registration::assess(&problem, &mut r);
-            r
-        });
+        let r = registrar.register_checked(&problem);
         (r, start.elapsed().as_secs_f64())
     })?;
     let r = result.map_err(|e| registration(&e))?;

@@ -70,25 +70,22 @@ pub fn assess_with(problem: &RegistrationProblem, r: &mut Registration, limits: 
     if source.len() < 3 || target.len() < 3 {
         return;
     }
-    let mut flag = |w: RegistrationWarning| {
-        r.warnings.push(w);
-    };
+    let before = r.warnings.len();
     let size = diagonal(&source.points).max(diagonal(&target.points)).max(f64::MIN_POSITIVE);
     let (cs, ct) = (source.centroid().expect("non-empty"), target.centroid().expect("non-empty"));
     let gap = (problem.init * cs - ct).norm();
-    let mut failed = false;
     if gap > limits.far_apart_ratio * size {
-        flag(RegistrationWarning::FarApart { distance_m: gap, size_m: size });
-        failed = true;
+        r.warnings.push(RegistrationWarning::FarApart { distance_m: gap, size_m: size });
     }
+    // A rigid motion keeps the spacing: the moved source's index serves for both.
     let target_index = KnnIndex::new(&target.points);
     let moved: Vec<Point3> = source.points.iter().map(|p| r.transform * p).collect();
     let moved_index = KnnIndex::new(&moved);
-    let gate = limits.gate_spacings * median_spacing(&source.points).max(median_spacing(&target.points));
+    let gate =
+        limits.gate_spacings * median_spacing(&moved, &moved_index).max(median_spacing(&target.points, &target_index));
     let fitness = fraction_within(&moved, &target_index, gate);
     if fitness < limits.min_fitness {
-        flag(RegistrationWarning::PoorFit { fitness, gate_m: gate });
-        failed = true;
+        r.warnings.push(RegistrationWarning::PoorFit { fitness, gate_m: gate });
     } else {
         let (lo, hi) = bounds(&moved);
         let inside: Vec<Point3> = target
@@ -99,11 +96,10 @@ pub fn assess_with(problem: &RegistrationProblem, r: &mut Registration, limits: 
             .collect();
         let support = if inside.is_empty() { 0.0 } else { fraction_within(&inside, &moved_index, gate) };
         if support < limits.min_support {
-            flag(RegistrationWarning::OneSidedOverlap { fitness, support, gate_m: gate });
-            failed = true;
+            r.warnings.push(RegistrationWarning::OneSidedOverlap { fitness, support, gate_m: gate });
         }
     }
-    if failed {
+    if r.warnings.len() > before {
         r.converged = false;
     }
 }
@@ -120,9 +116,9 @@ fn bounds(points: &[Point3]) -> (Point3, Point3) {
     })
 }
 
-/// Median distance to the nearest other point, over an even sample of the points.
-fn median_spacing(points: &[Point3]) -> f64 {
-    let index = KnnIndex::new(points);
+/// Median distance to the nearest other point, over an even sample of `points` (`index`: their
+/// k-d tree).
+fn median_spacing(points: &[Point3], index: &KnnIndex) -> f64 {
     let step = points.len().div_ceil(SPACING_SAMPLES).max(1);
     let mut d: Vec<f64> =
         points.iter().step_by(step).filter_map(|p| index.k_nearest(p, 2).get(1).map(|n| n.dist2.sqrt())).collect();

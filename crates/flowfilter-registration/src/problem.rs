@@ -161,17 +161,10 @@ pub struct Uncertainty {
 ///         validate_problem(p, None)?;
 ///         let shift = p.target.centroid().unwrap() - p.source.centroid().unwrap();
 ///         Ok(Registration {
-///             transform: Pose::new(shift, Vector3::zeros()),
 ///             iterations: 1,
 ///             converged: true,
 ///             fitness: 1.0,
-///             inlier_rmse: 0.0,
-///             sigma2: None,
-///             scale: None,
-///             history: vec![],
-///             warnings: vec![],
-///             correspondence_set: None,
-///             uncertainty: None,
+///             ..Registration::with_transform(Pose::new(shift, Vector3::zeros()))
 ///         })
 ///     }
 /// }
@@ -195,6 +188,19 @@ pub trait Registrar: Send + Sync {
     /// correspondences or a non-finite initial pose. Conditions that still give a pose (a
     /// fallback, an early stop) are [`Registration::warnings`] instead.
     fn register(&self, problem: &RegistrationProblem) -> Result<Registration, RegistrationError>;
+
+    /// [`Registrar::register`], then [`crate::assess`]: a result the clouds do not support
+    /// carries a warning and is not converged. What the CLI, the pipeline and the Python package
+    /// call; backends call each other through `register` (their intermediate results are not
+    /// final answers).
+    ///
+    /// # Errors
+    /// As [`Registrar::register`].
+    fn register_checked(&self, problem: &RegistrationProblem) -> Result<Registration, RegistrationError> {
+        let mut r = self.register(problem)?;
+        crate::assess(problem, &mut r);
+        Ok(r)
+    }
 
     /// Whether the backend reads [`RegistrationProblem::correspondences`]: callers skip the
     /// (costly) correspondence search for backends that do not.

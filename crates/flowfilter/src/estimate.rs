@@ -125,13 +125,14 @@ pub fn run(args: &EstimateArgs) -> anyhow::Result<ExitCode> {
     Ok(crate::exit_code(e.warnings.iter().any(PipelineWarning::is_implausible)))
 }
 
-/// The output paths can be written: checked before any work.
+/// The output paths can be written: checked before any work (the file first, so that a bad
+/// `--viz` leaves no `--save-ply` directory behind).
 fn check_outputs(args: &EstimateArgs) -> anyhow::Result<()> {
-    if let Some(dir) = &args.save_ply {
-        check_writable_dir(dir).context("--save-ply")?;
-    }
     if let Some(path) = &args.viz {
         check_writable_file(path).context("--viz")?;
+    }
+    if let Some(dir) = &args.save_ply {
+        check_writable_dir(dir).context("--save-ply")?;
     }
     Ok(())
 }

@@ -97,7 +97,7 @@ pub fn run(args: &RegisterArgs) -> anyhow::Result<ExitCode> {
     let spinner = long.then(|| {
         crate::progress::spinner(format!("register: {} on {model_points} x {target_points} points", registrar.name()))
     });
-    let r = match registrar.register(&problem) {
+    let r = match registrar.register_checked(&problem) {
         Err(RegistrationError::MissingNormals { .. }) => {
             for (cloud, which, path) in
                 [(&mut problem.source, "source", &args.source), (&mut problem.target, "target", &args.target)]
@@ -112,15 +112,13 @@ pub fn run(args: &RegisterArgs) -> anyhow::Result<ExitCode> {
                     ));
                 }
             }
-            registrar.register(&problem)?
+            registrar.register_checked(&problem)?
         }
         other => other?,
     };
     if let Some(s) = spinner {
         s.finish_and_clear();
     }
-    let mut r = r;
-    flowfilter_registration::assess(&problem, &mut r);
     for note in &notes {
         eprintln!("warning: {note}");
     }
