@@ -12,7 +12,7 @@ use crate::filterreg::{FilterReg, FilterRegConfig};
 use crate::icp::{Icp, IcpConfig, IcpVariant};
 use crate::problem::Uncertainty;
 use crate::problem::{Correspondences, Registrar, Registration, RegistrationProblem, in_pool, validate_problem};
-use crate::reprojection::refine_by_reprojection;
+use crate::reprojection::{Shutter, refine_by_reprojection_with};
 use crate::warning::RegistrationWarning;
 use flowfilter_geometry::{KnnIndex, Point3, Pose, weighted_kabsch};
 use flowfilter_geometry::{ParamError, params};
@@ -103,6 +103,12 @@ pub struct FlowFilterConfig {
     /// the real YCB-Video sample the registration before it is up to 2.5 deg off and the
     /// refinement lands within 0.8.
     pub reprojection_max_change_deg: f64,
+    /// The refinement also estimates a rolling shutter's row shear of the target image
+    /// ([`Shutter::Rolling`]): consumer colour cameras expose row after row, and a change of
+    /// image speed between the exposures shifts each row in proportion to its height, which a
+    /// rigid fit on an object's patch takes for an in-plane rotation. Two more unknowns cost
+    /// little precision on a global-shutter image and remove that rotation on a rolling one.
+    pub reprojection_rolling_shutter: bool,
     /// The FilterReg part.
     pub filterreg: FilterRegConfig,
 }
@@ -128,6 +134,7 @@ impl Default for FlowFilterConfig {
             polish_flow_slack_m: 0.0005,
             reprojection_refine: true,
             reprojection_max_change_deg: 3.0,
+            reprojection_rolling_shutter: true,
             filterreg: FilterRegConfig::default(),
         }
     }
@@ -357,7 +364,8 @@ impl FlowFilter {
         let agree: Vec<bool> = (0..pairs.len())
             .map(|i| pairs.weights[i] > 0.0 && (t * pairs.source[i] - pairs.target[i]).norm_squared() <= gate2)
             .collect();
-        let Some(q) = refine_by_reprojection(pairs, &agree, t, 20) else { return };
+        let shutter = if self.config.reprojection_rolling_shutter { Shutter::Rolling } else { Shutter::Global };
+        let Some(q) = refine_by_reprojection_with(pairs, &agree, t, 20, shutter) else { return };
         if (q.pose.rotation * t.rotation.inverse()).angle().to_degrees() > self.config.reprojection_max_change_deg {
             return;
         }

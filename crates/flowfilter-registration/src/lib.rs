@@ -33,7 +33,7 @@ pub use problem::{
     validate_problem,
 };
 pub use registry::{METHOD_NAMES, RegistrationConfig, registrar_by_name};
-pub use reprojection::{Refinement, refine_by_reprojection};
+pub use reprojection::{Refinement, Shutter, refine_by_reprojection, refine_by_reprojection_with};
 pub use warning::RegistrationWarning;
 
 // The geometric types of this crate's signatures.

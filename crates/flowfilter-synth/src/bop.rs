@@ -12,7 +12,8 @@
 //! Real frames differ from renders, and the scenes carry it: the noise profile's structured-light
 //! depth (disparity quantised at the depth sensor's own focal length, flying and dropped pixels,
 //! projector shadows) and colour noise and blur, plus [`FrameEffects`] per frame (exposure and
-//! white balance, masks off by a few pixels, depth taken at another instant than colour). The
+//! white balance, masks off by a few pixels, depth taken at another instant than colour, a rolling
+//! shutter's row shear of the colour image). The
 //! annotations stay exact: `scene_gt.json` is the pose at the colour exposure, and the pixel
 //! counts of `scene_gt_info.json` come from the unperturbed masks.
 
@@ -129,6 +130,7 @@ impl<'a> BopCamera<'a> {
         let mut view =
             render_view(scene, registered, timing, opts.noise.as_ref(), s.rgbd.depth.intrinsics.fx, &mut rng);
         draw.apply_gain(&mut view.color);
+        draw.apply_row_shear(&mut view.color);
         let cam_from_obj = registered.h_color_from_world * world_from_table(angle);
         let alone = render_gbuffer(&self.alone, &registered.rgbd.color, &cam_from_obj);
         let silhouette =

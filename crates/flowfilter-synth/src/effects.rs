@@ -1,6 +1,7 @@
 //! What real RGB-D frames have and renders lack, beyond sensor noise: exposure and white-balance
-//! changes between frames, object masks a few pixels off, and depth captured a moment before or
-//! after colour. [`FrameEffects`] draws them per frame from a seeded generator.
+//! changes between frames, object masks a few pixels off, depth captured a moment before or
+//! after colour, and a rolling shutter's row shear. [`FrameEffects`] draws them per frame from a
+//! seeded generator.
 
 use flowfilter_geometry::Mask;
 use image::RgbImage;
@@ -20,6 +21,11 @@ pub struct FrameEffects {
     /// The depth image is taken with the object up to this many degrees of turntable rotation
     /// away from where it was for the colour image (either way).
     pub depth_delay_deg: f64,
+    /// The colour image's rows are shifted sideways in proportion to their distance from the
+    /// middle row, by up to this many pixels per row (either way): a rolling shutter exposes row
+    /// after row, and when the image motion changes speed between two frames their rows shift
+    /// against each other.
+    pub row_shear_px_per_row: f64,
 }
 
 /// The values one frame drew.
@@ -33,20 +39,36 @@ pub struct FrameDraw {
     pub mask_grow: i32,
     /// Turntable angle of the depth exposure minus that of the colour exposure, degrees.
     pub depth_delay_deg: f64,
+    /// Sideways shift of the colour image's rows per row from the middle one, pixels.
+    pub row_shear_px_per_row: f64,
 }
 
 impl FrameEffects {
     /// No effect: colour, masks and depth exactly as rendered.
-    pub const NONE: Self =
-        Self { exposure: 0.0, white_balance: 0.0, mask_shift_px: 0, mask_grow_px: 0, depth_delay_deg: 0.0 };
+    pub const NONE: Self = Self {
+        exposure: 0.0,
+        white_balance: 0.0,
+        mask_shift_px: 0,
+        mask_grow_px: 0,
+        depth_delay_deg: 0.0,
+        row_shear_px_per_row: 0.0,
+    };
 
     /// What a handheld consumer RGB-D camera shows between two frames of a sequence: auto
     /// exposure within +-12%, white balance within +-4% per channel, masks (from a detector or
     /// from a pose annotation on a slightly misregistered image) up to 2 px off and up to 2 px
     /// too large or too small, and depth taken up to 0.1 degrees of rotation away from colour
-    /// (about 10 ms at 10 deg/s).
-    pub const REAL_SENSOR: Self =
-        Self { exposure: 0.12, white_balance: 0.04, mask_shift_px: 2, mask_grow_px: 2, depth_delay_deg: 0.1 };
+    /// (about 10 ms at 10 deg/s), and rows shifted by up to 0.004 px per row (two frames' rows
+    /// then differ by up to 0.008 px per row: the real YCB-Video sample's frame pairs show
+    /// 0.003-0.009).
+    pub const REAL_SENSOR: Self = Self {
+        exposure: 0.12,
+        white_balance: 0.04,
+        mask_shift_px: 2,
+        mask_grow_px: 2,
+        depth_delay_deg: 0.1,
+        row_shear_px_per_row: 0.004,
+    };
 
     /// Draw one frame's values.
     pub fn draw(&self, rng: &mut impl Rng) -> FrameDraw {
@@ -54,13 +76,14 @@ impl FrameEffects {
         let exposure = 1.0 + symmetric(self.exposure);
         let gain = [0; 3].map(|_| exposure * (1.0 + symmetric(self.white_balance)));
         let depth_delay_deg = symmetric(self.depth_delay_deg);
+        let row_shear_px_per_row = symmetric(self.row_shear_px_per_row);
         let mut whole = |bound: u32| {
             let b = bound as i32;
             if b > 0 { rng.random_range(-b..=b) } else { 0 }
         };
         let mask_shift = (whole(self.mask_shift_px), whole(self.mask_shift_px));
         let mask_grow = whole(self.mask_grow_px);
-        FrameDraw { gain, mask_shift, mask_grow, depth_delay_deg }
+        FrameDraw { gain, mask_shift, mask_grow, depth_delay_deg, row_shear_px_per_row }
     }
 }
 
@@ -70,6 +93,29 @@ impl FrameDraw {
         for px in img.pixels_mut() {
             for (c, g) in px.0.iter_mut().zip(self.gain) {
                 *c = (f64::from(*c) * g).round().clamp(0.0, 255.0) as u8;
+            }
+        }
+    }
+
+    /// Shift each row of `img` sideways by the drawn shear times its distance from the middle
+    /// row (linear interpolation; the edge pixels extend past the borders).
+    pub fn apply_row_shear(&self, img: &mut RgbImage) {
+        let s = self.row_shear_px_per_row;
+        if s == 0.0 || img.width() == 0 {
+            return;
+        }
+        let (w, h) = (img.width(), img.height());
+        let middle = (f64::from(h) - 1.0) / 2.0;
+        for y in 0..h {
+            let shift = s * (f64::from(y) - middle);
+            let row: Vec<[u8; 3]> = (0..w).map(|x| img.get_pixel(x, y).0).collect();
+            let last = f64::from(w - 1);
+            for x in 0..w {
+                let from = (f64::from(x) - shift).clamp(0.0, last);
+                let (i, t) = (from.floor() as usize, from.fract());
+                let (a, b) = (row[i], row[(i + 1).min(row.len() - 1)]);
+                let px = [0, 1, 2].map(|c| (f64::from(a[c]) * (1.0 - t) + f64::from(b[c]) * t).round() as u8);
+                img.put_pixel(x, y, image::Rgb(px));
             }
         }
     }
@@ -119,18 +165,22 @@ mod tests {
             let d = FrameEffects::REAL_SENSOR.draw(&mut rng);
             assert!(d.gain.iter().all(|g| (0.88 * 0.96 - 1e-12..=1.12 * 1.04 + 1e-12).contains(g)), "{d:?}");
             assert!(d.mask_shift.0.abs() <= 2 && d.mask_shift.1.abs() <= 2 && d.mask_grow.abs() <= 2);
-            assert!(d.depth_delay_deg.abs() <= 0.1);
+            assert!(d.depth_delay_deg.abs() <= 0.1 && d.row_shear_px_per_row.abs() <= 0.004);
         }
         let d = FrameEffects::NONE.draw(&mut rng);
-        assert_eq!(d, FrameDraw { gain: [1.0; 3], mask_shift: (0, 0), mask_grow: 0, depth_delay_deg: 0.0 });
+        assert_eq!(d, FrameDraw { gain: [1.0; 3], ..STILL });
         let m = square(20, 5, 15);
         assert_eq!(d.perturb_mask(&m), m);
     }
 
+    /// A draw that changes nothing but the gains it is given.
+    const STILL: FrameDraw =
+        FrameDraw { gain: [1.0; 3], mask_shift: (0, 0), mask_grow: 0, depth_delay_deg: 0.0, row_shear_px_per_row: 0.0 };
+
     #[test]
     fn masks_shift_grow_and_shrink() {
         let m = square(20, 5, 15);
-        let shift = FrameDraw { gain: [1.0; 3], mask_shift: (2, -1), mask_grow: 0, depth_delay_deg: 0.0 };
+        let shift = FrameDraw { mask_shift: (2, -1), ..STILL };
         let s = shift.perturb_mask(&m);
         assert!(*s.at(7, 4) && !*s.at(6, 14) && *s.at(16, 13) && !*s.at(17, 13));
         assert_eq!(count(&s), 100);
@@ -143,8 +193,25 @@ mod tests {
     #[test]
     fn gains_scale_and_saturate() {
         let mut img = RgbImage::from_pixel(2, 1, image::Rgb([100, 200, 250]));
-        FrameDraw { gain: [1.1, 0.5, 1.1], mask_shift: (0, 0), mask_grow: 0, depth_delay_deg: 0.0 }
-            .apply_gain(&mut img);
+        FrameDraw { gain: [1.1, 0.5, 1.1], ..STILL }.apply_gain(&mut img);
         assert_eq!(img.get_pixel(1, 0).0, [110, 100, 255]);
+    }
+
+    /// A vertical edge leans: the rows below the middle move right, those above left, by the
+    /// shear times their distance from the middle row; the middle row stays.
+    #[test]
+    fn the_row_shear_leans_a_vertical_edge() {
+        let (w, h) = (40u32, 101u32);
+        let edge = |img: &RgbImage, y: u32| (0..w).find(|&x| img.get_pixel(x, y).0[0] > 127).unwrap();
+        let mut img = RgbImage::from_fn(w, h, |x, _| image::Rgb(if x < 20 { [0; 3] } else { [255; 3] }));
+        FrameDraw { row_shear_px_per_row: 0.1, ..STILL }.apply_row_shear(&mut img);
+        assert_eq!(edge(&img, 50), 20);
+        assert_eq!(edge(&img, 100), 25);
+        assert_eq!(edge(&img, 0), 15);
+        // Half a pixel: the edge pixel blends.
+        assert_eq!(img.get_pixel(20, 55).0[0], 128);
+        let before = img.clone();
+        STILL.apply_row_shear(&mut img);
+        assert_eq!(img, before);
     }
 }
