@@ -103,12 +103,13 @@ pub struct FlowFilterConfig {
     /// the real YCB-Video sample the registration before it is up to 2.5 deg off and the
     /// refinement lands within 0.8.
     pub reprojection_max_change_deg: f64,
-    /// The refinement also estimates a rolling shutter's row shear of the target image
-    /// ([`Shutter::Rolling`]): consumer colour cameras expose row after row, and a change of
-    /// image speed between the exposures shifts each row in proportion to its height, which a
-    /// rigid fit on an object's patch takes for an in-plane rotation. Two more unknowns cost
-    /// little precision on a global-shutter image and remove that rotation on a rolling one.
-    pub reprojection_rolling_shutter: bool,
+    /// The refinement also estimates a rolling shutter's row shear of the target image, with a
+    /// zero-mean prior of this standard deviation (pixels per pixel row; 0 = a global shutter,
+    /// [`Shutter`]): consumer colour cameras expose row after row, and a change of image speed
+    /// between the exposures shifts each row in proportion to its height, which a rigid fit on
+    /// an object's patch takes for a turn. Larger lets the shear trade against a turn about the
+    /// long axis of tall, narrow objects; smaller leaves more of a real shear in the pose.
+    pub reprojection_row_shear_sd: f64,
     /// The FilterReg part.
     pub filterreg: FilterRegConfig,
 }
@@ -134,7 +135,7 @@ impl Default for FlowFilterConfig {
             polish_flow_slack_m: 0.0005,
             reprojection_refine: true,
             reprojection_max_change_deg: 3.0,
-            reprojection_rolling_shutter: true,
+            reprojection_row_shear_sd: 0.002,
             filterreg: FilterRegConfig::default(),
         }
     }
@@ -238,7 +239,8 @@ impl FlowFilterConfig {
         params::non_negative("motion_icp_distance_m", self.motion_icp_distance_m)?;
         params::non_negative("polish_distance_m", self.polish_distance_m)?;
         params::non_negative("polish_flow_slack_m", self.polish_flow_slack_m)?;
-        params::non_negative("reprojection_max_change_deg", self.reprojection_max_change_deg)
+        params::non_negative("reprojection_max_change_deg", self.reprojection_max_change_deg)?;
+        params::non_negative("reprojection_row_shear_sd", self.reprojection_row_shear_sd)
     }
 }
 
@@ -364,7 +366,8 @@ impl FlowFilter {
         let agree: Vec<bool> = (0..pairs.len())
             .map(|i| pairs.weights[i] > 0.0 && (t * pairs.source[i] - pairs.target[i]).norm_squared() <= gate2)
             .collect();
-        let shutter = if self.config.reprojection_rolling_shutter { Shutter::Rolling } else { Shutter::Global };
+        let shear_sd = self.config.reprojection_row_shear_sd;
+        let shutter = if shear_sd > 0.0 { Shutter::Rolling { shear_sd } } else { Shutter::Global };
         let Some(q) = refine_by_reprojection_with(pairs, &agree, t, 20, shutter) else { return };
         if (q.pose.rotation * t.rotation.inverse()).angle().to_degrees() > self.config.reprojection_max_change_deg {
             return;

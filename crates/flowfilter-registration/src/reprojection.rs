@@ -20,6 +20,8 @@
 
 use flowfilter_geometry::{Correspondences, Point3, Pose, se3};
 use nalgebra::{Matrix3, Matrix6, SMatrix, SVector, Vector2, Vector3};
+use statrs::distribution::{ContinuousCDF, FisherSnedecor};
+use std::collections::BTreeMap;
 
 /// Fewest usable pairs the refinement works with.
 const MIN_PAIRS: usize = 8;
@@ -42,14 +44,18 @@ fn ray_jacobian(x: &Point3) -> SMatrix<f64, 2, 3> {
 }
 
 /// How the target image was exposed.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Shutter {
     /// All rows at once: the pose alone explains the pairs.
     Global,
     /// Row after row: the pose and a shift of the target rays proportional to their row (see
-    /// the module documentation).
-    #[default]
-    Rolling,
+    /// the module documentation), with a zero-mean Gaussian prior on the shear.
+    Rolling {
+        /// The prior's standard deviation (rays' shift per unit of normalised row: pixels per
+        /// pixel row). On an object much taller than wide the shear trades against a turn about
+        /// the long axis; the prior keeps it to what a shutter does.
+        shear_sd: f64,
+    },
 }
 
 /// One residual (ray difference, then weighted relative range difference) and its Jacobian with
@@ -140,13 +146,10 @@ impl State {
     }
 }
 
-/// Median of the residual norms of the usable pairs at `st` (both ways).
-fn median_norm(c: &Correspondences, use_pair: &[bool], st: &State) -> Option<f64> {
-    let mut n: Vec<f64> = (0..c.len())
-        .filter(|&i| use_pair[i])
-        .flat_map(|i| st.terms(&c.source[i], &c.target[i]))
-        .map(|(r, _)| r.norm())
-        .collect();
+/// Median of the residual norms of the `usable` pairs at `st` (both ways).
+fn median_norm(c: &Correspondences, usable: &[usize], st: &State) -> Option<f64> {
+    let mut n: Vec<f64> =
+        usable.iter().flat_map(|&i| st.terms(&c.source[i], &c.target[i])).map(|(r, _)| r.norm()).collect();
     if n.is_empty() {
         return None;
     }
@@ -154,30 +157,52 @@ fn median_norm(c: &Correspondences, use_pair: &[bool], st: &State) -> Option<f64
     Some(n[n.len() / 2])
 }
 
-/// A refined pose, the covariance of its left twist `(rho, phi)` (`s^2 H^-1` at the solution,
-/// `s^2` the weighted residual variance and `H` the Gauss-Newton matrix, the shear marginalised
-/// out) and the target image's row shear.
+/// A refined pose, the covariance of its left twist `(rho, phi)` and the target image's row
+/// shear. The covariance is cluster-robust: `H^-1 M H^-1` at the solution (`H` the Gauss-Newton
+/// matrix, `M` the spread of the gradients of blocks of neighbouring pairs, the shear
+/// marginalised out), so that errors the pairs of one region share count once per region, not
+/// once per pair; with too few blocks, `s^2 H^-1` (`s^2` the weighted residual variance).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Refinement {
     /// The pose.
     pub pose: Pose,
     /// Covariance of `(rho, phi)` (metres, radians).
     pub covariance: Matrix6<f64>,
+    /// How many blocks of pairs the covariance came from (0: from the pairs as independent).
+    pub blocks: usize,
     /// Shift of the target image's rays per unit of normalised row (`x/z, y/z` per `y/z`; times
     /// the focal length: pixels per row), zero with [`Shutter::Global`].
     pub row_shear: Vector2<f64>,
 }
 
 impl Refinement {
-    /// Bounds of the rotation (degrees) and translation (metres) error: 2.5 standard deviations
-    /// (the 90% quantile of a 3-D Gaussian's radius) along the worst axis, for independent pair
-    /// errors.
+    /// Bounds of the rotation (degrees) and translation (metres) error: the 90% radius of a 3-D
+    /// error with the worst axis's standard deviation on every axis. For a known covariance that
+    /// is 2.5 standard deviations (the chi-square quantile); a covariance estimated from `B`
+    /// blocks is itself uncertain, and the radius is Hotelling's, `sqrt(3 (B - 1) / (B - 3)
+    /// F(3, B - 3))` standard deviations (3.0 for 16 blocks, 3.4 for 10).
     pub fn bounds(&self) -> (f64, f64) {
         let worst = |block: Matrix3<f64>| block.symmetric_eigenvalues().max().max(0.0).sqrt();
         let rot = worst(self.covariance.fixed_view::<3, 3>(3, 3).into_owned());
         let trans = worst(self.covariance.fixed_view::<3, 3>(0, 0).into_owned());
-        (2.5 * rot.to_degrees(), 2.5 * trans)
+        let k = radius_quantile(self.blocks);
+        (k * rot.to_degrees(), k * trans)
     }
+}
+
+/// The 90% quantile of the radius (in standard deviations) of a 3-D Gaussian error whose
+/// covariance was estimated from `blocks` blocks (0: known; see [`Refinement::bounds`]).
+fn radius_quantile(blocks: usize) -> f64 {
+    const KNOWN: f64 = 2.5;
+    if blocks <= 4 {
+        return KNOWN;
+    }
+    let b = blocks as f64;
+    FisherSnedecor::new(3.0, b - 3.0)
+        .map(|f| (3.0 * (b - 1.0) / (b - 3.0) * f.inverse_cdf(0.9)).sqrt())
+        .ok()
+        .filter(|k| k.is_finite())
+        .map_or(KNOWN, |k| k.max(KNOWN))
 }
 
 /// The Gauss-Newton system, its weighted squared residual sum and residual count.
@@ -188,29 +213,106 @@ struct Normal {
     count: usize,
 }
 
-/// The Gauss-Newton system at `st`; with [`Shutter::Global`] the shear's rows and columns are
-/// those of a fixed unknown (identity, zero gradient).
-fn normal_equations(c: &Correspondences, use_pair: &[bool], st: &State, delta: f64, shutter: Shutter) -> Normal {
+/// The Huber weight of a term of residual norm `norm` from a pair of weight `w`.
+fn robust_weight(w: f64, norm: f64, delta: f64) -> f64 {
+    w * if norm <= delta { 1.0 } else { delta / norm }
+}
+
+/// What the Gauss-Newton system is built from besides the pairs.
+struct Model {
+    shutter: Shutter,
+    /// Huber threshold of a residual's norm.
+    delta: f64,
+}
+
+impl Model {
+    /// Unknowns estimated: the twist, and the shear with a rolling shutter.
+    fn unknowns(&self) -> usize {
+        match self.shutter {
+            Shutter::Global => 6,
+            Shutter::Rolling { .. } => 8,
+        }
+    }
+}
+
+/// The Gauss-Newton system at `st` over the `usable` pairs. With [`Shutter::Rolling`] the
+/// shear's prior (zero, `shear_sd`) is one more term, weighted against the pairs by their
+/// residual variance at `st`; with [`Shutter::Global`] the shear's rows
+/// and columns are those of a fixed unknown (identity, zero gradient).
+fn normal_equations(c: &Correspondences, usable: &[usize], st: &State, model: &Model) -> Normal {
     let mut n = Normal { h: SMatrix::zeros(), g: SVector::zeros(), sum: 0.0, count: 0 };
-    for i in (0..c.len()).filter(|&i| use_pair[i] && c.weights[i] > 0.0) {
+    for &i in usable {
         for (r, j) in st.terms(&c.source[i], &c.target[i]) {
-            let norm = r.norm();
-            let w = c.weights[i] * if norm <= delta { 1.0 } else { delta / norm };
+            let w = robust_weight(c.weights[i], r.norm(), model.delta);
             n.h += w * j.transpose() * j;
             n.g += w * j.transpose() * r;
             n.sum += w * r.norm_squared();
             n.count += 3;
         }
     }
-    if shutter == Shutter::Global {
-        for k in 6..8 {
-            n.h.row_mut(k).fill(0.0);
-            n.h.column_mut(k).fill(0.0);
-            n.h[(k, k)] = 1.0;
-            n.g[k] = 0.0;
+    match model.shutter {
+        Shutter::Rolling { shear_sd } => {
+            let noise_var = n.sum / n.count.max(1) as f64;
+            let prior = noise_var / (shear_sd * shear_sd).max(1e-300);
+            for k in 6..8 {
+                n.h[(k, k)] += prior;
+                n.g[k] += prior * st.shear[k - 6];
+            }
+        }
+        Shutter::Global => {
+            for k in 6..8 {
+                n.h.row_mut(k).fill(0.0);
+                n.h.column_mut(k).fill(0.0);
+                n.h[(k, k)] = 1.0;
+                n.g[k] = 0.0;
+            }
         }
     }
     n
+}
+
+/// Side of the grid of blocks that [`block_covariance`] groups the pairs into: blocks a quarter
+/// of the object across hold what neighbouring pairs share, and up to sixteen of them are enough
+/// for eight unknowns.
+const BLOCKS_PER_SIDE: f64 = 4.0;
+
+/// The state's covariance from blocks of pairs (cluster-robust): `H^-1 (sum_b g_b g_b^T) H^-1`
+/// times `B / (B - 1)`, where `g_b` sums the weighted gradients `w J^T r` of the pairs in block `b`
+/// (the cells of a 4 x 4 grid over the source rays' extent). An error that neighbouring pairs
+/// share (a texture tracked with a bias, a depth edge, a shutter's shear not quite linear) adds
+/// up within a block instead of averaging out as independent noise would. With the number of
+/// blocks; `None` with no more blocks than unknowns.
+fn block_covariance(
+    c: &Correspondences,
+    usable: &[usize],
+    st: &State,
+    delta: f64,
+    h_inv: &SMatrix<f64, 8, 8>,
+    unknowns: usize,
+) -> Option<(SMatrix<f64, 8, 8>, usize)> {
+    let rays: Vec<Vector2<f64>> = usable.iter().filter_map(|&i| ray(&c.source[i])).collect();
+    let lo = rays.iter().fold(Vector2::repeat(f64::INFINITY), |a, r| a.inf(r));
+    let hi = rays.iter().fold(Vector2::repeat(f64::NEG_INFINITY), |a, r| a.sup(r));
+    let cell = ((hi - lo).max() / BLOCKS_PER_SIDE).max(1e-12);
+    let mut blocks: BTreeMap<(i64, i64), SVector<f64, 8>> = BTreeMap::new();
+    for &i in usable {
+        let Some(r) = ray(&c.source[i]) else { continue };
+        let block = blocks.entry((((r.x - lo.x) / cell) as i64, ((r.y - lo.y) / cell) as i64)).or_default();
+        for (res, j) in st.terms(&c.source[i], &c.target[i]) {
+            *block += robust_weight(c.weights[i], res.norm(), delta) * j.transpose() * res;
+        }
+    }
+    if blocks.len() <= unknowns {
+        return None;
+    }
+    let mut meat = SMatrix::<f64, 8, 8>::zeros();
+    for g in blocks.values_mut() {
+        // A fixed shear has no gradient.
+        g.rows_mut(unknowns, 8 - unknowns).fill(0.0);
+        meat += *g * g.transpose();
+    }
+    let b = blocks.len() as f64;
+    Some((h_inv * meat * h_inv * (b / (b - 1.0)), blocks.len()))
 }
 
 /// [`refine_by_reprojection_with`] for a global shutter (the pose alone).
@@ -225,8 +327,9 @@ pub fn refine_by_reprojection(
 
 /// Refine `init` by Gauss-Newton on the two-way reprojection error of the pairs flagged in
 /// `use_pair` (weighted by the pairs' weights, Huber-weighted at 1.345 robust sigmas), with the
-/// covariance of the result; with [`Shutter::Rolling`] the target image's row shear is estimated
-/// with the pose. `None` with fewer than eight usable pairs or a singular system.
+/// covariance of the result (from blocks of pairs, see [`Refinement`]); with [`Shutter::Rolling`]
+/// the target image's row shear is estimated with the pose. `None` with fewer than eight usable
+/// pairs or a singular system.
 pub fn refine_by_reprojection_with(
     c: &Correspondences,
     use_pair: &[bool],
@@ -240,10 +343,11 @@ pub fn refine_by_reprojection_with(
     }
     let row0 = usable.iter().map(|&i| c.target[i].y / c.target[i].z).sum::<f64>() / usable.len() as f64;
     let mut st = State { pose: init, shear: Vector2::zeros(), row0 };
-    let sigma = 1.4826 * median_norm(c, use_pair, &st)?;
+    let sigma = 1.4826 * median_norm(c, &usable, &st)?;
     let delta = (1.345 * sigma).max(1e-9);
+    let model = Model { shutter, delta };
     for _ in 0..iterations {
-        let n = normal_equations(c, use_pair, &st, delta, shutter);
+        let n = normal_equations(c, &usable, &st, &model);
         let step = -n.h.cholesky()?.solve(&n.g);
         if !step.iter().all(|v| v.is_finite()) {
             return None;
@@ -254,12 +358,16 @@ pub fn refine_by_reprojection_with(
             break;
         }
     }
-    let n = normal_equations(c, use_pair, &st, delta, shutter);
-    let unknowns = if shutter == Shutter::Global { 6 } else { 8 };
-    let s2 = n.sum / (n.count.saturating_sub(unknowns).max(1)) as f64;
-    let covariance: Matrix6<f64> = (n.h.cholesky()?.inverse() * s2).fixed_view::<6, 6>(0, 0).into_owned();
+    let n = normal_equations(c, &usable, &st, &model);
+    let h_inv = n.h.cholesky()?.inverse();
+    let unknowns = model.unknowns();
+    let (full, blocks) = block_covariance(c, &usable, &st, delta, &h_inv, unknowns).unwrap_or_else(|| {
+        let s2 = n.sum / (n.count.saturating_sub(unknowns).max(1)) as f64;
+        (h_inv * s2, 0)
+    });
+    let covariance: Matrix6<f64> = full.fixed_view::<6, 6>(0, 0).into_owned();
     let finite = covariance.iter().chain(st.shear.iter()).all(|v| v.is_finite());
-    finite.then_some(Refinement { pose: st.pose, covariance, row_shear: st.shear })
+    finite.then_some(Refinement { pose: st.pose, covariance, blocks, row_shear: st.shear })
 }
 
 #[cfg(test)]
@@ -328,7 +436,8 @@ mod tests {
         let (c, truth) = sheared_pairs(shear);
         let all = vec![true; c.len()];
         let rigid = refine_by_reprojection(&c, &all, Pose::identity(), 20).unwrap();
-        let rolling = refine_by_reprojection_with(&c, &all, Pose::identity(), 20, Shutter::Rolling).unwrap();
+        let rolling =
+            refine_by_reprojection_with(&c, &all, Pose::identity(), 20, Shutter::Rolling { shear_sd: 0.01 }).unwrap();
         let (rigid_err, rolling_err) = (rotation_error_deg(&rigid, &truth), rotation_error_deg(&rolling, &truth));
         assert!(rigid_err > 0.15, "the rigid fit absorbs the shear: {rigid_err} deg");
         assert!(rolling_err < 0.02, "rolling-shutter fit: {rolling_err} deg");
@@ -338,7 +447,8 @@ mod tests {
 
         let (c, truth) = sheared_pairs(Vector2::zeros());
         let rigid = refine_by_reprojection(&c, &all, Pose::identity(), 20).unwrap();
-        let rolling = refine_by_reprojection_with(&c, &all, Pose::identity(), 20, Shutter::Rolling).unwrap();
+        let rolling =
+            refine_by_reprojection_with(&c, &all, Pose::identity(), 20, Shutter::Rolling { shear_sd: 0.01 }).unwrap();
         assert!(rotation_error_deg(&rigid, &truth) < 0.02 && rotation_error_deg(&rolling, &truth) < 0.02);
         assert!(rolling.row_shear.norm() < 5e-4, "no shear to find: {:?}", rolling.row_shear);
         // The shear's two unknowns are what the rotation bound pays (about 3.4x wider here).
