@@ -5,6 +5,7 @@
 use crate::error::RegistrationError;
 use crate::evaluate::evaluate;
 use crate::gmm::{mean_pair_distance2, outlier_term};
+use crate::lattice::Lattice;
 use crate::problem::{IterationRecord, Registrar, Registration, RegistrationProblem, in_pool, validate_problem};
 use crate::warning::RegistrationWarning;
 use flowfilter_geometry::{KnnIndex, Point3, PointCloud, Pose, Vector3, nearest_rotation, spatial_order};
@@ -30,7 +31,35 @@ pub enum CpdEStep {
         /// Pair-count threshold.
         max_pairs: usize,
     },
+    /// For clouds of sensor size: exact below `max_pairs` pairs; above, the Gaussian sums on a
+    /// permutohedral lattice (the role of the fast Gauss transform in the CPD paper: O(M + N)
+    /// per iteration) while a truncated E-step would still visit more than `max_neighbours`
+    /// components per observation (sigma large against the point spacing, where the lattice's
+    /// few percent of error do not move the pose), then truncated at 4 sigma (exact where it
+    /// matters, near the optimum).
+    Fast {
+        /// Pair-count threshold of the exact E-step.
+        max_pairs: usize,
+        /// Mean components within 4 sigma of an observation above which the lattice is used; at
+        /// least [`MIN_LATTICE_NEIGHBOURS`].
+        max_neighbours: usize,
+    },
 }
+
+/// How one iteration's E-step runs (see [`CpdEStep`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum EStepKind {
+    Exact,
+    Truncated(f64),
+    Lattice,
+}
+
+/// Smallest `max_neighbours` of [`CpdEStep::Fast`]: below, the lattice runs at a sigma near the
+/// point spacing, where its error moves the pose (64 turned a 60k-point pair 160 deg away).
+pub const MIN_LATTICE_NEIGHBOURS: usize = 100;
+
+/// Observations sampled to estimate how many components lie within the truncation radius.
+const NEIGHBOUR_SAMPLE: usize = 32;
 
 /// Floor of sigma^2 (m^2): 10 micrometres, far below any sensor's noise.
 const SIGMA2_FLOOR: f64 = 1e-10;
@@ -119,6 +148,15 @@ impl CpdConfig {
         match self.e_step {
             CpdEStep::Truncated { radius_sigmas } => params::positive("e_step.radius_sigmas", radius_sigmas)?,
             CpdEStep::Auto { max_pairs } => params::count_positive("e_step.max_pairs", max_pairs)?,
+            CpdEStep::Fast { max_pairs, max_neighbours } => {
+                params::count_positive("e_step.max_pairs", max_pairs)?;
+                params::require(
+                    max_neighbours >= MIN_LATTICE_NEIGHBOURS,
+                    "e_step.max_neighbours",
+                    "at least 100 (the lattice is not accurate when sigma nears the point spacing)",
+                    max_neighbours,
+                )?;
+            }
             CpdEStep::Exact => {}
         }
         Ok(())
@@ -135,7 +173,100 @@ struct EStep {
     px: Vec<Vector3>,
 }
 
-fn e_step(ty: &[Point3], x: &[Point3], sigma2: f64, c: f64, radius: Option<f64>) -> EStep {
+impl CpdEStep {
+    /// The E-step for this iteration: `ty` the moved source (components), `x` the target.
+    fn kind(&self, ty: &[Point3], x: &[Point3], sigma2: f64) -> EStepKind {
+        let pairs = ty.len() * x.len();
+        match *self {
+            CpdEStep::Exact => EStepKind::Exact,
+            CpdEStep::Truncated { radius_sigmas } => EStepKind::Truncated(radius_sigmas),
+            CpdEStep::Auto { max_pairs } if pairs > max_pairs => EStepKind::Truncated(4.0),
+            CpdEStep::Auto { .. } => EStepKind::Exact,
+            CpdEStep::Fast { max_pairs, .. } if pairs <= max_pairs => EStepKind::Exact,
+            CpdEStep::Fast { max_neighbours, .. } => {
+                if mean_neighbours(ty, x, 4.0 * sigma2.sqrt()) > max_neighbours as f64 {
+                    EStepKind::Lattice
+                } else {
+                    EStepKind::Truncated(4.0)
+                }
+            }
+        }
+    }
+}
+
+/// Mean count of components within `radius` of an evenly spread sample of the observations
+/// (counted directly: at most `NEIGHBOUR_SAMPLE x M` distances).
+fn mean_neighbours(ty: &[Point3], x: &[Point3], radius: f64) -> f64 {
+    let step = x.len().div_ceil(NEIGHBOUR_SAMPLE).max(1);
+    let r2 = radius * radius;
+    let sample: Vec<&Point3> = x.iter().step_by(step).collect();
+    let total: usize = sample.iter().map(|xn| ty.iter().filter(|y| (*xn - *y).norm_squared() <= r2).count()).sum();
+    total as f64 / sample.len().max(1) as f64
+}
+
+/// One E-step of the given kind.
+fn e_step(ty: &[Point3], x: &[Point3], sigma2: f64, c: f64, kind: EStepKind) -> EStep {
+    match kind {
+        EStepKind::Exact => summed_e_step(ty, x, sigma2, c, None),
+        EStepKind::Truncated(r) => summed_e_step(ty, x, sigma2, c, Some(r * sigma2.sqrt())),
+        EStepKind::Lattice => lattice_e_step(ty, x, sigma2, c),
+    }
+}
+
+/// Coordinates divided by `s`, flattened (the lattice's positions).
+fn scaled(points: &[Point3], s: f64) -> Vec<f64> {
+    points.iter().flat_map(|p| [p.x / s, p.y / s, p.z / s]).collect()
+}
+
+/// The E-step's sums on two permutohedral lattices: the components splatted with weight 1 and
+/// sliced at the observations give each observation's normaliser `sum_m K(x_n, y_m)`; the
+/// observations splatted with `(1, x_n) / (normaliser + c)` and sliced at the components give
+/// `P 1` and `P X`. The lattice's blur is the Gaussian up to a constant factor; the factor is
+/// measured on a sample of observations against the exact sums (it matters only beside the
+/// outlier term `c`).
+fn lattice_e_step(ty: &[Point3], x: &[Point3], sigma2: f64, c: f64) -> EStep {
+    let s = sigma2.sqrt();
+    let (pos_y, pos_x) = (scaled(ty, s), scaled(x, s));
+    let mut raw = vec![0.0; x.len()];
+    Lattice::new(3, &pos_y, 1, &vec![1.0; ty.len()]).slice(&pos_x, &mut raw);
+    let scale = lattice_scale(ty, x, sigma2, &raw);
+    let den: Vec<f64> = raw.iter().map(|r| r / scale + c).collect();
+    let values: Vec<f64> = x
+        .iter()
+        .zip(&den)
+        .flat_map(|(xn, d)| {
+            let w = if *d > 0.0 && d.is_finite() { 1.0 / d } else { 0.0 };
+            [w, w * xn.x, w * xn.y, w * xn.z]
+        })
+        .collect();
+    let mut sums = vec![0.0; 4 * ty.len()];
+    Lattice::new(3, &pos_x, 4, &values).slice(&pos_y, &mut sums);
+    let pt1: Vec<f64> = raw.iter().zip(&den).map(|(r, d)| if *d > 0.0 { (r / scale) / d } else { 0.0 }).collect();
+    // Both passes sum the same posteriors, once per observation and once per component; the
+    // lattice's error makes the totals differ by a few percent, and the M-step's variance is a
+    // difference of sums taken each way: the component sums are rescaled to the observations'.
+    let total: f64 = pt1.iter().sum();
+    let lattice_total: f64 = sums.chunks_exact(4).map(|v| v[0].max(0.0)).sum();
+    let k = if lattice_total > 0.0 { total / lattice_total } else { 0.0 };
+    let (p1, px) = sums.chunks_exact(4).map(|v| (k * v[0].max(0.0), k * Vector3::new(v[1], v[2], v[3]))).unzip();
+    EStep { p1, pt1, px }
+}
+
+/// The lattice's response relative to the exact Gaussian sums: `sum raw / sum exact` over an
+/// evenly spread sample of observations (1 where the sample sees no mass).
+fn lattice_scale(ty: &[Point3], x: &[Point3], sigma2: f64, raw: &[f64]) -> f64 {
+    let step = x.len().div_ceil(NEIGHBOUR_SAMPLE).max(1);
+    let inv = -0.5 / sigma2;
+    let (mut lattice, mut exact) = (0.0, 0.0);
+    for n in (0..x.len()).step_by(step) {
+        lattice += raw[n];
+        exact += ty.iter().map(|y| ((x[n] - y).norm_squared() * inv).exp()).sum::<f64>();
+    }
+    if exact > 0.0 && lattice > 0.0 { lattice / exact } else { 1.0 }
+}
+
+/// The E-step by direct sums over every pair, or over the components within `radius` (k-d tree).
+fn summed_e_step(ty: &[Point3], x: &[Point3], sigma2: f64, c: f64, radius: Option<f64>) -> EStep {
     let m = ty.len();
     let index = radius.map(|_| KnnIndex::new(ty));
     let inv = -0.5 / sigma2;
@@ -245,17 +376,13 @@ impl Cpd {
         };
         let mut ty = moved(&rot, &trans, scale);
         let mut sigma2 = cfg.init_sigma2.unwrap_or_else(|| mean_pair_distance2(&ty, x) / 3.0);
-        let radius_sigmas = match cfg.e_step {
-            CpdEStep::Exact => None,
-            CpdEStep::Truncated { radius_sigmas } => Some(radius_sigmas),
-            CpdEStep::Auto { max_pairs } => (m * n > max_pairs).then_some(4.0),
-        };
         let (mut history, mut converged, mut iterations, mut warnings) = (vec![], false, 0, vec![]);
         for it in 0..cfg.max_iterations {
             // The paper's outlier term, in the data's own (metric) units, as the reference
             // implementations evaluate it.
             let c = outlier_term(sigma2, cfg.w, m, n);
-            let e = e_step(&ty, x, sigma2, c, radius_sigmas.map(|r| r * sigma2.sqrt()));
+            let kind = cfg.e_step.kind(&ty, x, sigma2);
+            let e = e_step(&ty, x, sigma2, c, kind);
             let np: f64 = e.p1.iter().sum();
             if np < 1e-9 {
                 warnings.push(RegistrationWarning::NothingExplained);
@@ -276,7 +403,12 @@ impl Cpd {
             trans = mu_x - scale * (rot * mu_y);
             let xx =
                 x.iter().zip(&e.pt1).map(|(q, w)| w * q.coords.norm_squared()).sum::<f64>() - np * mu_x.norm_squared();
-            let new_sigma2 = ((xx - scale * tr_ar) / (np * 3.0)).max(SIGMA2_FLOOR);
+            let mut new_sigma2 = ((xx - scale * tr_ar) / (np * 3.0)).max(SIGMA2_FLOOR);
+            if kind == EStepKind::Lattice {
+                // The variance is a difference of sums the lattice gets a few percent wrong: a
+                // lattice iteration may shrink it tenfold at most (CPD's steps are 2-3 fold).
+                new_sigma2 = new_sigma2.max(0.1 * sigma2);
+            }
             ty = moved(&rot, &trans, scale);
             let step = history.last().map_or(f64::INFINITY, |h: &IterationRecord| {
                 let now = Pose::from_parts(Translation3::from(trans), rot);

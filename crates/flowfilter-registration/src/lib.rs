@@ -20,7 +20,7 @@ mod registry;
 mod reprojection;
 mod warning;
 
-pub use cpd::{Cpd, CpdConfig, CpdEStep};
+pub use cpd::{Cpd, CpdConfig, CpdEStep, MIN_LATTICE_NEIGHBOURS};
 pub use error::RegistrationError;
 pub use evaluate::{RobustKernel, evaluate};
 pub use filterreg::{FilterReg, FilterRegConfig, FilterRegEStep, FilterRegVariant, SigmaSchedule};

@@ -85,3 +85,15 @@ fn runs_that_cannot_converge_report_it() {
         assert!(!r.converged, "{name}");
     }
 }
+
+/// A fast CPD E-step that would run the lattice near the point spacing is refused with the key
+/// and the rule.
+#[test]
+fn a_fast_cpd_e_step_below_its_neighbour_floor_is_refused() {
+    use flowfilter_registration::{Cpd, CpdConfig, CpdEStep, MIN_LATTICE_NEIGHBOURS};
+    let e_step = CpdEStep::Fast { max_pairs: 1, max_neighbours: MIN_LATTICE_NEIGHBOURS - 1 };
+    let e = Cpd::new(CpdConfig { e_step, ..Default::default() }).unwrap_err().to_string();
+    assert!(e.contains("e_step.max_neighbours") && e.contains("at least 100") && e.contains("99"), "{e}");
+    let e_step = CpdEStep::Fast { max_pairs: 1, max_neighbours: MIN_LATTICE_NEIGHBOURS };
+    assert!(Cpd::new(CpdConfig { e_step, ..Default::default() }).is_ok());
+}

@@ -5,8 +5,8 @@ mod common;
 use common::{bumpy_shape, corrupted, errors, random_transform};
 use flowfilter_geometry::{PointCloud, Pose};
 use flowfilter_registration::{
-    FilterReg, FilterRegConfig, FilterRegEStep, FilterRegVariant, Icp, IcpVariant, METHOD_NAMES, Registrar,
-    Registration, RegistrationConfig, RegistrationProblem, evaluate, registrar_by_name,
+    Cpd, CpdConfig, CpdEStep, FilterReg, FilterRegConfig, FilterRegEStep, FilterRegVariant, Icp, IcpVariant,
+    METHOD_NAMES, Registrar, Registration, RegistrationConfig, RegistrationProblem, evaluate, registrar_by_name,
 };
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -195,6 +195,30 @@ fn lattice_and_exact_e_steps_agree() {
     assert!(db.0 < 0.1, "exact E-step: {} deg", db.0);
     assert!(da.0 < 0.5, "lattice E-step: {} deg", da.0);
     assert!(errors(&a.transform, &b.transform).0 < 0.3);
+}
+
+/// CPD's fast E-step (the permutohedral lattice while sigma is large, then the truncated sums)
+/// against the exact E-step, without outliers and with outliers and the outlier term: the same
+/// pose within 0.01 deg and 0.1 mm, for any switching point.
+#[test]
+fn cpd_fast_e_step_reaches_the_exact_pose() {
+    let source = bumpy_shape(1200, 4);
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    let truth = random_transform(&mut rng, 25.0, 0.05);
+    for (w, outliers) in [(0.0, 0.0), (0.2, 0.1)] {
+        let problem = RegistrationProblem::new(source.clone(), corrupted(&source, &truth, 0.001, outliers, 4));
+        let run = |e_step| Cpd::new(CpdConfig { e_step, w, ..Default::default() }).unwrap().register(&problem).unwrap();
+        let exact = run(CpdEStep::Exact);
+        assert!(errors(&exact.transform, &truth).0 < 0.2, "w {w}: exact E-step off the truth");
+        // max_pairs 1: never exact; the lattice until fewer than `max_neighbours` components lie
+        // within 4 sigma of an observation.
+        for max_neighbours in [100, 300, 800] {
+            let fast = run(CpdEStep::Fast { max_pairs: 1, max_neighbours });
+            let (d, m) = errors(&fast.transform, &exact.transform);
+            println!("w {w}, lattice above {max_neighbours} neighbours: {d:.2e} deg, {m:.2e} m from exact CPD");
+            assert!(fast.converged && d < 0.01 && m < 1e-4, "w {w}, {max_neighbours}: {d} deg, {m} m");
+        }
+    }
 }
 
 #[test]
