@@ -171,6 +171,10 @@ struct EStep {
     pt1: Vec<f64>,
     /// `P X` per component.
     px: Vec<Vector3>,
+    /// `(sum_mn P_mn x_n, sum_mn P_mn |x_n|^2)` summed over the components, when the sums per
+    /// observation come from another approximation than `px` (the lattice: the M-step's
+    /// variance is a difference of these sums, and they must come from one pass).
+    observed: Option<(Vector3, f64)>,
 }
 
 impl CpdEStep {
@@ -231,25 +235,31 @@ fn lattice_e_step(ty: &[Point3], x: &[Point3], sigma2: f64, c: f64) -> EStep {
     Lattice::new(3, &pos_y, 1, &vec![1.0; ty.len()]).slice(&pos_x, &mut raw);
     let scale = lattice_scale(ty, x, sigma2, &raw);
     let den: Vec<f64> = raw.iter().map(|r| r / scale + c).collect();
+    // An observation no component reaches in the first pass has all its posterior on the
+    // outlier term: it must not reach the components in the second either (the two lattices
+    // hold different vertices, and its weight 1 / c would spread from its own).
     let values: Vec<f64> = x
         .iter()
-        .zip(&den)
-        .flat_map(|(xn, d)| {
-            let w = if *d > 0.0 && d.is_finite() { 1.0 / d } else { 0.0 };
-            [w, w * xn.x, w * xn.y, w * xn.z]
+        .zip(raw.iter().zip(&den))
+        .flat_map(|(xn, (r, d))| {
+            let w = if *r > 0.0 && *d > 0.0 && d.is_finite() { 1.0 / d } else { 0.0 };
+            [w, w * xn.x, w * xn.y, w * xn.z, w * xn.coords.norm_squared()]
         })
         .collect();
-    let mut sums = vec![0.0; 4 * ty.len()];
-    Lattice::new(3, &pos_x, 4, &values).slice(&pos_y, &mut sums);
+    let mut sums = vec![0.0; 5 * ty.len()];
+    Lattice::new(3, &pos_x, 5, &values).slice(&pos_y, &mut sums);
     let pt1: Vec<f64> = raw.iter().zip(&den).map(|(r, d)| if *d > 0.0 { (r / scale) / d } else { 0.0 }).collect();
     // Both passes sum the same posteriors, once per observation and once per component; the
     // lattice's error makes the totals differ by a few percent, and the M-step's variance is a
     // difference of sums taken each way: the component sums are rescaled to the observations'.
     let total: f64 = pt1.iter().sum();
-    let lattice_total: f64 = sums.chunks_exact(4).map(|v| v[0].max(0.0)).sum();
+    let lattice_total: f64 = sums.chunks_exact(5).map(|v| v[0].max(0.0)).sum();
     let k = if lattice_total > 0.0 { total / lattice_total } else { 0.0 };
-    let (p1, px) = sums.chunks_exact(4).map(|v| (k * v[0].max(0.0), k * Vector3::new(v[1], v[2], v[3]))).unzip();
-    EStep { p1, pt1, px }
+    let (p1, px): (Vec<f64>, Vec<Vector3>) =
+        sums.chunks_exact(5).map(|v| (k * v[0].max(0.0), k * Vector3::new(v[1], v[2], v[3]))).unzip();
+    let sx: Vector3 = px.iter().sum();
+    let sxx = k * sums.chunks_exact(5).map(|v| v[4].max(0.0)).sum::<f64>();
+    EStep { p1, pt1, px, observed: Some((sx, sxx)) }
 }
 
 /// The lattice's response relative to the exact Gaussian sums: `sum raw / sum exact` over an
@@ -315,7 +325,7 @@ fn summed_e_step(ty: &[Point3], x: &[Point3], sigma2: f64, c: f64, radius: Optio
         px.iter_mut().zip(&bx).for_each(|(a, b)| *a += b);
         pt1.extend(bt);
     }
-    EStep { p1, pt1, px }
+    EStep { p1, pt1, px, observed: None }
 }
 
 impl Registrar for Cpd {
@@ -388,7 +398,12 @@ impl Cpd {
                 warnings.push(RegistrationWarning::NothingExplained);
                 break;
             }
-            let mu_x = x.iter().zip(&e.pt1).fold(Vector3::zeros(), |a, (p, w)| a + *w * p.coords) / np;
+            let (sx, sxx) = e.observed.unwrap_or_else(|| {
+                x.iter().zip(&e.pt1).fold((Vector3::zeros(), 0.0), |(a, b), (p, w)| {
+                    (a + *w * p.coords, b + w * p.coords.norm_squared())
+                })
+            });
+            let mu_x = sx / np;
             let mu_y = y.iter().zip(&e.p1).fold(Vector3::zeros(), |a, (p, w)| a + *w * p.coords) / np;
             let a = y.iter().zip(&e.px).fold(Matrix3::zeros(), |acc, (q, pxm)| acc + pxm * q.coords.transpose())
                 - np * mu_x * mu_y.transpose();
@@ -401,8 +416,7 @@ impl Cpd {
             }
             rot = UnitQuaternion::from_rotation_matrix(&r);
             trans = mu_x - scale * (rot * mu_y);
-            let xx =
-                x.iter().zip(&e.pt1).map(|(q, w)| w * q.coords.norm_squared()).sum::<f64>() - np * mu_x.norm_squared();
+            let xx = sxx - np * mu_x.norm_squared();
             let mut new_sigma2 = ((xx - scale * tr_ar) / (np * 3.0)).max(SIGMA2_FLOOR);
             if kind == EStepKind::Lattice {
                 // The variance is a difference of sums the lattice gets a few percent wrong: a
