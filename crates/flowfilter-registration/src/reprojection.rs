@@ -405,6 +405,16 @@ mod tests {
         assert!(refine_by_reprojection(&c, &few, Pose::identity(), 20).is_none());
     }
 
+    /// The bounds' radius: 2.5 standard deviations for a known covariance, Hotelling's for one
+    /// estimated from few blocks (wider the fewer there are), approaching 2.5 with many.
+    #[test]
+    fn the_bound_radius_widens_for_a_covariance_from_few_blocks() {
+        assert_eq!(radius_quantile(0), 2.5);
+        assert!((radius_quantile(16) - 2.98).abs() < 0.01, "{}", radius_quantile(16));
+        assert!((radius_quantile(10) - 3.44).abs() < 0.01, "{}", radius_quantile(10));
+        assert!(radius_quantile(9) > radius_quantile(10) && radius_quantile(10_000) < 2.51);
+    }
+
     /// Pairs on a 10 cm object 0.8 m away after a small motion, the target image sheared as a
     /// rolling shutter shears it (each target ray shifted by 0.008 per unit of row: about 0.008 px
     /// per pixel row, 0.4 px across the object), plus a tenth of a pixel of tracking noise.
