@@ -70,9 +70,9 @@ fn real_ycb_video_frames_run_through_every_method() {
 /// Every pair of the real sample's five frames and four objects (40 pairs, true motions of
 /// 0.1-0.4 deg), Flow Filter against FilterReg: what docs/bop.md reports, held as a floor. Per
 /// frame gap Flow Filter's mean geodesic error is below FilterReg's, no pair is off by a degree,
-/// and its bounds hold on at least three pairs in four.
+/// and its bounds hold (rotation and translation together) on at least 90% of the pairs.
 #[test]
-fn real_frames_flow_filter_beats_filterreg_at_every_gap_and_its_bounds_mostly_hold() {
+fn real_frames_flow_filter_beats_filterreg_at_every_gap_and_its_bounds_hold_on_nine_in_ten() {
     let Some(dir) = sample() else { return };
     let camera = CameraFile::from_file(&dir.join("000001-gt.json")).unwrap();
     let pipeline = |method: &str| {
@@ -113,7 +113,7 @@ fn real_frames_flow_filter_beats_filterreg_at_every_gap_and_its_bounds_mostly_ho
     }
     println!("worst {worst:.3} deg; bounds hold on {held} of 40");
     assert!(worst < 1.0, "a real pair off by {worst:.2} deg");
-    assert!(held >= 30, "the bounds hold on {held} of 40 real pairs");
+    assert!(held >= 36, "the bounds hold on {held} of 40 real pairs");
 }
 
 #[test]
