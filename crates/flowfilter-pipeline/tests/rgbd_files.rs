@@ -25,10 +25,14 @@ fn files(dir: &Path, frame: u32, label: u16) -> FrameFiles {
     }
 }
 
+/// A frame's `-gt.json`.
+fn frame_gt(dir: &Path, frame: u32) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(dir.join(format!("{frame:06}-gt.json"))).unwrap()).unwrap()
+}
+
 /// `T_camera_from_object` of object `class_id` in a frame's `-gt.json`.
 fn object_pose(dir: &Path, frame: u32, class_id: u64) -> Pose {
-    let gt: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join(format!("{frame:06}-gt.json"))).unwrap()).unwrap();
+    let gt = frame_gt(dir, frame);
     let object = gt["objects"].as_array().unwrap().iter().find(|o| o["class_id"] == class_id).unwrap();
     let m: Vec<f64> = (0..4)
         .flat_map(|r| (0..4).map(move |c| (r, c)))
@@ -81,10 +85,12 @@ fn real_frames_flow_filter_beats_filterreg_at_every_gap_and_its_bounds_hold_on_n
     let (flow_filter, filterreg) = (pipeline("flowfilter"), pipeline("filterreg-pt2pt"));
     // Sum of errors per gap (Flow Filter, FilterReg), pairs per gap, bounds that hold, worst.
     let (mut sums, mut counts, mut held, mut worst) = ([[0.0; 2]; 5], [0usize; 5], 0usize, 0.0f64);
-    let gt: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("000001-gt.json")).unwrap()).unwrap();
-    let labels: Vec<u16> =
-        gt["objects"].as_array().unwrap().iter().map(|o| o["class_id"].as_u64().unwrap() as u16).collect();
+    let labels: Vec<u16> = frame_gt(&dir, 1)["objects"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|o| o["class_id"].as_u64().unwrap() as u16)
+        .collect();
     assert_eq!(labels.len(), 4, "the sample's four objects");
     for &label in &labels {
         let frames: Vec<_> =

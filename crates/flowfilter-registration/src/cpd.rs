@@ -47,7 +47,7 @@ pub enum CpdEStep {
 }
 
 /// How one iteration's E-step runs (see [`CpdEStep`]).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy)]
 enum EStepKind {
     Exact,
     Truncated(f64),
@@ -391,8 +391,7 @@ impl Cpd {
             // The paper's outlier term, in the data's own (metric) units, as the reference
             // implementations evaluate it.
             let c = outlier_term(sigma2, cfg.w, m, n);
-            let kind = cfg.e_step.kind(&ty, x, sigma2);
-            let e = e_step(&ty, x, sigma2, c, kind);
+            let e = e_step(&ty, x, sigma2, c, cfg.e_step.kind(&ty, x, sigma2));
             let np: f64 = e.p1.iter().sum();
             if np < 1e-9 {
                 warnings.push(RegistrationWarning::NothingExplained);
@@ -417,12 +416,7 @@ impl Cpd {
             rot = UnitQuaternion::from_rotation_matrix(&r);
             trans = mu_x - scale * (rot * mu_y);
             let xx = sxx - np * mu_x.norm_squared();
-            let mut new_sigma2 = ((xx - scale * tr_ar) / (np * 3.0)).max(SIGMA2_FLOOR);
-            if kind == EStepKind::Lattice {
-                // The variance is a difference of sums the lattice gets a few percent wrong: a
-                // lattice iteration may shrink it tenfold at most (CPD's steps are 2-3 fold).
-                new_sigma2 = new_sigma2.max(0.1 * sigma2);
-            }
+            let new_sigma2 = ((xx - scale * tr_ar) / (np * 3.0)).max(SIGMA2_FLOOR);
             ty = moved(&rot, &trans, scale);
             let step = history.last().map_or(f64::INFINITY, |h: &IterationRecord| {
                 let now = Pose::from_parts(Translation3::from(trans), rot);

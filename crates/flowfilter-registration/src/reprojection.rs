@@ -216,6 +216,55 @@ struct Normal {
     count: usize,
 }
 
+/// Side of the grid of blocks that [`Blocks`] groups the pairs into: blocks a quarter of the
+/// object across hold what neighbouring pairs share, and up to sixteen of them are enough for
+/// eight unknowns.
+const BLOCKS_PER_SIDE: f64 = 4.0;
+
+/// The pairs' gradients `w J^T r` summed per block: the cells of a 4 x 4 grid over the source
+/// rays' extent (see [`Blocks::covariance`]).
+struct Blocks {
+    lo: Vector2<f64>,
+    cell: f64,
+    sums: BTreeMap<(i64, i64), SVector<f64, 8>>,
+}
+
+impl Blocks {
+    /// An empty grid over the `usable` pairs' source rays.
+    fn new(c: &Correspondences, usable: &[usize]) -> Self {
+        let rays: Vec<Vector2<f64>> = usable.iter().filter_map(|&i| ray(&c.source[i])).collect();
+        let lo = rays.iter().fold(Vector2::repeat(f64::INFINITY), |a, r| a.inf(r));
+        let hi = rays.iter().fold(Vector2::repeat(f64::NEG_INFINITY), |a, r| a.sup(r));
+        Self { lo, cell: ((hi - lo).max() / BLOCKS_PER_SIDE).max(1e-12), sums: BTreeMap::new() }
+    }
+
+    /// The block gradient of the pair whose source point is `p` (`None` behind the camera).
+    fn at(&mut self, p: &Point3) -> Option<&mut SVector<f64, 8>> {
+        let r = ray(p)?;
+        let key = (((r.x - self.lo.x) / self.cell) as i64, ((r.y - self.lo.y) / self.cell) as i64);
+        Some(self.sums.entry(key).or_default())
+    }
+
+    /// The state's covariance from the blocks (cluster-robust): `H^-1 (sum_b g_b g_b^T) H^-1`
+    /// times `B / (B - 1)`. An error that neighbouring pairs share (a texture tracked with a
+    /// bias, a depth edge, a shutter's shear not quite linear) adds up within a block instead of
+    /// averaging out as independent noise would. With the number of blocks; `None` with no more
+    /// blocks than unknowns.
+    fn covariance(mut self, h_inv: &SMatrix<f64, 8, 8>, unknowns: usize) -> Option<(SMatrix<f64, 8, 8>, usize)> {
+        if self.sums.len() <= unknowns {
+            return None;
+        }
+        let mut meat = SMatrix::<f64, 8, 8>::zeros();
+        for g in self.sums.values_mut() {
+            // A fixed shear has no gradient.
+            g.rows_mut(unknowns, 8 - unknowns).fill(0.0);
+            meat += *g * g.transpose();
+        }
+        let b = self.sums.len() as f64;
+        Some((h_inv * meat * h_inv * (b / (b - 1.0)), self.sums.len()))
+    }
+}
+
 /// The Huber weight of a term of residual norm `norm` from a pair of weight `w`.
 fn robust_weight(w: f64, norm: f64, delta: f64) -> f64 {
     w * if norm <= delta { 1.0 } else { delta / norm }
@@ -241,16 +290,28 @@ impl Model {
 /// The Gauss-Newton system at `st` over the `usable` pairs. With [`Shutter::Rolling`] the
 /// shear's prior (zero, `shear_sd`) is one more term, weighted against the pairs by their
 /// residual variance at `st`; with [`Shutter::Global`] the shear's rows
-/// and columns are those of a fixed unknown (identity, zero gradient).
-fn normal_equations(c: &Correspondences, usable: &[usize], st: &State, model: &Model) -> Normal {
+/// and columns are those of a fixed unknown (identity, zero gradient). With `blocks`, each
+/// pair's gradient is also added to its block's.
+fn normal_equations(
+    c: &Correspondences,
+    usable: &[usize],
+    st: &State,
+    model: &Model,
+    mut blocks: Option<&mut Blocks>,
+) -> Normal {
     let mut n = Normal { h: SMatrix::zeros(), g: SVector::zeros(), sum: 0.0, count: 0 };
     for &i in usable {
+        let mut block = blocks.as_deref_mut().and_then(|b| b.at(&c.source[i]));
         for (r, j) in st.terms(&c.source[i], &c.target[i]) {
             let w = robust_weight(c.weights[i], r.norm(), model.delta);
+            let gradient = w * j.transpose() * r;
             n.h += w * j.transpose() * j;
-            n.g += w * j.transpose() * r;
+            n.g += gradient;
             n.sum += w * r.norm_squared();
             n.count += 3;
+            if let Some(b) = block.as_deref_mut() {
+                *b += gradient;
+            }
         }
     }
     match model.shutter {
@@ -272,50 +333,6 @@ fn normal_equations(c: &Correspondences, usable: &[usize], st: &State, model: &M
         }
     }
     n
-}
-
-/// Side of the grid of blocks that [`block_covariance`] groups the pairs into: blocks a quarter
-/// of the object across hold what neighbouring pairs share, and up to sixteen of them are enough
-/// for eight unknowns.
-const BLOCKS_PER_SIDE: f64 = 4.0;
-
-/// The state's covariance from blocks of pairs (cluster-robust): `H^-1 (sum_b g_b g_b^T) H^-1`
-/// times `B / (B - 1)`, where `g_b` sums the weighted gradients `w J^T r` of the pairs in block `b`
-/// (the cells of a 4 x 4 grid over the source rays' extent). An error that neighbouring pairs
-/// share (a texture tracked with a bias, a depth edge, a shutter's shear not quite linear) adds
-/// up within a block instead of averaging out as independent noise would. With the number of
-/// blocks; `None` with no more blocks than unknowns.
-fn block_covariance(
-    c: &Correspondences,
-    usable: &[usize],
-    st: &State,
-    delta: f64,
-    h_inv: &SMatrix<f64, 8, 8>,
-    unknowns: usize,
-) -> Option<(SMatrix<f64, 8, 8>, usize)> {
-    let rays: Vec<Vector2<f64>> = usable.iter().filter_map(|&i| ray(&c.source[i])).collect();
-    let lo = rays.iter().fold(Vector2::repeat(f64::INFINITY), |a, r| a.inf(r));
-    let hi = rays.iter().fold(Vector2::repeat(f64::NEG_INFINITY), |a, r| a.sup(r));
-    let cell = ((hi - lo).max() / BLOCKS_PER_SIDE).max(1e-12);
-    let mut blocks: BTreeMap<(i64, i64), SVector<f64, 8>> = BTreeMap::new();
-    for &i in usable {
-        let Some(r) = ray(&c.source[i]) else { continue };
-        let block = blocks.entry((((r.x - lo.x) / cell) as i64, ((r.y - lo.y) / cell) as i64)).or_default();
-        for (res, j) in st.terms(&c.source[i], &c.target[i]) {
-            *block += robust_weight(c.weights[i], res.norm(), delta) * j.transpose() * res;
-        }
-    }
-    if blocks.len() <= unknowns {
-        return None;
-    }
-    let mut meat = SMatrix::<f64, 8, 8>::zeros();
-    for g in blocks.values_mut() {
-        // A fixed shear has no gradient.
-        g.rows_mut(unknowns, 8 - unknowns).fill(0.0);
-        meat += *g * g.transpose();
-    }
-    let b = blocks.len() as f64;
-    Some((h_inv * meat * h_inv * (b / (b - 1.0)), blocks.len()))
 }
 
 /// [`refine_by_reprojection_with`] for a global shutter (the pose alone).
@@ -350,7 +367,7 @@ pub fn refine_by_reprojection_with(
     let delta = (1.345 * sigma).max(1e-9);
     let model = Model { shutter, delta };
     for _ in 0..iterations {
-        let n = normal_equations(c, &usable, &st, &model);
+        let n = normal_equations(c, &usable, &st, &model, None);
         let step = -n.h.cholesky()?.solve(&n.g);
         if !step.iter().all(|v| v.is_finite()) {
             return None;
@@ -361,10 +378,11 @@ pub fn refine_by_reprojection_with(
             break;
         }
     }
-    let n = normal_equations(c, &usable, &st, &model);
+    let mut blocks = Blocks::new(c, &usable);
+    let n = normal_equations(c, &usable, &st, &model, Some(&mut blocks));
     let h_inv = n.h.cholesky()?.inverse();
     let unknowns = model.unknowns();
-    let (full, blocks) = block_covariance(c, &usable, &st, delta, &h_inv, unknowns).unwrap_or_else(|| {
+    let (full, blocks) = blocks.covariance(&h_inv, unknowns).unwrap_or_else(|| {
         let s2 = n.sum / (n.count.saturating_sub(unknowns).max(1)) as f64;
         (h_inv * s2, 0)
     });

@@ -105,11 +105,10 @@ impl FrameDraw {
             return;
         }
         let (w, h) = (img.width(), img.height());
-        let middle = (f64::from(h) - 1.0) / 2.0;
+        let (middle, last) = ((f64::from(h) - 1.0) / 2.0, f64::from(w - 1));
         for y in 0..h {
             let shift = s * (f64::from(y) - middle);
             let row: Vec<[u8; 3]> = (0..w).map(|x| img.get_pixel(x, y).0).collect();
-            let last = f64::from(w - 1);
             for x in 0..w {
                 let from = (f64::from(x) - shift).clamp(0.0, last);
                 let (i, t) = (from.floor() as usize, from.fract());
