@@ -9,7 +9,8 @@
 //! calls [`Anderson::reset`] when the residual grows), as in Zhang et al., "Fast and Robust
 //! Iterative Closest Point" (TPAMI 2021).
 
-use nalgebra::{DMatrix, DVector};
+use flowfilter_geometry::{Point3, Pose, Vector3};
+use nalgebra::{DMatrix, DVector, Translation3, UnitQuaternion};
 use std::collections::VecDeque;
 
 /// Relative Tikhonov term of the small least-squares problem (keeps nearly collinear residual
@@ -69,6 +70,105 @@ impl Anderson {
             }
             None => last_g,
         }
+    }
+}
+
+/// Coordinates of an EM registration's state for Anderson mixing: the rotation vector of
+/// `pose` relative to `reference`, the displacement of the source centroid relative to where
+/// `reference` puts it (in units of the cloud's radius, so both parts weigh alike) and, when
+/// sigma is an EM variable, `ln sigma^2`.
+#[derive(Debug, Clone)]
+struct EmCoordinates {
+    reference: Pose,
+    centre: Point3,
+    radius: f64,
+    with_sigma: bool,
+}
+
+impl EmCoordinates {
+    fn encode(&self, pose: &Pose, sigma2: f64) -> DVector<f64> {
+        let w = (pose.rotation * self.reference.rotation.inverse()).scaled_axis();
+        let p = (pose * self.centre - self.reference * self.centre) / self.radius;
+        let mut z = vec![w.x, w.y, w.z, p.x, p.y, p.z];
+        if self.with_sigma {
+            z.push(sigma2.ln());
+        }
+        DVector::from_vec(z)
+    }
+
+    /// The pose and (when mixed) sigma^2 of `z`.
+    fn decode(&self, z: &DVector<f64>) -> (Pose, Option<f64>) {
+        let r = UnitQuaternion::from_scaled_axis(Vector3::new(z[0], z[1], z[2])) * self.reference.rotation;
+        let c = self.reference * self.centre + Vector3::new(z[3], z[4], z[5]) * self.radius;
+        let pose = Pose::from_parts(Translation3::from(c - r * self.centre), r);
+        (pose, self.with_sigma.then(|| z[6].exp()))
+    }
+}
+
+/// Mixed poses rotating more than this (rad) from the reference start a new history.
+const MAX_MIXING_ANGLE: f64 = 1.0;
+
+/// Anderson mixing of an EM registration's map `(pose, sigma^2) -> (pose', sigma'^2)`, with
+/// the safeguard: when a mixed iterate's fixed-point residual grew, its plain step is taken
+/// instead and the history restarts there.
+#[derive(Debug, Clone)]
+pub(crate) struct PoseMixing {
+    anderson: Anderson,
+    coords: EmCoordinates,
+    /// The fixed-point residual of the last recorded step (None: the history is empty).
+    previous_residual: Option<f64>,
+    /// Whether the current iterate is a mixed one.
+    mixed: bool,
+}
+
+impl PoseMixing {
+    /// Mixing over the last `depth` steps, starting from `reference`; `centre` and `radius`:
+    /// the source's centroid and RMS radius; `with_sigma`: whether sigma^2 is mixed too.
+    pub(crate) fn new(depth: usize, reference: Pose, centre: Point3, radius: f64, with_sigma: bool) -> Self {
+        Self {
+            anderson: Anderson::new(depth),
+            coords: EmCoordinates { reference, centre, radius, with_sigma },
+            previous_residual: None,
+            mixed: false,
+        }
+    }
+
+    /// Start a fresh history at the next step (the map changed: another subset, a new phase).
+    pub(crate) fn restart(&mut self) {
+        self.previous_residual = None;
+        self.mixed = false;
+    }
+
+    /// The next iterate from the current one `(t, sigma2)` and its plain EM step
+    /// `(g, new_sigma2)`; a mixed sigma^2 keeps the plain step's bounds (at most halved, at
+    /// least `min_sigma2`, at most doubled).
+    pub(crate) fn step(&mut self, t: Pose, sigma2: f64, g: Pose, new_sigma2: f64, min_sigma2: f64) -> (Pose, f64) {
+        // A fresh history wherever the last residual is unknown: at the start, after the
+        // safeguard below, and after a restart.
+        if self.previous_residual.is_none() {
+            self.anderson.reset();
+            self.coords.reference = t;
+        }
+        let z = self.coords.encode(&t, sigma2);
+        let gz = self.coords.encode(&g, new_sigma2);
+        let residual = (&gz - &z).norm();
+        if let Some(previous) = self.previous_residual
+            && self.mixed
+            && residual > previous
+        {
+            self.restart();
+            return (g, new_sigma2);
+        }
+        self.previous_residual = Some(residual);
+        let next = self.anderson.step(&z, gz);
+        let (pose, s2) = self.coords.decode(&next);
+        let s2 = s2.map_or(new_sigma2, |v| v.clamp((0.5 * sigma2).max(min_sigma2), 2.0 * sigma2));
+        self.mixed = pose != g || s2 != new_sigma2;
+        if (pose.rotation * self.coords.reference.rotation.inverse()).angle() > MAX_MIXING_ANGLE {
+            self.anderson.reset();
+            self.coords.reference = pose;
+        }
+        (pose, s2)
     }
 }
 

@@ -20,7 +20,6 @@ use crate::lattice::Lattice;
 use crate::problem::{Correspondences, Registrar, Registration, RegistrationProblem, in_pool};
 use flowfilter_geometry::{KnnIndex, Point3, Pose, RadiusGrid, Vector3, fastmath, weighted_kabsch};
 use flowfilter_geometry::{ParamError, params};
-use nalgebra::{DVector, Translation3, UnitQuaternion};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::sync::OnceLock;
@@ -543,17 +542,6 @@ fn m_step(
     }
 }
 
-/// Coordinates of the EM state for Anderson mixing: the rotation vector of `pose` relative to
-/// `reference`, the displacement of the source centroid relative to where `reference` puts it
-/// (in units of the cloud's radius, so both parts weigh alike) and, when sigma is an EM variable,
-/// `ln sigma^2`.
-struct EmCoordinates {
-    reference: Pose,
-    centre: Point3,
-    radius: f64,
-    with_sigma: bool,
-}
-
 /// [`FilterRegConfig::surface_sigma`] applies once an iteration moves the source (its centroid,
 /// plus the rotation's sweep at its RMS radius) by less than this fraction of sigma.
 const SURFACE_SIGMA_SETTLED: f64 = 0.1;
@@ -564,29 +552,6 @@ const SUBSET_SETTLED: f64 = 0.01;
 
 /// Mixing starts once an EM step changes sigma^2 by less than this fraction.
 const MIXING_SIGMA_CHANGE: f64 = 0.05;
-
-/// Mixed poses rotating more than this (rad) from the reference start a new history.
-const MAX_MIXING_ANGLE: f64 = 1.0;
-
-impl EmCoordinates {
-    fn encode(&self, pose: &Pose, sigma2: f64) -> DVector<f64> {
-        let w = (pose.rotation * self.reference.rotation.inverse()).scaled_axis();
-        let p = (pose * self.centre - self.reference * self.centre) / self.radius;
-        let mut z = vec![w.x, w.y, w.z, p.x, p.y, p.z];
-        if self.with_sigma {
-            z.push(sigma2.ln());
-        }
-        DVector::from_vec(z)
-    }
-
-    /// The pose and (when mixed) sigma^2 of `z`.
-    fn decode(&self, z: &DVector<f64>) -> (Pose, Option<f64>) {
-        let r = UnitQuaternion::from_scaled_axis(Vector3::new(z[0], z[1], z[2])) * self.reference.rotation;
-        let c = self.reference * self.centre + Vector3::new(z[3], z[4], z[5]) * self.radius;
-        let pose = Pose::from_parts(Translation3::from(c - r * self.centre), r);
-        (pose, self.with_sigma.then(|| z[6].exp()))
-    }
-}
 
 impl Registrar for FilterReg {
     fn name(&self) -> &str {

@@ -84,6 +84,7 @@ fn register_accepts_the_shipped_configs() {
         ("icp.toml", "icp-pt2pl"),
         ("filterreg.toml", "filterreg-pt2pt"),
         ("cpd.toml", "cpd"),
+        ("cpd-full-cloud.toml", "cpd"),
         ("flowfilter.toml", "flowfilter"),
     ] {
         let path = root.join("configs").join(config);

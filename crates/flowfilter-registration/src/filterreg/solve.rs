@@ -3,12 +3,12 @@
 //! Anderson-mixed step, and the final evaluation.
 
 use super::{
-    AUTO_NEIGHBOURS, EmCoordinates, ExactEStep, FilterReg, FilterRegConfig, FilterRegEStep, FilterRegVariant,
-    MAX_MIXING_ANGLE, MERGED_MIN_POINTS, MIXING_SIGMA_CHANGE, SUBSET_SETTLED, SURFACE_SIGMA_SETTLED, SigmaSchedule,
-    Sums, lattice_sums, m_step, permuted, target_values,
+    AUTO_NEIGHBOURS, ExactEStep, FilterReg, FilterRegConfig, FilterRegEStep, FilterRegVariant, MERGED_MIN_POINTS,
+    MIXING_SIGMA_CHANGE, SUBSET_SETTLED, SURFACE_SIGMA_SETTLED, SigmaSchedule, Sums, lattice_sums, m_step, permuted,
+    target_values,
 };
 use crate::aggregate::Pyramid;
-use crate::anderson::Anderson;
+use crate::anderson::PoseMixing;
 use crate::error::RegistrationError;
 use crate::evaluate::{evaluate, evaluate_by};
 use crate::gmm::mean_pair_distance2;
@@ -143,11 +143,8 @@ struct EmState {
     /// iterations visit every point.
     subset: Option<(Vec<Point3>, Vec<f64>)>,
     /// Anderson mixing of the EM map (pose, sigma^2) -> (pose', sigma'^2).
-    mixing: Option<(Anderson, EmCoordinates)>,
-    /// The fixed-point residual of the last recorded step (None: the history is empty).
-    previous_residual: Option<f64>,
-    /// Whether the current iterate is a mixed one; whether mixing has started.
-    mixed: bool,
+    mixing: Option<PoseMixing>,
+    /// Whether mixing has started.
     started: bool,
 }
 
@@ -160,8 +157,7 @@ impl EmState {
         });
         let mixing = (cfg.anderson_depth > 0).then(|| {
             let with_sigma = matches!(cfg.sigma, SigmaSchedule::Update { .. });
-            let coords = EmCoordinates { reference: t, centre: prep.centre, radius: prep.radius, with_sigma };
-            (Anderson::new(cfg.anderson_depth), coords)
+            PoseMixing::new(cfg.anderson_depth, t, prep.centre, prep.radius, with_sigma)
         });
         let source = &prep.source;
         let subset = (cfg.settling_points > 0 && source.len() > 2 * cfg.settling_points).then(|| {
@@ -180,8 +176,6 @@ impl EmState {
             exact_phase: false,
             subset,
             mixing,
-            previous_residual: None,
-            mixed: false,
             started: false,
         }
     }
@@ -227,8 +221,10 @@ impl EmState {
             && (new_sigma2 - sigma2).abs() <= SUBSET_SETTLED * sigma2
         {
             self.subset = None;
-            self.previous_residual = None;
-            (self.t, self.sigma2, self.mixed) = (g, new_sigma2, false);
+            if let Some(mixing) = self.mixing.as_mut() {
+                mixing.restart();
+            }
+            (self.t, self.sigma2) = (g, new_sigma2);
             return false;
         }
         if small && sigma_settled {
@@ -243,44 +239,9 @@ impl EmState {
             (self.t, self.sigma2) = (g, new_sigma2);
             return false;
         }
-        self.mixed_step(g, new_sigma2, min_sigma);
+        let mixing = self.mixing.as_mut().expect("mixing is on");
+        (self.t, self.sigma2) = mixing.step(self.t, self.sigma2, g, new_sigma2, min_sigma * min_sigma);
         false
-    }
-
-    /// The Anderson-mixed iterate from the plain step `(g, new_sigma2)`.
-    fn mixed_step(&mut self, g: Pose, new_sigma2: f64, min_sigma: f64) {
-        let (t, sigma2) = (self.t, self.sigma2);
-        let (anderson, coords) = self.mixing.as_mut().expect("mixing is on");
-        // A fresh history wherever the last residual is unknown: at the start, after the
-        // safeguard below, and once the iterations move from the subset to every point.
-        if self.previous_residual.is_none() {
-            anderson.reset();
-            coords.reference = t;
-        }
-        let z = coords.encode(&t, sigma2);
-        let gz = coords.encode(&g, new_sigma2);
-        let residual = (&gz - &z).norm();
-        // Safeguard: when a mixed iterate's residual grew, its plain step is taken instead
-        // and the history restarts there.
-        if let Some(previous) = self.previous_residual
-            && self.mixed
-            && residual > previous
-        {
-            self.previous_residual = None;
-            (self.t, self.sigma2, self.mixed) = (g, new_sigma2, false);
-            return;
-        }
-        self.previous_residual = Some(residual);
-        let next = anderson.step(&z, gz);
-        let (pose, s2) = coords.decode(&next);
-        // Sigma^2 keeps the plain step's bounds (at most halved, floored).
-        let s2 = s2.map_or(new_sigma2, |v| v.clamp((0.5 * sigma2).max(min_sigma * min_sigma), 2.0 * sigma2));
-        self.mixed = pose != g || s2 != new_sigma2;
-        (self.t, self.sigma2) = (pose, s2);
-        if (self.t.rotation * coords.reference.rotation.inverse()).angle() > MAX_MIXING_ANGLE {
-            anderson.reset();
-            coords.reference = self.t;
-        }
     }
 }
 
