@@ -521,8 +521,7 @@ impl ComponentSearch<'_> {
         grid: Option<&RadiusGrid>,
         q: &Point3,
         motion: &Motion,
-        radius: f64,
-        inv: f64,
+        (radius, inv): (f64, f64),
         found: &mut Vec<Neighbour>,
         terms: &mut Vec<(u32, f64)>,
     ) {
@@ -565,7 +564,7 @@ fn truncated_e_step(
     let grid = RadiusGrid::new(hoods.y, GRID_MARGIN * radius / motion.scale);
     let accumulate = if neighbours * E_STEP_CHUNK as f64 > m as f64 { Accumulate::Dense } else { Accumulate::Sparse };
     summed_e_step(x, &hoods.x_order, m, c, accumulate, |n, found, terms| {
-        hoods.terms(grid.as_ref(), &motion.unmove(&x[n]), motion, radius, inv, found, terms);
+        hoods.terms(grid.as_ref(), &motion.unmove(&x[n]), motion, (radius, inv), found, terms);
     })
 }
 
