@@ -104,7 +104,7 @@ impl Protocol {
             .collect()
     }
 
-    fn angles(&self) -> Vec<u32> {
+    pub(crate) fn angles(&self) -> Vec<u32> {
         let mut set = BTreeSet::new();
         for &b in &self.base_angles {
             set.insert(b);

@@ -7,6 +7,8 @@
 //!   object visible in both), on a BOP dataset (`--data DIR`) or the embedded synthetic scenes.
 //! - `bench-merge`: the shards of a sharded benchmark run (`--shard K/N`, one process each,
 //!   launched by any scheduler: `deploy/`) merged into one run's outputs.
+//! - `bench-speed`: ours against the peers on the same inputs with 1 and 2 threads, and the
+//!   pipeline's pairs per second.
 //! - `publish-check`: every library crate packages and builds from its package; a scratch
 //!   crate outside the workspace depends on `flowfilter-registration` and runs its README
 //!   example.
@@ -23,6 +25,7 @@ mod publish_check;
 mod report;
 mod sequence;
 mod shard;
+mod speed;
 
 use clap::{Parser, Subcommand};
 use std::path::{Path, PathBuf};
@@ -45,6 +48,9 @@ enum Command {
     /// Merge the shards of a sharded benchmark run (`--shard K/N`) into the outputs one
     /// process would have written.
     BenchMerge(merge::MergeArgs),
+    /// Time ours against the peers (probreg, Open3D, OpenCV) on the same inputs with 1 and 2
+    /// threads, and the pipeline's pairs per second for each method.
+    BenchSpeed(speed::SpeedArgs),
     /// Check that every library crate packages and builds on its own, and that a crate outside
     /// the workspace can depend on one and run its README example.
     PublishCheck(publish_check::PublishCheckArgs),
@@ -72,6 +78,7 @@ fn main() -> ExitCode {
         Command::BenchBigbird(args) => bench::run(&args),
         Command::BenchBop(args) => bench_bop::run(&args),
         Command::BenchMerge(args) => merge::run(&args),
+        Command::BenchSpeed(args) => speed::run(&args),
         Command::PublishCheck(args) => publish_check::run(&args),
         Command::Mutate(args) => mutate::run(&args),
     };

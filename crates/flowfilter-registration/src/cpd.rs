@@ -2,6 +2,8 @@
 //! Drift", PAMI 2010): the source is a Gaussian mixture whose centroids move rigidly (with
 //! optional scale) to explain the target; sigma^2 is updated in closed form.
 
+mod component_lists;
+
 use crate::anderson::PoseMixing;
 use crate::error::RegistrationError;
 use crate::evaluate::evaluate;
@@ -9,9 +11,8 @@ use crate::gmm::{mean_pair_distance2, outlier_term};
 use crate::lattice::Lattice;
 use crate::problem::{IterationRecord, Registrar, Registration, RegistrationProblem, in_pool, validate_problem};
 use crate::warning::RegistrationWarning;
-use flowfilter_geometry::{
-    KnnIndex, Neighbour, Point3, PointCloud, Pose, RadiusGrid, Vector3, fastmath, nearest_rotation, spatial_order,
-};
+use component_lists::{ComponentLists, LIST_MARGIN};
+use flowfilter_geometry::{KnnIndex, Point3, PointCloud, Pose, Vector3, fastmath, nearest_rotation, spatial_order};
 use flowfilter_geometry::{ParamError, params};
 use nalgebra::{Matrix3, Translation3, UnitQuaternion};
 use rayon::prelude::*;
@@ -262,6 +263,7 @@ impl<'a> Mixture<'a> {
                     y: self.y,
                     tree: KnnIndex::new(self.y),
                     x_order: spatial_order(self.x),
+                    lists: std::sync::Mutex::new(None),
                 });
                 let radius = r * sigma2.sqrt();
                 truncated_e_step(hoods, motion, self.x, sigma2, c, radius, mean_neighbours(ty, self.x, radius))
@@ -333,7 +335,7 @@ fn lattice_scale(ty: &[Point3], x: &[Point3], sigma2: f64, raw: &[f64]) -> f64 {
 fn exact_e_step(ty: &[Point3], x: &[Point3], sigma2: f64, c: f64) -> EStep {
     let inv = -0.5 / sigma2;
     let order: Vec<u32> = (0..x.len() as u32).collect();
-    summed_e_step(x, &order, ty.len(), c, Accumulate::Dense, |n, _, terms| {
+    summed_e_step(x, &order, ty.len(), c, Accumulate::Dense, |n, terms| {
         let xn = &x[n];
         terms.extend(ty.iter().enumerate().map(|(k, y)| (k as u32, (xn - y).norm_squared() * inv)));
     })
@@ -350,9 +352,8 @@ enum Accumulate {
     Sparse,
 }
 
-/// The E-step's sums from each observation's log-kernel terms (`terms_of(n, scratch, terms)`
-/// appends observation `n`'s `(component, -d^2 / 2 sigma^2)`, with a scratch buffer for its
-/// search), visiting the observations in `order`.
+/// The E-step's sums from each observation's log-kernel terms (`terms_of(n, terms)` appends
+/// observation `n`'s `(component, -d^2 / 2 sigma^2)`), visiting the observations in `order`.
 /// Fixed chunks of observations are summed sequentially, a batch of chunks in parallel, and
 /// the chunks' sums are then added in chunk order: the same bits whatever the thread count or
 /// scheduling (rayon's adaptive fold/reduce would group the additions differently from run to
@@ -363,7 +364,7 @@ fn summed_e_step(
     m: usize,
     c: f64,
     accumulate: Accumulate,
-    terms_of: impl Fn(usize, &mut Vec<Neighbour>, &mut Vec<(u32, f64)>) + Sync,
+    terms_of: impl Fn(usize, &mut Vec<(u32, f64)>) + Sync,
 ) -> EStep {
     let (mut p1, mut px, mut pt1) = (vec![0.0; m], vec![Vector3::zeros(); m], vec![0.0; x.len()]);
     for batch in order.chunks(E_STEP_BATCH) {
@@ -371,13 +372,13 @@ fn summed_e_step(
             .par_chunks(E_STEP_CHUNK)
             .map(|chunk| {
                 let mut sums = ChunkSums::new(accumulate, m, chunk.len());
-                let (mut terms, mut scratch) = (Vec::new(), Vec::new());
+                let mut terms = Vec::new();
                 for &n in chunk {
                     let start = if accumulate == Accumulate::Dense { 0 } else { terms.len() };
                     if accumulate == Accumulate::Dense {
                         terms.clear();
                     }
-                    terms_of(n as usize, &mut scratch, &mut terms);
+                    terms_of(n as usize, &mut terms);
                     let row = posteriors(&mut terms[start..], c);
                     sums.observation(n, row, &terms[start..], &x[n as usize]);
                 }
@@ -468,11 +469,17 @@ fn posteriors(terms: &mut [(u32, f64)], c: f64) -> f64 {
     }
     // Clamped at e^-700 (branch-free, so the loops vectorise): subnormal results cost a hundred
     // times more, and a term that small is nothing against the largest.
-    let relative = |v: f64| fastmath::exp((v - top).max(NEGLIGIBLE_LOG));
-    let log_den = top + (terms.iter().map(|t| relative(t.1)).sum::<f64>() + (log_c - top).exp()).ln();
+    // One exponential per term: each term relative to the largest, then divided by their sum
+    // (with the outlier term's share), which is at least 1.
+    let mut den = (log_c - top).exp();
+    for t in terms.iter_mut() {
+        t.1 = fastmath::exp((t.1 - top).max(NEGLIGIBLE_LOG));
+        den += t.1;
+    }
+    let inv_den = 1.0 / den;
     let mut row = 0.0;
     for t in terms.iter_mut() {
-        t.1 = fastmath::exp((t.1 - log_den).max(NEGLIGIBLE_LOG));
+        t.1 *= inv_den;
         row += t.1;
     }
     row
@@ -494,52 +501,31 @@ impl Motion {
     }
 }
 
-/// The truncated E-step's grid answers for this multiple of the truncation radius: every
+/// The truncated E-step's lists answer for this multiple of the truncation radius: every
 /// observation whose nearest component lies within half the radius (all but outliers and the
-/// unmatched part of a partial view) finds its whole neighbourhood in one grid query; the
-/// others go to the k-d tree.
-const GRID_MARGIN: f64 = std::f64::consts::SQRT_2;
+/// unmatched part of a partial view) finds its whole neighbourhood in its list; the others go
+/// to the k-d tree.
+const LIST_REACH: f64 = std::f64::consts::SQRT_2;
 
-/// Where the truncated E-step finds each observation's components: the unmoved source in a
-/// k-d tree (built once per registration) and, per iteration, in a grid of cells the size of
-/// the search radius (a grid query costs a fraction of a tree query at these radii; a grid
-/// build about one iteration's share of its queries). Observations are taken into the
+/// Where the truncated E-step finds each observation's components: lists of candidates kept
+/// across iterations ([`ComponentLists`]), and the unmoved source in a k-d tree (built once per
+/// registration) for the observations the lists cannot answer. Observations are taken into the
 /// source's frame ([`Motion::unmove`]) and visited in spatial order.
 struct ComponentSearch<'a> {
     y: &'a [Point3],
     tree: KnnIndex,
     x_order: Vec<u32>,
+    /// The observations' candidate lists, kept from one truncated E-step to the next.
+    lists: std::sync::Mutex<Option<ComponentLists>>,
 }
 
 impl ComponentSearch<'_> {
-    /// Appends to `terms` the log-kernel terms of observation `q` (in the source's frame):
-    /// every component within `sqrt(d_near^2 + radius^2)` (moved units), so that each kept
-    /// term is within `exp(-radius^2 / 2 sigma^2)` of the largest even for an observation far
-    /// from every component.
-    fn terms(
-        &self,
-        grid: Option<&RadiusGrid>,
-        q: &Point3,
-        motion: &Motion,
-        (radius, inv): (f64, f64),
-        found: &mut Vec<Neighbour>,
-        terms: &mut Vec<(u32, f64)>,
-    ) {
+    /// Appends to `terms` the log-kernel terms of observation `q` (in the source's frame) found
+    /// by the k-d tree: every component within `sqrt(d_near^2 + radius^2)` (moved units), so
+    /// that each kept term is within `exp(-radius^2 / 2 sigma^2)` of the largest even for an
+    /// observation far from every component. (The lists answer most observations first.)
+    fn terms(&self, q: &Point3, motion: &Motion, (radius, inv): (f64, f64), terms: &mut Vec<(u32, f64)>) {
         let s2 = motion.scale * motion.scale;
-        if let Some(grid) = grid {
-            found.clear();
-            grid.within_dist2(q, found);
-            let near = found.iter().map(|nb| nb.dist2).fold(f64::INFINITY, f64::min);
-            let reach2 = near * s2 + radius * radius;
-            let answered = grid.radius() * grid.radius() * s2;
-            if near.is_finite() && reach2 <= answered {
-                let kept = reach2 / s2;
-                terms.extend(
-                    found.iter().filter(|nb| nb.dist2 <= kept).map(|nb| (nb.index as u32, nb.dist2 * s2 * inv)),
-                );
-                return;
-            }
-        }
         if let Some(near) = self.tree.nearest(q) {
             let reach = (near.dist2 * s2 + radius * radius).sqrt() / motion.scale;
             terms.extend(self.tree.within(q, reach).into_iter().map(|nb| (nb.index as u32, nb.dist2 * s2 * inv)));
@@ -560,11 +546,21 @@ fn truncated_e_step(
     neighbours: f64,
 ) -> EStep {
     let m = hoods.y.len();
-    let inv = -0.5 / sigma2;
-    let grid = RadiusGrid::new(hoods.y, GRID_MARGIN * radius / motion.scale);
+    let (inv, s2) = (-0.5 / sigma2, motion.scale * motion.scale);
+    // The radius (unmoved units) within which most observations find every term they need.
+    let need = LIST_REACH * radius / motion.scale;
+    let unmoved: Vec<Point3> = x.par_iter().map(|p| motion.unmove(p)).collect();
+    let mut held = hoods.lists.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    if !held.as_ref().is_some_and(|l| l.serve(&unmoved, need)) {
+        *held = ComponentLists::gather(hoods.y, unmoved.clone(), LIST_MARGIN * need);
+    }
+    let lists = held.as_ref();
     let accumulate = if neighbours * E_STEP_CHUNK as f64 > m as f64 { Accumulate::Dense } else { Accumulate::Sparse };
-    summed_e_step(x, &hoods.x_order, m, c, accumulate, |n, found, terms| {
-        hoods.terms(grid.as_ref(), &motion.unmove(&x[n]), motion, (radius, inv), found, terms);
+    summed_e_step(x, &hoods.x_order, m, c, accumulate, |n, terms| {
+        let q = &unmoved[n];
+        if !lists.is_some_and(|l| l.terms(n, q, hoods.y, s2, radius, inv, terms)) {
+            hoods.terms(q, motion, (radius, inv), terms);
+        }
     })
 }
 

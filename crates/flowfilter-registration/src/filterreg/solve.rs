@@ -297,7 +297,7 @@ impl FilterReg {
                 (Some(e), false) => e.sums(&x, &prep.values, prep.vd, sigma),
                 _ => lattice_sums(visit.tgt, visit.tgt_values, prep.vd, &x, sigma),
             };
-            let Some(delta) = m_step(cfg, &x, visit.counts, &sums, c, corr.map(|k| (k, &em.t))) else {
+            let Some(delta) = m_step(cfg, &x, visit.counts, &sums, c, corr.map(|k| (k, &em.t)), sigma) else {
                 em.warnings.push(RegistrationWarning::NothingNear { sigma_m: sigma });
                 break;
             };

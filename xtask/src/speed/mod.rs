@@ -1,0 +1,277 @@
+//! `cargo xtask bench-speed`: ours and the peers (probreg, Open3D, OpenCV through
+//! `tools/peers/speed_peers.py`) on the same inputs in the same minutes, with each thread count
+//! in turn, and the pipeline's pairs per second for each method.
+//!
+//! Sections: registration on Kinect-sized cloud pairs (FilterReg both variants against
+//! probreg, ICP both variants against Open3D with its parameters, our CPD on every point
+//! against probreg's CPD on 2k-point subsets); DIS-medium against OpenCV's on the Sintel pairs
+//! (when `../shared/data/sintel` exists); the pipeline (two frames in, pose out) on the default
+//! benchmark's frames. Writes `speed.json` and `speed.md` into a timestamped directory.
+
+mod clouds;
+mod ours;
+mod peers;
+mod pipeline;
+mod report;
+
+use crate::bench::Protocol;
+use crate::pairs::progress;
+use anyhow::Context;
+use clap::Args;
+use report::{PipelineRow, Row, SpeedReport};
+use std::path::{Path, PathBuf};
+
+/// Arguments of `bench-speed`.
+#[derive(Args, Debug, Clone)]
+pub struct SpeedArgs {
+    /// CI-sized: 5k-point clouds, one run each, one Sintel pair, the quick protocol's procedural
+    /// pairs.
+    #[arg(long)]
+    pub quick: bool,
+    /// Source points of the registration pairs (the target has 11/12 of them).
+    #[arg(long, value_delimiter = ',')]
+    pub sizes: Option<Vec<usize>>,
+    /// Thread counts, each run in turn (ours in a rayon pool of that size; the peers with
+    /// OMP_NUM_THREADS, OPENBLAS_NUM_THREADS, MKL_NUM_THREADS and OpenCV's setNumThreads).
+    #[arg(long, value_delimiter = ',', default_value = "1,2")]
+    pub threads: Vec<usize>,
+    /// Runs of each registration and flow timing; the fastest is kept (both sides).
+    #[arg(long)]
+    pub repeat: Option<usize>,
+    /// Pipeline methods timed on the default benchmark's frames.
+    #[arg(long, value_delimiter = ',', default_value = "flowfilter,filterreg-pt2pt,icp-pt2pl,cpd")]
+    pub methods: Vec<String>,
+    /// The Python with the peers installed (`pip install -r tools/peers/requirements.txt`).
+    #[arg(long, default_value = "python3")]
+    pub python: String,
+    /// Time ours only.
+    #[arg(long)]
+    pub no_peers: bool,
+    /// Sections to run: registration, flow, pipeline.
+    #[arg(long, value_delimiter = ',', default_value = "registration,flow,pipeline")]
+    pub sections: Vec<String>,
+    /// Output root (a timestamped directory is created inside).
+    #[arg(long, default_value = "results")]
+    pub out: PathBuf,
+    /// Exit non-zero unless every timing of ours is present, finite and positive, and every
+    /// registration ends within 1 degree of the truth.
+    #[arg(long)]
+    pub check: bool,
+}
+
+const SECTIONS: [&str; 3] = ["registration", "flow", "pipeline"];
+
+/// Run the benchmark.
+pub fn run(args: &SpeedArgs) -> anyhow::Result<()> {
+    validate(args)?;
+    let dir = args.out.join(crate::report::timestamp());
+    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    let repeat = args.repeat.unwrap_or(if args.quick { 1 } else { 3 });
+    let sizes =
+        args.sizes.clone().unwrap_or_else(|| if args.quick { vec![5000] } else { vec![20_000, 40_000, 60_000] });
+    let wants = |s: &str| args.sections.iter().any(|x| x == s);
+    let pairs = if wants("registration") {
+        sizes.iter().map(|&n| clouds::write_pair(&dir.join("clouds"), n, n as u64)).collect::<anyhow::Result<_>>()?
+    } else {
+        vec![]
+    };
+    let sintel = if wants("flow") { sintel_cases(args.quick) } else { vec![] };
+    let manifest = peers::write_manifest(&dir, &pairs, &sintel, repeat)?;
+    let mut report = SpeedReport::new(args, &sizes, repeat);
+    if wants("flow") && sintel.is_empty() {
+        report.notes.push("flow: skipped, ../shared/data/sintel is absent".into());
+    }
+    for &threads in &args.threads {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build()?;
+        let peer_rows = peer_rows(args, &manifest, threads, &mut report);
+        let bar = progress((pairs.len() + sintel.len()) as u64, &format!("bench-speed: ours, {threads} thread(s)"));
+        let config = ours::registration_config()?;
+        for pair in &pairs {
+            for (method, t) in ours::registration(pair, &config, &pool, repeat)? {
+                let peer = peer_rows.iter().find(|r| r.pair.as_deref() == Some(&pair.name) && r.method == method);
+                report.rows.push(Row::registration(&pair.name, &method, threads, t, peer, &pair.truth));
+            }
+            bar.inc(1);
+        }
+        for (case, _) in &sintel {
+            let t = ours::flow(&sintel_root(), case, &pool, repeat)?;
+            let peer = peer_rows.iter().find(|r| r.case.as_deref() == Some(case));
+            report.rows.push(Row::flow(case, threads, t, peer));
+            bar.inc(1);
+        }
+        bar.finish();
+    }
+    if wants("pipeline") {
+        (report.pipeline_pairs, report.pipeline) = pipeline_rows(args)?;
+    }
+    report.write(&dir)?;
+    println!("{}", report.markdown());
+    eprintln!("bench-speed: wrote {}", dir.display());
+    if args.check {
+        report.check()?;
+    }
+    Ok(())
+}
+
+/// Options that cannot work are refused before anything runs.
+fn validate(args: &SpeedArgs) -> anyhow::Result<()> {
+    if let Some(s) = args.sections.iter().find(|s| !SECTIONS.contains(&s.as_str())) {
+        anyhow::bail!("--sections: unknown section '{s}' (expected some of {})", SECTIONS.join(", "));
+    }
+    if args.threads.is_empty() || args.threads.contains(&0) {
+        anyhow::bail!("--threads: thread counts of at least 1 expected, found {:?}", args.threads);
+    }
+    if let Some(n) = args.sizes.iter().flatten().find(|&&n| n < 100) {
+        anyhow::bail!("--sizes: at least 100 points per cloud expected, found {n}");
+    }
+    if args.repeat == Some(0) {
+        anyhow::bail!("--repeat: at least 1 run expected, found 0");
+    }
+    for m in &args.methods {
+        flowfilter_pipeline::registration::registrar_by_name(m, &Default::default())
+            .map_err(|e| anyhow::anyhow!("--methods: {e}"))?;
+    }
+    Ok(())
+}
+
+/// The peers with `threads` threads, or a note saying why they did not run.
+fn peer_rows(args: &SpeedArgs, manifest: &Path, threads: usize, report: &mut SpeedReport) -> Vec<peers::PeerRow> {
+    if args.no_peers {
+        return vec![];
+    }
+    eprintln!("bench-speed: peers, {threads} thread(s) ({})", args.python);
+    match peers::run(&args.python, manifest, threads) {
+        Ok(rows) => rows,
+        Err(why) => {
+            tracing::warn!(%why, "peers skipped");
+            report.notes.push(format!("peers with {threads} thread(s): skipped, {why}"));
+            vec![]
+        }
+    }
+}
+
+fn sintel_root() -> PathBuf {
+    Path::new("../shared/data/sintel").to_path_buf()
+}
+
+/// The Sintel cases present (one with `quick`).
+fn sintel_cases(quick: bool) -> Vec<(String, PathBuf)> {
+    let root = sintel_root();
+    let take = if quick { 1 } else { ours::SINTEL_CASES.len() };
+    ours::SINTEL_CASES
+        .iter()
+        .take(take)
+        .map(|c| (c.to_string(), root.join(c)))
+        .filter(|(_, d)| d.join("frame_0002.png").is_file())
+        .collect()
+}
+
+/// Every pipeline method with every thread count on the default benchmark's pairs of one camera.
+fn pipeline_rows(args: &SpeedArgs) -> anyhow::Result<(String, Vec<PipelineRow>)> {
+    let (text, origin) = if args.quick {
+        (include_str!("../../../configs/bench/quick.toml"), "configs/bench/quick.toml")
+    } else {
+        (include_str!("../../../configs/bench/full.toml"), "configs/bench/full.toml")
+    };
+    let protocol = Protocol::from_toml(text, origin)?;
+    let base = match &protocol.pipeline {
+        Some(p) => flowfilter_pipeline::PipelineConfig::from_file(&crate::repo_root().join(p))?,
+        None => Default::default(),
+    };
+    let pairs = pipeline::load(&protocol, args.quick)?;
+    let mut rows = vec![];
+    let bar = progress((args.methods.len() * args.threads.len()) as u64, "bench-speed: pipeline");
+    for method in &args.methods {
+        let config = flowfilter_pipeline::PipelineConfig { method: method.clone(), ..base.clone() };
+        for &threads in &args.threads {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build()?;
+            let t = pipeline::throughput(&pairs, &config, &pool)?;
+            rows.push(PipelineRow { method: method.clone(), threads, pairs: pairs.pairs.len(), throughput: t });
+            bar.inc(1);
+        }
+    }
+    bar.finish();
+    Ok((pairs.description, rows))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn args(out: &Path) -> SpeedArgs {
+        SpeedArgs {
+            quick: true,
+            sizes: Some(vec![1500]),
+            threads: vec![1, 2],
+            repeat: Some(1),
+            methods: vec!["flowfilter".into()],
+            python: "python3".into(),
+            no_peers: false,
+            sections: vec!["registration".into()],
+            out: out.to_path_buf(),
+            check: true,
+        }
+    }
+
+    /// Every method with every thread count is timed and checked; an interpreter that does not
+    /// exist is reported as skipped peers, not a failure.
+    #[test]
+    fn registration_rows_for_every_method_and_thread_count() {
+        let tmp = tempfile::tempdir().unwrap();
+        let a = SpeedArgs { python: "/nonexistent/python3".into(), ..args(tmp.path()) };
+        run(&a).unwrap();
+        let dir = std::fs::read_dir(tmp.path()).unwrap().next().unwrap().unwrap().path();
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("speed.json")).unwrap()).unwrap();
+        let rows = v["rows"].as_array().unwrap();
+        assert_eq!(rows.len(), ours::REGISTRATION_METHODS.len() * 2);
+        for r in rows {
+            assert!(r["ours_s"].as_f64().unwrap() > 0.0 && r.get("speedup").is_none(), "{r}");
+        }
+        let notes = v["notes"].as_array().unwrap();
+        assert_eq!(notes.len(), 2, "{notes:?}");
+        assert!(notes[0].as_str().unwrap().contains("could not be started"), "{notes:?}");
+        assert!(std::fs::read_to_string(dir.join("speed.md")).unwrap().contains("| wavy-1500 | cpd | 2 |"));
+    }
+
+    #[test]
+    fn options_that_cannot_work_are_refused() {
+        let tmp = tempfile::tempdir().unwrap();
+        for (a, want) in [
+            (SpeedArgs { sections: vec!["gpu".into()], ..args(tmp.path()) }, "unknown section 'gpu'"),
+            (SpeedArgs { threads: vec![0], ..args(tmp.path()) }, "--threads"),
+            (SpeedArgs { sizes: Some(vec![10]), ..args(tmp.path()) }, "--sizes"),
+            (SpeedArgs { repeat: Some(0), ..args(tmp.path()) }, "--repeat"),
+            (SpeedArgs { methods: vec!["gicp".into()], ..args(tmp.path()) }, "--methods"),
+        ] {
+            let e = run(&a).unwrap_err().to_string();
+            assert!(e.contains(want), "{e}");
+        }
+        assert!(std::fs::read_dir(tmp.path()).unwrap().next().is_none(), "nothing written");
+    }
+
+    /// A check fails on a registration that ends far from the truth.
+    #[test]
+    fn the_check_refuses_a_wrong_pose() {
+        let mut report = SpeedReport::new(&args(Path::new("x")), &[1500], 1);
+        let t = ours::Timed { seconds: 0.1, error: 0.01, translation_m: Some(0.0), iterations: Some(3) };
+        report.rows.push(Row::registration(
+            "wavy-1500",
+            "icp-pt2pl",
+            1,
+            t.clone(),
+            None,
+            &flowfilter_pipeline::Pose::identity(),
+        ));
+        report.check().unwrap();
+        report.rows.push(Row::registration(
+            "wavy-1500",
+            "cpd",
+            1,
+            ours::Timed { error: 3.0, ..t },
+            None,
+            &flowfilter_pipeline::Pose::identity(),
+        ));
+        assert!(report.check().unwrap_err().to_string().contains("3.000 deg"));
+    }
+}
