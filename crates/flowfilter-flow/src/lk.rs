@@ -94,6 +94,18 @@ impl BilinearTap {
     }
 }
 
+/// [`bilinear`] at `(x, y)` with `0 <= x < width - 1` and `0 <= y < height - 1` (no clamping
+/// needed): the same value, computed the same way.
+#[inline]
+fn interior_sample(img: &Gray, x: f32, y: f32) -> f32 {
+    let (ix, iy) = (x as usize, y as usize);
+    let (fx, fy) = (x - ix as f32, y - iy as f32);
+    let w = img.width();
+    let d = &img.as_slice()[iy * w + ix..];
+    let (a, b, c, e) = (d[0], d[1], d[w], d[w + 1]);
+    (a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + e * fx) * fy
+}
+
 /// Parameters (defaults as OpenCV's `calcOpticalFlowPyrLK` with a 21x21 window and 3 levels).
 #[derive(Debug, Clone, PartialEq)]
 pub struct LkParams {
@@ -367,14 +379,22 @@ fn mismatch(b: &Gray, tmpl: &[TemplatePixel], (cx, cy): (f32, f32), r: isize, wa
         by += diff * iy;
     };
     match (warp, Window::inside(b, cx, cy, side)) {
-        // A warped window: every sample has its own bilinear weights.
+        // A warped window: every sample has its own bilinear weights. Where the whole window
+        // lies inside the image (its corners do: the map is linear) no sample is clamped, and
+        // the taps are read directly (the same arithmetic as `bilinear`, without its clamps).
         (Some(m), _) => {
             let (ox, oy) = (cx + r as f32, cy + r as f32);
+            let at = |u: f32, v: f32| (ox + m[0] * u + m[1] * v, oy + m[2] * u + m[3] * v);
+            let rf = r as f32;
+            let inside = [(-rf, -rf), (rf, -rf), (-rf, rf), (rf, rf)].iter().all(|&(u, v)| {
+                let (x, y) = at(u, v);
+                x >= 0.0 && y >= 0.0 && x < (b.width() - 1) as f32 && y < (b.height() - 1) as f32
+            });
             for j in 0..side {
-                let v = j as f32 - r as f32;
+                let v = j as f32 - rf;
                 for i in 0..side {
-                    let u = i as f32 - r as f32;
-                    add(j * side + i, bilinear(b, ox + m[0] * u + m[1] * v, oy + m[2] * u + m[3] * v));
+                    let (x, y) = at(i as f32 - rf, v);
+                    add(j * side + i, if inside { interior_sample(b, x, y) } else { bilinear(b, x, y) });
                 }
             }
         }
@@ -400,6 +420,19 @@ fn mismatch(b: &Gray, tmpl: &[TemplatePixel], (cx, cy): (f32, f32), r: isize, wa
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Inside the image the direct taps give `bilinear`'s bits.
+    #[test]
+    fn interior_samples_are_the_bilinear_samples() {
+        let img = Gray::from_fn(37, 29, |x, y| ((x * 7 + y * 13) % 17) as f32 / 17.0 + 0.001 * x as f32);
+        let mut s = 3u64;
+        for _ in 0..2000 {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            let x = (s >> 40) as f32 / (1u64 << 24) as f32 * 35.999;
+            let y = (s & 0xff_ffff) as f32 / (1u64 << 24) as f32 * 27.999;
+            assert_eq!(interior_sample(&img, x, y).to_bits(), bilinear(&img, x, y).to_bits(), "({x}, {y})");
+        }
+    }
 
     fn texture(w: usize, h: usize, shift: (f32, f32)) -> Gray {
         // A smooth random-looking pattern evaluated at (x - shift): moving content by +shift.
