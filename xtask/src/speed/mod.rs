@@ -25,7 +25,7 @@ use std::path::{Path, PathBuf};
 #[derive(Args, Debug, Clone)]
 pub struct SpeedArgs {
     /// CI-sized: 5k-point clouds, one run each, one Sintel pair, the quick protocol's procedural
-    /// pairs.
+    /// pairs from its first base angle.
     #[arg(long)]
     pub quick: bool,
     /// Source points of the registration pairs (the target has 11/12 of them).
@@ -173,12 +173,18 @@ fn pipeline_rows(args: &SpeedArgs) -> anyhow::Result<(String, Vec<PipelineRow>)>
     } else {
         (include_str!("../../../configs/bench/full.toml"), "configs/bench/full.toml")
     };
-    let protocol = Protocol::from_toml(text, origin)?;
+    let mut protocol = Protocol::from_toml(text, origin)?;
+    // CI-sized: the quick protocol's frames (one cache with bench-bigbird --quick), its first
+    // base angle only.
+    let angles = protocol.angles();
+    if args.quick {
+        protocol.base_angles.truncate(1);
+    }
     let base = match &protocol.pipeline {
         Some(p) => flowfilter_pipeline::PipelineConfig::from_file(&crate::repo_root().join(p))?,
         None => Default::default(),
     };
-    let pairs = pipeline::load(&protocol, args.quick)?;
+    let pairs = pipeline::load(&protocol, &angles, args.quick)?;
     let mut rows = vec![];
     let bar = progress((args.methods.len() * args.threads.len()) as u64, "bench-speed: pipeline");
     for method in &args.methods {

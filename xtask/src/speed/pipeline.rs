@@ -27,19 +27,19 @@ pub struct PipelinePairs {
 const CAMERA: &str = "NP3";
 
 /// Load the pairs of `CAMERA` under `protocol` (its base angles and steps) from the embedded
-/// dataset, synthesised and cached exactly as `bench-bigbird` does (same cameras and angles,
-/// so one cache serves both).
+/// dataset, synthesised and cached exactly as `bench-bigbird` does (same cameras and
+/// `angles`, the protocol's as bench-bigbird reads it, so one cache serves both).
 ///
 /// # Errors
 /// A dataset that cannot be synthesised or read.
-pub fn load(protocol: &Protocol, quick: bool) -> anyhow::Result<PipelinePairs> {
+pub fn load(protocol: &Protocol, angles: &[u32], quick: bool) -> anyhow::Result<PipelinePairs> {
     let cameras = protocol.sensors().map_err(anyhow::Error::msg)?;
     let camera: SensorId = CAMERA.parse().map_err(|e| anyhow::anyhow!("{e}"))?;
     let root = Path::new("target").join("bigbird-default");
     let objects = embedded_objects(quick, None);
     let mut pairs = vec![];
     for o in &objects {
-        let dir = ensure_object(&root, o, &cameras, &protocol.angles(), 7)?;
+        let dir = ensure_object(&root, o, &cameras, angles, 7)?;
         let object = BigBirdObject::open(&dir).with_context(|| format!("opening {}", dir.display()))?;
         let mut frames: BTreeMap<u32, Arc<RgbdFrame>> = BTreeMap::new();
         let mut frame = |angle: u32| -> anyhow::Result<Arc<RgbdFrame>> {
