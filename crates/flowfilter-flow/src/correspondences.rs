@@ -224,9 +224,8 @@ pub fn flow_correspondences_guided(
     // Crop both views to the masks' region (flow vectors do not depend on the origin).
     let (x0, y0, x1, y1) = crop_box(model_mask, target_mask, p.crop_margin_px);
     let (cw, ch) = (x1 - x0, y1 - y0);
-    let crop = |g: &Gray| Gray::from_fn(cw, ch, |x, y| *g.at(x + x0, y + y0));
-    let crop_mask = |m: &Mask| Mask::from_fn(cw, ch, |x, y| *m.at(x + x0, y + y0));
-    let (ga, gb, ma, mb) = (crop(model_gray), crop(target_gray), crop_mask(model_mask), crop_mask(target_mask));
+    let (ga, gb) = (model_gray.crop(x0, y0, cw, ch), target_gray.crop(x0, y0, cw, ch));
+    let (ma, mb) = (model_mask.crop(x0, y0, cw, ch), target_mask.crop(x0, y0, cw, ch));
     let shift = [x0 as f32, y0 as f32];
     let local: Vec<[f32; 2]> = pixels.iter().map(|q| [q[0] - shift[0], q[1] - shift[1]]).collect();
     let (forward, backward_guess) = match guide {

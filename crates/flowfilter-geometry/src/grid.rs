@@ -34,6 +34,26 @@ impl<T: Clone> Grid<T> {
     pub fn filled(width: usize, height: usize, value: T) -> Self {
         Self { width, height, data: vec![value; width * height] }
     }
+
+    /// The `width x height` window whose top-left cell is `(x0, y0)`, copied row by row.
+    ///
+    /// # Panics
+    /// When the window does not lie inside the grid.
+    ///
+    /// ```
+    /// use flowfilter_geometry::Grid;
+    /// let g = Grid::from_fn(4, 3, |x, y| 10 * y + x);
+    /// let c = g.crop(1, 1, 2, 2);
+    /// assert_eq!(c.as_slice(), &[11, 12, 21, 22]);
+    /// ```
+    pub fn crop(&self, x0: usize, y0: usize, width: usize, height: usize) -> Self {
+        assert!(x0 + width <= self.width && y0 + height <= self.height, "crop outside the grid");
+        let mut data = Vec::with_capacity(width * height);
+        for y in y0..y0 + height {
+            data.extend_from_slice(&self.row(y)[x0..x0 + width]);
+        }
+        Self { width, height, data }
+    }
 }
 
 impl<T> Grid<T> {

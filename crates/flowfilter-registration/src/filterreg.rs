@@ -593,12 +593,7 @@ mod tests {
     use nalgebra::{Translation3, UnitQuaternion};
 
     fn cloud(n: usize, seed: u64) -> Vec<Point3> {
-        let mut s = seed;
-        let mut r = || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            (s >> 11) as f64 / (1u64 << 53) as f64
-        };
-        (0..n).map(|_| Point3::new(r() * 0.1, r() * 0.1, r() * 0.02)).collect()
+        crate::test_clouds::uniform_box(n, seed, (0.1, 0.1, 0.02))
     }
 
     /// Long lists sorted through the bit set come out as a comparison sort's.

@@ -18,6 +18,8 @@ pub mod plausibility;
 mod problem;
 mod registry;
 mod reprojection;
+#[cfg(test)]
+mod test_clouds;
 mod warning;
 
 pub use cpd::{Cpd, CpdConfig, CpdEStep, MIN_LATTICE_NEIGHBOURS};

@@ -103,12 +103,7 @@ mod tests {
     use super::*;
 
     fn points(n: usize, seed: u64) -> Vec<Point3> {
-        let mut s = seed;
-        let mut r = || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            (s >> 11) as f64 / (1u64 << 53) as f64
-        };
-        (0..n).map(|_| Point3::new(r() * 0.2, r() * 0.2, 0.01 * r())).collect()
+        crate::test_clouds::uniform_box(n, seed, (0.2, 0.2, 0.01))
     }
 
     /// Terms from a list, when it certifies them, are the brute-force terms: every component
