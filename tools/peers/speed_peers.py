@@ -32,6 +32,7 @@ o3d = need("open3d")
 probreg = need("probreg")
 cv2 = need("cv2")
 from probreg import cpd, filterreg  # noqa: E402
+from flow_opencv import read_flo  # noqa: E402  (the harness's .flo reader)
 
 
 # A run longer than this is not repeated: the host's stalls are small beside it, and probreg's
@@ -100,14 +101,6 @@ def registration_rows(pair, params, repeat):
                      "points": [len(ss), len(ts)], "seconds": secs,
                      "transform": to_matrix(res.transformation).tolist()})
     return rows
-
-
-def read_flo(path):
-    with open(path, "rb") as f:
-        if np.fromfile(f, np.float32, 1)[0] != 202021.25:
-            raise SystemExit(f"speed_peers.py: {path}: not a .flo file")
-        w, h = np.fromfile(f, np.int32, 2)
-        return np.fromfile(f, np.float32, 2 * w * h).reshape(h, w, 2)
 
 
 def flow_rows(pairs, repeat):

@@ -2,7 +2,7 @@
 //! object cloud of the model frame (base angle) to that of the target frame (base + step) with
 //! every method, and score the estimate against the turntable ground truth.
 
-use crate::dataset::{embedded_objects, ensure_object};
+use crate::dataset::{embedded_objects, ensure_default_object};
 use crate::pairs::{Methods, PairJob, PairResult, RunArgs, progress};
 use crate::report::{ReportSpec, ShardRun, write_outputs};
 use crate::shard::Shard;
@@ -226,13 +226,12 @@ fn object_dirs(
     let objects = embedded_objects(args.quick, args.meshes.as_deref());
     let names = objects.iter().map(|o| o.name.clone()).collect();
     let mine = shard.select(&objects);
-    let root = Path::new("target").join("bigbird-default");
     let angles = protocol.angles();
     let bar = progress(mine.len() as u64, "synthesising the default dataset (cached)");
     let dirs = mine
         .par_iter()
         .map(|o| {
-            let d = ensure_object(&root, o, cameras, &angles, 7);
+            let d = ensure_default_object(o, cameras, &angles);
             bar.inc(1);
             d
         })

@@ -85,6 +85,18 @@ impl DefaultObject {
     }
 }
 
+/// Where `bench-bigbird` (and `bench-speed`) cache the embedded default dataset.
+pub const DEFAULT_DATASET_ROOT: &str = "target/bigbird-default";
+
+/// The seed of the embedded default dataset's captures.
+pub const DEFAULT_DATASET_SEED: u64 = 7;
+
+/// [`ensure_object`] in the default dataset's cache, with its seed: one cache serves every
+/// benchmark that asks for the same cameras and angles.
+pub fn ensure_default_object(object: &DefaultObject, sensors: &[SensorId], angles: &[u32]) -> anyhow::Result<PathBuf> {
+    ensure_object(Path::new(DEFAULT_DATASET_ROOT), object, sensors, angles, DEFAULT_DATASET_SEED)
+}
+
 /// Make sure `root/<object>` holds a capture with at least `sensors` x `angles`; synthesise it
 /// (Carmine noise, fixed seed) when the cache is missing or was made for other frames.
 pub fn ensure_object(

@@ -39,21 +39,13 @@ pub fn downsample(img: &Gray) -> Gray {
     let d = img.as_slice();
     par_image(nw, nh, |x, y| {
         let (cx, cy) = (2 * x as isize, 2 * y as isize);
+        // Away from the border no tap is clamped: read directly (the same sum).
+        let interior = cx >= 2 && cy >= 2 && cx + 2 < w as isize && cy + 2 < h as isize;
         let mut acc = 0.0;
-        if cx >= 2 && cy >= 2 && cx + 2 < w as isize && cy + 2 < h as isize {
-            // Away from the border no tap is clamped: the same sum, read directly.
-            let base = (cy - 2) as usize * w + (cx - 2) as usize;
-            for (j, kj) in k.iter().enumerate() {
-                let row = &d[base + j * w..base + j * w + 5];
-                for (ki, v) in k.iter().zip(row) {
-                    acc += kj * ki * v;
-                }
-            }
-        } else {
-            for (j, kj) in k.iter().enumerate() {
-                for (i, ki) in k.iter().enumerate() {
-                    acc += kj * ki * at(cx + i as isize - 2, cy + j as isize - 2);
-                }
+        for (j, kj) in k.iter().enumerate() {
+            for (i, ki) in k.iter().enumerate() {
+                let (x, y) = (cx + i as isize - 2, cy + j as isize - 2);
+                acc += kj * ki * if interior { d[y as usize * w + x as usize] } else { at(x, y) };
             }
         }
         acc / 256.0
@@ -87,6 +79,15 @@ impl BilinearTap {
         Self { k: [iy * width + ix, iy * width + ix1, iy1 * width + ix, iy1 * width + ix1], fx, fy }
     }
 
+    /// The tap at `(x, y)` with `0 <= x < width - 1` and `0 <= y < height - 1`: [`Self::new`]
+    /// without the clamps it does not need there (the same indices and weights).
+    #[inline]
+    pub(crate) fn interior(width: usize, x: f32, y: f32) -> Self {
+        let (ix, iy) = (x as usize, y as usize);
+        let k = iy * width + ix;
+        Self { k: [k, k + 1, k + width, k + width + 1], fx: x - ix as f32, fy: y - iy as f32 }
+    }
+
     /// For a one-row image: the two columns and the weight of the second.
     pub(crate) fn column(&self) -> ([usize; 2], f32) {
         ([self.k[0], self.k[1]], self.fx)
@@ -104,18 +105,6 @@ impl BilinearTap {
         let (fx, fy) = (self.fx, self.fy);
         (a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + d * fx) * fy
     }
-}
-
-/// [`bilinear`] at `(x, y)` with `0 <= x < width - 1` and `0 <= y < height - 1` (no clamping
-/// needed): the same value, computed the same way.
-#[inline]
-fn interior_sample(img: &Gray, x: f32, y: f32) -> f32 {
-    let (ix, iy) = (x as usize, y as usize);
-    let (fx, fy) = (x - ix as f32, y - iy as f32);
-    let w = img.width();
-    let d = &img.as_slice()[iy * w + ix..];
-    let (a, b, c, e) = (d[0], d[1], d[w], d[w + 1]);
-    (a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + e * fx) * fy
 }
 
 /// Parameters (defaults as OpenCV's `calcOpticalFlowPyrLK` with a 21x21 window and 3 levels).
@@ -406,7 +395,12 @@ fn mismatch(b: &Gray, tmpl: &[TemplatePixel], (cx, cy): (f32, f32), r: isize, wa
                 let v = j as f32 - rf;
                 for i in 0..side {
                     let (x, y) = at(i as f32 - rf, v);
-                    add(j * side + i, if inside { interior_sample(b, x, y) } else { bilinear(b, x, y) });
+                    let tap = if inside {
+                        BilinearTap::interior(b.width(), x, y)
+                    } else {
+                        BilinearTap::new(b.width(), b.height(), x, y)
+                    };
+                    add(j * side + i, tap.sample(b.as_slice()));
                 }
             }
         }
@@ -465,7 +459,7 @@ mod tests {
         }
     }
 
-    /// Inside the image the direct taps give `bilinear`'s bits.
+    /// Inside the image the unclamped taps give `bilinear`'s bits.
     #[test]
     fn interior_samples_are_the_bilinear_samples() {
         let img = Gray::from_fn(37, 29, |x, y| ((x * 7 + y * 13) % 17) as f32 / 17.0 + 0.001 * x as f32);
@@ -474,7 +468,8 @@ mod tests {
             s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
             let x = (s >> 40) as f32 / (1u64 << 24) as f32 * 35.999;
             let y = (s & 0xff_ffff) as f32 / (1u64 << 24) as f32 * 27.999;
-            assert_eq!(interior_sample(&img, x, y).to_bits(), bilinear(&img, x, y).to_bits(), "({x}, {y})");
+            let interior = BilinearTap::interior(img.width(), x, y).sample(img.as_slice());
+            assert_eq!(interior.to_bits(), bilinear(&img, x, y).to_bits(), "({x}, {y})");
         }
     }
 

@@ -193,21 +193,6 @@ impl RadiusGrid {
         });
     }
 
-    /// Appends to `out` every point within the grid's radius of `q` with its squared distance
-    /// (in no particular order): [`RadiusGrid::within`] for callers that weigh by distance.
-    pub fn within_dist2(&self, q: &Point3, out: &mut Vec<Neighbour>) {
-        let Some(cells) = self.cell_box(q, self.radius, usize::MAX) else { return };
-        let r2 = self.radius * self.radius;
-        self.for_each_run(cells, |run| {
-            for (c, &i) in self.coords[run.clone()].iter().zip(&self.order[run]) {
-                let d2 = dist2(c, q);
-                if d2 <= r2 {
-                    out.push(Neighbour { index: i as usize, dist2: d2 });
-                }
-            }
-        });
-    }
-
     /// Per axis, the first and last cell coordinates of the cells meeting the cube of half-side
     /// `half` around `q`; `None` when the cube misses the grid (or is NaN) or spans more than
     /// `max_span` cells along an axis (checked axis by axis, so a wide cube is handed back

@@ -487,11 +487,11 @@ impl FilterRegConfig {
 /// union of both point sets (the correspondence term has the same form). `counts`: how many
 /// source points each of `x` stands for (merged points), `None` for one each.
 ///
-/// A point-to-plane update that would move the points by more than the kernel's width `sigma`
-/// is replaced by the point-to-point update: the posteriors only hold within about a kernel of
-/// where they were computed, and while the kernel is wide the filtered normals of a smooth sheet
-/// agree well enough to pass the coherence test yet leave the sliding directions unconstrained
-/// (a 1.2 m wavy surface 4.5 deg off took a 62 deg first step and diverged).
+/// A point-to-plane update that would move the source (`reach`) by more than the kernel's
+/// width is replaced by the point-to-point update: the posteriors only hold within about a
+/// kernel of where they were computed, and while the kernel is wide the filtered normals of a
+/// smooth sheet agree well enough to pass the coherence test yet leave the sliding directions
+/// unconstrained (a 1.2 m wavy surface 4.5 deg off took a 62 deg first step and diverged).
 fn m_step(
     cfg: &FilterRegConfig,
     x: &[Point3],
@@ -499,7 +499,7 @@ fn m_step(
     sums: &Sums,
     c: f64,
     corr: Option<(&Correspondences, &Pose)>,
-    sigma: f64,
+    reach: &Reach,
 ) -> Option<Pose> {
     let mut src = Vec::with_capacity(x.len());
     let mut dst = Vec::with_capacity(x.len());
@@ -544,18 +544,26 @@ fn m_step(
             for _ in 0..cfg.gauss_newton_steps.max(1) {
                 delta = plane_or_point_step(&src, &dst, &nrm, &w, &delta)? * delta;
             }
-            if sweep(&delta, &src) <= sigma { Some(delta) } else { weighted_kabsch(&src, &dst, Some(&w)).ok() }
+            if reach.moved_by(&delta) <= reach.sigma { Some(delta) } else { weighted_kabsch(&src, &dst, Some(&w)).ok() }
         }
     }
 }
 
-/// How far `delta` moves `points`: their centroid's displacement plus the rotation's sweep at
-/// their RMS distance from it.
-fn sweep(delta: &Pose, points: &[Point3]) -> f64 {
-    let n = points.len().max(1) as f64;
-    let centre = Point3::from(points.iter().fold(Vector3::zeros(), |a, p| a + p.coords) / n);
-    let radius = (points.iter().map(|p| (p - centre).norm_squared()).sum::<f64>() / n).sqrt();
-    (delta * centre - centre).norm() + delta.rotation.angle() * radius
+/// The moved source's extent and the kernel's width, against which an update is measured.
+struct Reach {
+    /// The source's centroid, moved by the current pose.
+    centre: Point3,
+    /// The source's RMS distance from its centroid.
+    radius: f64,
+    sigma: f64,
+}
+
+impl Reach {
+    /// How far the update `delta` (applied on the left) moves the source: its centroid's
+    /// displacement plus the rotation's sweep at its RMS radius.
+    fn moved_by(&self, delta: &Pose) -> f64 {
+        (delta * self.centre - self.centre).norm() + delta.rotation.angle() * self.radius
+    }
 }
 
 /// [`FilterRegConfig::surface_sigma`] applies once an iteration moves the source (its centroid,

@@ -64,8 +64,8 @@ fn make_pair(n: usize, seed: u64) -> (PointCloud, PointCloud, Pose) {
     (PointCloud::from_points(source), target, truth)
 }
 
-/// Write one pair of `n` source points into `dir` (binary PLY), or reuse it when written
-/// before (the files are a function of `n` and the seed).
+/// Write one pair of `n` source points into `dir` (binary PLY; the same files for the same `n`
+/// and seed).
 ///
 /// # Errors
 /// A file that cannot be written.

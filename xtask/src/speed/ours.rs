@@ -5,6 +5,7 @@ use super::clouds::CloudPair;
 use anyhow::Context;
 use flowfilter_pipeline::Pose;
 use flowfilter_pipeline::depth::ply::read_ply;
+use flowfilter_pipeline::eval::{geodesic_error_deg, translation_error_m};
 use flowfilter_pipeline::flow::dis::{Dis, DisParams};
 use flowfilter_pipeline::flow::lk::to_gray;
 use flowfilter_pipeline::flow::{FlowEstimator, sintel};
@@ -45,10 +46,9 @@ pub fn registration_config() -> anyhow::Result<RegistrationConfig> {
     Ok(config)
 }
 
-/// The rotation (deg) and translation (m) errors of `estimate` against `truth`.
+/// The geodesic rotation (deg) and translation (m) errors of `estimate` against `truth`.
 pub fn pose_errors(estimate: &Pose, truth: &Pose) -> (f64, f64) {
-    let d = estimate * truth.inverse();
-    (d.rotation.angle().to_degrees(), (estimate.translation.vector - truth.translation.vector).norm())
+    (geodesic_error_deg(estimate, truth), translation_error_m(estimate, truth))
 }
 
 /// Run `f` `repeat` times in `pool` and keep the fastest run's seconds and result.

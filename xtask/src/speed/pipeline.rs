@@ -3,14 +3,13 @@
 //! pool of the asked size with pairs side by side.
 
 use crate::bench::Protocol;
-use crate::dataset::{embedded_objects, ensure_object};
+use crate::dataset::{embedded_objects, ensure_default_object};
 use anyhow::Context;
 use flowfilter_pipeline::bigbird::{BigBirdObject, FrameId, SensorId};
 use flowfilter_pipeline::eval::PoseErrors;
 use flowfilter_pipeline::{Estimate, Pipeline, PipelineConfig, Pose, RgbdFrame, load_bigbird_frame};
 use rayon::prelude::*;
 use std::collections::BTreeMap;
-use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -35,11 +34,10 @@ const CAMERA: &str = "NP3";
 pub fn load(protocol: &Protocol, angles: &[u32], quick: bool) -> anyhow::Result<PipelinePairs> {
     let cameras = protocol.sensors().map_err(anyhow::Error::msg)?;
     let camera: SensorId = CAMERA.parse().map_err(|e| anyhow::anyhow!("{e}"))?;
-    let root = Path::new("target").join("bigbird-default");
     let objects = embedded_objects(quick, None);
     let mut pairs = vec![];
     for o in &objects {
-        let dir = ensure_object(&root, o, &cameras, angles, 7)?;
+        let dir = ensure_default_object(o, &cameras, angles)?;
         let object = BigBirdObject::open(&dir).with_context(|| format!("opening {}", dir.display()))?;
         let mut frames: BTreeMap<u32, Arc<RgbdFrame>> = BTreeMap::new();
         let mut frame = |angle: u32| -> anyhow::Result<Arc<RgbdFrame>> {

@@ -4,8 +4,8 @@
 
 use super::{
     AUTO_NEIGHBOURS, ExactEStep, FilterReg, FilterRegConfig, FilterRegEStep, FilterRegVariant, MERGED_MIN_POINTS,
-    MIXING_SIGMA_CHANGE, SUBSET_SETTLED, SURFACE_SIGMA_SETTLED, SigmaSchedule, Sums, lattice_sums, m_step, permuted,
-    target_values,
+    MIXING_SIGMA_CHANGE, Reach, SUBSET_SETTLED, SURFACE_SIGMA_SETTLED, SigmaSchedule, Sums, lattice_sums, m_step,
+    permuted, target_values,
 };
 use crate::aggregate::Pyramid;
 use crate::anderson::PoseMixing;
@@ -297,7 +297,8 @@ impl FilterReg {
                 (Some(e), false) => e.sums(&x, &prep.values, prep.vd, sigma),
                 _ => lattice_sums(visit.tgt, visit.tgt_values, prep.vd, &x, sigma),
             };
-            let Some(delta) = m_step(cfg, &x, visit.counts, &sums, c, corr.map(|k| (k, &em.t)), sigma) else {
+            let reach = Reach { centre: em.t * prep.centre, radius: prep.radius, sigma };
+            let Some(delta) = m_step(cfg, &x, visit.counts, &sums, c, corr.map(|k| (k, &em.t)), &reach) else {
                 em.warnings.push(RegistrationWarning::NothingNear { sigma_m: sigma });
                 break;
             };
@@ -305,8 +306,7 @@ impl FilterReg {
             em.result = g;
             em.iterations = it + 1;
             let sigma_sums = visit.sigma_sums(&sums, &g, c);
-            // How far this update moved the source: its centroid, plus the rotation's sweep at its RMS radius.
-            let moved = (g * prep.centre - em.t * prep.centre).norm() + delta.rotation.angle() * prep.radius;
+            let moved = reach.moved_by(&delta);
             let surface_settled = surface_sigma && moved < SURFACE_SIGMA_SETTLED * sigma;
             let new_sigma2 = next_sigma2(cfg, em.sigma2, sigma_sums, surface_settled);
             em.history.push(IterationRecord { iteration: it, transform: g, objective: new_sigma2 });
