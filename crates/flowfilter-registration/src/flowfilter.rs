@@ -12,7 +12,7 @@ use crate::filterreg::{FilterReg, FilterRegConfig};
 use crate::icp::{Icp, IcpConfig, IcpVariant};
 use crate::problem::Uncertainty;
 use crate::problem::{Correspondences, Registrar, Registration, RegistrationProblem, in_pool, validate_problem};
-use crate::reprojection::{Shutter, refine_by_reprojection_with};
+use crate::reprojection::{Refinement, Shutter, refine_by_reprojection_with};
 use crate::warning::RegistrationWarning;
 use flowfilter_geometry::{KnnIndex, Point3, Pose, weighted_kabsch};
 use flowfilter_geometry::{ParamError, params};
@@ -269,6 +269,22 @@ impl Registrar for FlowFilter {
     }
 }
 
+/// Flow Filter's answer before the polish.
+struct Solved {
+    registration: Registration,
+    /// Whether trusted flow was used (the polish and the refinement follow only then).
+    flow_used: bool,
+    /// The flow result's pose when a geometric check replaced it.
+    overruled: Option<Pose>,
+}
+
+impl Solved {
+    /// The flow result, kept.
+    fn by_flow(registration: Registration) -> Self {
+        Self { registration, flow_used: true, overruled: None }
+    }
+}
+
 /// The candidate set of correspondences Flow Filter uses, with its RANSAC consensus.
 struct FlowConsensus<'a> {
     /// Which set (see `RegistrationProblem::alternative_correspondences`).
@@ -292,12 +308,12 @@ impl FlowFilter {
     fn solve_and_polish(&self, p: &RegistrationProblem) -> Result<Registration, RegistrationError> {
         validate_problem(p, None)?;
         let chosen = self.consensus(p);
-        let (mut r, flow_used) = self.solve(p, chosen.as_ref())?;
+        let Solved { registration: mut r, flow_used, overruled } = self.solve(p, chosen.as_ref())?;
         // Without trusted flow the result is plain FilterReg, as documented: no polish.
         if flow_used {
             r = self.polish(p, chosen.as_ref().map(|c| c.pairs), r)?;
             if let Some(c) = &chosen {
-                self.refine(c.pairs, &mut r);
+                self.refine(c.pairs, overruled.as_ref(), &mut r);
             }
         }
         r.correspondence_set = chosen.map(|c| c.index);
@@ -354,10 +370,12 @@ impl FlowFilter {
     }
 
     /// [`FlowFilterConfig::reprojection_refine`] from `r` on the pairs that agree with it (`r`
-    /// is left as it is when off, with too few pairs, or when the refinement turns too far); the
-    /// refinement's bounds become `r.uncertainty`, and a motion within them is reported
-    /// ([`RegistrationWarning::BelowResolution`]).
-    fn refine(&self, pairs: &Correspondences, r: &mut Registration) {
+    /// keeps its pose when off, with too few pairs, or when the refinement turns too far). The
+    /// refinement's bounds, widened by how far it moved the pose ([`bounds_after_refinement`]),
+    /// become `r.uncertainty`, and a motion within them is reported
+    /// ([`RegistrationWarning::BelowResolution`]). When a geometric check `overruled` the flow's
+    /// pose, the bounds reach that pose too: it is the other answer the frames support.
+    fn refine(&self, pairs: &Correspondences, overruled: Option<&Pose>, r: &mut Registration) {
         if !self.config.reprojection_refine {
             return;
         }
@@ -369,41 +387,44 @@ impl FlowFilter {
         let shear_sd = self.config.reprojection_row_shear_sd;
         let shutter = if shear_sd > 0.0 { Shutter::Rolling { shear_sd } } else { Shutter::Global };
         let Some(q) = refine_by_reprojection_with(pairs, &agree, t, 20, shutter) else { return };
-        if (q.pose.rotation * t.rotation.inverse()).angle().to_degrees() > self.config.reprojection_max_change_deg {
-            return;
+        let taken = pose_distance(&q.pose, &t).0 <= self.config.reprojection_max_change_deg;
+        if taken {
+            r.transform = q.pose;
         }
-        let (rotation_deg, translation_m) = q.bounds();
-        r.transform = q.pose;
-        r.uncertainty = Some(Uncertainty { rotation_deg, translation_m });
-        let moved_deg = q.pose.rotation.angle().to_degrees();
-        let moved_m = q.pose.translation.vector.norm();
+        let mut bounds = bounds_after_refinement(&q, &t, taken);
+        if let Some(other) = overruled {
+            let (turned_deg, shifted_m) = pose_distance(&r.transform, other);
+            bounds.rotation_deg = bounds.rotation_deg.max(turned_deg);
+            bounds.translation_m = bounds.translation_m.max(shifted_m);
+        }
+        r.uncertainty = Some(bounds);
+        let moved_deg = r.transform.rotation.angle().to_degrees();
+        let moved_m = r.transform.translation.vector.norm();
+        let Uncertainty { rotation_deg, translation_m } = bounds;
         if moved_deg <= rotation_deg && moved_m <= translation_m {
             r.warnings.push(RegistrationWarning::BelowResolution { moved_deg, rotation_deg, moved_m, translation_m });
         }
     }
 
-    /// Flow Filter before the polish, and whether trusted flow was used.
-    fn solve(
-        &self,
-        p: &RegistrationProblem,
-        chosen: Option<&FlowConsensus<'_>>,
-    ) -> Result<(Registration, bool), RegistrationError> {
+    /// Flow Filter before the polish.
+    fn solve(&self, p: &RegistrationProblem, chosen: Option<&FlowConsensus<'_>>) -> Result<Solved, RegistrationError> {
         let cfg = &self.config;
         let usable = chosen.map_or(0, |c| c.pairs.usable());
         let agreeing = chosen.map_or(0, FlowConsensus::agreeing);
         let trusted = agreeing as f64 >= cfg.min_inlier_fraction * usable as f64;
         let flow = chosen.and_then(|c| c.ransac.as_ref().map(|(pose, inliers)| (c.pairs, *pose, inliers)));
         let Some((pairs, pose, inliers)) = flow.filter(|_| trusted) else {
-            return Ok((self.fallback(p, chosen.map(|c| c.pairs), agreeing, usable)?, false));
+            let registration = self.fallback(p, chosen.map(|c| c.pairs), agreeing, usable)?;
+            return Ok(Solved { registration, flow_used: false, overruled: None });
         };
         if cfg.mode == FlowFilterMode::FlowOnly {
-            return Ok((flow_only(pose, agreeing, pairs.len()), true));
+            return Ok(Solved::by_flow(flow_only(pose, agreeing, pairs.len())));
         }
         let flow_result = self.filterreg_from_flow(p, pairs, pose, inliers)?;
         if !cfg.geometric_check {
-            return Ok((flow_result, true));
+            return Ok(Solved::by_flow(flow_result));
         }
-        Ok((self.verify(p, pose, flow_result)?, true))
+        self.verify(p, pose, flow_result)
     }
 
     /// No trusted flow: plain FilterReg on the problem, flagged.
@@ -459,7 +480,7 @@ impl FlowFilter {
         p: &RegistrationProblem,
         pose: Pose,
         flow_result: Registration,
-    ) -> Result<Registration, RegistrationError> {
+    ) -> Result<Solved, RegistrationError> {
         let cfg = &self.config;
         let index = KnnIndex::new(&p.target.points);
         let normals = p.source.normals.as_deref();
@@ -476,7 +497,7 @@ impl FlowFilter {
         if cfg.motion_margin_deg >= 0.0
             && let Some(r) = self.motion_check(&plain, &from_init, &flow_result, s_flow, &score)?
         {
-            return Ok(r);
+            return Ok(Solved { registration: r, flow_used: true, overruled: Some(flow_result.transform) });
         }
         let mut alternatives = vec![("FilterReg from the initial pose", from_init)];
         if cfg.mode == FlowFilterMode::Joint {
@@ -485,7 +506,10 @@ impl FlowFilter {
             let local = FilterReg::new(local_cfg)?.register(&plain.with_init(pose))?;
             alternatives.push(("FilterReg from the flow pose without the flow term", local));
         }
-        Ok(self.fit_check(alternatives, flow_result, s_flow, &score))
+        let flow_pose = flow_result.transform;
+        let registration = self.fit_check(alternatives, flow_result, s_flow, &score);
+        let overruled = (registration.transform != flow_pose).then_some(flow_pose);
+        Ok(Solved { registration, flow_used: true, overruled })
     }
 
     /// The motion check (see [`FlowFilterConfig::motion_margin_deg`]) on the clouds alone
@@ -555,6 +579,31 @@ impl FlowFilter {
     }
 }
 
+/// How far apart two poses are: the angle of the rotation between them (degrees) and the distance
+/// between their translations (metres), the two quantities the bounds are on.
+fn pose_distance(a: &Pose, b: &Pose) -> (f64, f64) {
+    ((a.rotation * b.rotation.inverse()).angle().to_degrees(), (a.translation.vector - b.translation.vector).norm())
+}
+
+/// Error bounds of the pose Flow Filter reports, from its reprojection refinement `q` that
+/// started at `start` (the pose flow and geometry agreed on) and was `taken` or not.
+///
+/// The refinement's covariance sees the flow pairs' scatter, but not an error that all of them
+/// share (a shear the prior held back, a texture tracked with a bias) nor the geometry's pull.
+/// How far the refinement moved the pose measures the two together: flow alone against flow and
+/// geometry. When taken, that distance is added to the covariance's bound as an independent
+/// error (in quadrature); when not taken, the reported pose is `start`, that far from the refined
+/// pose, and the bounds add it outright (the triangle inequality).
+fn bounds_after_refinement(q: &Refinement, start: &Pose, taken: bool) -> Uncertainty {
+    let (rotation_deg, translation_m) = q.bounds();
+    let (turned_deg, shifted_m) = pose_distance(&q.pose, start);
+    if taken {
+        Uncertainty { rotation_deg: rotation_deg.hypot(turned_deg), translation_m: translation_m.hypot(shifted_m) }
+    } else {
+        Uncertainty { rotation_deg: rotation_deg + turned_deg, translation_m: translation_m + shifted_m }
+    }
+}
+
 /// The flow-only mode's result: the RANSAC pose itself.
 fn flow_only(pose: Pose, agreeing: usize, pairs: usize) -> Registration {
     Registration {
@@ -571,4 +620,41 @@ fn median_residual(c: &Correspondences, t: &Pose) -> f64 {
         (0..c.len()).filter(|&i| c.weights[i] > 0.0).map(|i| (t * c.source[i] - c.target[i]).norm()).collect();
     d.sort_by(f64::total_cmp);
     d[d.len() / 2]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Matrix6, Vector2, Vector3};
+
+    /// A refinement at `pose` whose covariance puts 0.1 deg (rotation) and 1 mm (translation)
+    /// standard deviations on every axis, from the pairs as independent (2.8 sd bounds).
+    fn refinement(pose: Pose) -> Refinement {
+        let (rot, trans) = (0.1f64.to_radians(), 0.001f64);
+        let diag = Vector3::repeat(trans * trans).push(rot * rot).push(rot * rot).push(rot * rot);
+        let covariance = Matrix6::from_diagonal(&nalgebra::Vector6::from_iterator(diag.iter().copied()));
+        Refinement { pose, covariance, blocks: 0, row_shear: Vector2::zeros() }
+    }
+
+    /// Taken, the refinement's move adds to its bounds in quadrature; not taken (the pose
+    /// reported is the start), outright.
+    #[test]
+    fn the_bounds_widen_by_how_far_the_refinement_moved() {
+        let start = Pose::new(Vector3::new(0.0, 0.0, 0.5), Vector3::zeros());
+        let moved = Pose::new(Vector3::new(0.003, 0.0, 0.5), Vector3::new(0.0, 0.0, 1f64.to_radians()));
+        let q = refinement(moved);
+        let (rot, trans) = q.bounds();
+        assert!((rot - 0.27955).abs() < 1e-4 && (trans - 0.0027955).abs() < 1e-7, "{rot} {trans}");
+        let (turned, shifted) = pose_distance(&moved, &start);
+        assert!((turned - 1.0).abs() < 1e-9 && (shifted - 0.003).abs() < 1e-12, "{turned} {shifted}");
+        let taken = bounds_after_refinement(&q, &start, true);
+        assert!((taken.rotation_deg - rot.hypot(1.0)).abs() < 1e-9, "{taken:?}");
+        assert!((taken.translation_m - trans.hypot(0.003)).abs() < 1e-12, "{taken:?}");
+        let kept = bounds_after_refinement(&q, &start, false);
+        assert!((kept.rotation_deg - (rot + 1.0)).abs() < 1e-9, "{kept:?}");
+        assert!((kept.translation_m - (trans + 0.003)).abs() < 1e-12, "{kept:?}");
+        // A refinement that stays put keeps the covariance's bounds.
+        let still = bounds_after_refinement(&refinement(start), &start, true);
+        assert!((still.rotation_deg - rot).abs() < 1e-12 && (still.translation_m - trans).abs() < 1e-12);
+    }
 }

@@ -126,11 +126,11 @@ impl Registration {
     }
 }
 
-/// Bounds on a pose's error under the backend's noise model (Flow Filter: 2.5 standard
-/// deviations, along the worst axis, of the reprojection refinement's covariance, which takes the
-/// flow pairs' errors as independent: the 90% radius of a 3-D Gaussian). Correlated or systematic
-/// errors are not in it; how often the bounds hold on real and synthetic frames is measured by
-/// the benchmarks (`docs/bop.md`).
+/// Bounds on a pose's error, meant to hold together on 90% of estimates (Flow Filter: the 95%
+/// radius, along the worst axis, of its reprojection refinement's cluster-robust covariance,
+/// widened by how far the refinement moved the pose and reaching any pose a geometric check
+/// overruled). How often they hold on real and synthetic frames is measured by the benchmarks
+/// (`docs/bop.md`).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Uncertainty {
     /// Rotation error bound, degrees.

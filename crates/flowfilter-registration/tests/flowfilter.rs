@@ -162,6 +162,10 @@ fn geometry_that_moves_overrules_flow_that_stands_still() {
     );
     assert!(err(&unchecked.transform) > 5.0, "the static flow should hold the method back without the check");
     assert!(err(&checked.transform) < 0.5, "{} deg", err(&checked.transform));
+    // The bounds reach the pose the check overruled (the flow's, standing still): the frames
+    // support it too.
+    let bounds = checked.uncertainty.expect("bounds after the refinement");
+    assert!(bounds.rotation_deg >= 19.0, "{bounds:?}");
     assert!(
         checked.warnings.iter().any(|w| matches!(w, RegistrationWarning::MotionCheck { .. })),
         "{:?}",
