@@ -9,6 +9,8 @@
 //!   launched by any scheduler: `deploy/`) merged into one run's outputs.
 //! - `bench-speed`: ours against the peers on the same inputs with 1 and 2 threads, and the
 //!   pipeline's pairs per second.
+//! - `twin`: the synthetic twin of real YCB-Video frames (the real views and motions under the
+//!   synthetic sensor model), for `bench-bop --data`.
 //! - `publish-check`: every library crate packages and builds from its package; a scratch
 //!   crate outside the workspace depends on `flowfilter-registration` and runs its README
 //!   example.
@@ -26,6 +28,7 @@ mod report;
 mod sequence;
 mod shard;
 mod speed;
+mod twin;
 
 use clap::{Parser, Subcommand};
 use std::path::{Path, PathBuf};
@@ -54,6 +57,10 @@ enum Command {
     /// Check that every library crate packages and builds on its own, and that a crate outside
     /// the workspace can depend on one and run its README example.
     PublishCheck(publish_check::PublishCheckArgs),
+    /// Write the synthetic twin of real YCB-Video frames: each annotated object's scan rendered
+    /// where the annotation puts it, through the frames' camera, under the synthetic sensor
+    /// model (measure it with `bench-bop --data OUT`).
+    Twin(twin::TwinArgs),
     /// Feed randomly mutated files of every input format to the parsers (seeded); fail on any
     /// panic.
     Mutate(mutate::MutateArgs),
@@ -81,6 +88,7 @@ fn main() -> ExitCode {
         Command::BenchSpeed(args) => speed::run(&args),
         Command::PublishCheck(args) => publish_check::run(&args),
         Command::Mutate(args) => mutate::run(&args),
+        Command::Twin(args) => twin::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

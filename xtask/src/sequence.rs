@@ -111,11 +111,19 @@ impl YcbVideoFrames {
         Ok(Self { dir: dir.to_path_buf(), images })
     }
 
+    /// The class ids annotated in any image, in order.
+    pub fn object_ids(&self) -> Vec<u32> {
+        let ids: std::collections::BTreeSet<u32> =
+            self.images.values().flat_map(|i| i.objects.keys().copied()).collect();
+        ids.into_iter().collect()
+    }
+
     fn image(&self, im: u32) -> Result<&YcbvImage, String> {
         self.images.get(&im).ok_or_else(|| format!("{}: no image {im:06}", self.dir.display()))
     }
 
-    fn pose(&self, im: u32, obj: u32) -> Result<Pose, String> {
+    /// `T_camera_from_object` of object `obj` in image `im`.
+    pub fn pose(&self, im: u32, obj: u32) -> Result<Pose, String> {
         let image = self.image(im)?;
         image.objects.get(&obj).map(|o| o.1).ok_or_else(|| {
             format!("{}: image {im:06} has no object {obj} (it has {:?})", self.dir.display(), image.objects.keys())

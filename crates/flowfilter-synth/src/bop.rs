@@ -125,7 +125,7 @@ impl<'a> BopCamera<'a> {
         })?;
         let mut rng = ChaCha8Rng::seed_from_u64(image_seed(opts.seed, opts.obj_id, im_id));
         let draw = opts.effects.draw(&mut rng);
-        let timing = ViewTiming { color_angle_deg: angle, depth_angle_deg: angle + draw.depth_delay_deg };
+        let timing = ViewTiming::turntable(registered, angle, angle + draw.depth_delay_deg);
         // Disparity is measured by the depth sensor: its focal length sets the quantisation.
         let mut view =
             render_view(scene, registered, timing, opts.noise.as_ref(), s.rgbd.depth.intrinsics.fx, &mut rng);

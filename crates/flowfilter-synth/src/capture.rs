@@ -77,8 +77,8 @@ fn uv_at(scene: &Scene, g: &GBuffer, k: usize) -> Option<(u32, [f32; 2])> {
     Some((mesh_id, [0, 1].map(|c| mesh.uvs[i0][c] * b0 + mesh.uvs[i1][c] * b1 + mesh.uvs[i2][c] * b2)))
 }
 
-fn shade(scene: &Scene, g: &GBuffer, angle_deg: f64) -> RgbImage {
-    let rot = world_from_table(angle_deg).rotation.cast::<f32>();
+fn shade(scene: &Scene, g: &GBuffer, world_from_table: &Pose) -> RgbImage {
+    let rot = world_from_table.rotation.cast::<f32>();
     let (w, h) = (g.width, g.height);
     let uvs: Vec<Option<(u32, [f32; 2])>> = (0..w * h).into_par_iter().map(|k| uv_at(scene, g, k)).collect();
     let mut out = vec![scene.background; w * h];
@@ -130,7 +130,7 @@ pub fn render_frame(
     let id = FrameId { sensor, angle: angle_deg };
     let mut rng = ChaCha8Rng::seed_from_u64(frame_seed(seed, id));
     let angle = f64::from(angle_deg);
-    let timing = ViewTiming { color_angle_deg: angle, depth_angle_deg: angle };
+    let timing = ViewTiming::turntable(s, angle, angle);
     let v = render_view(scene, s, timing, noise, s.rgbd.depth.intrinsics.fx, &mut rng);
     RenderedFrame {
         id,
@@ -144,14 +144,28 @@ pub fn render_frame(
     }
 }
 
-/// Where the turntable stood when the colour and the depth image of a view were taken (the two
+/// Where the scene stood when the colour and the depth image of a view were taken (the two
 /// differ when the sensor does not capture them at the same instant).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct ViewTiming {
-    /// Turntable angle of the colour exposure, degrees.
-    pub color_angle_deg: f64,
-    /// Turntable angle of the depth exposure, degrees.
-    pub depth_angle_deg: f64,
+    /// Colour camera from table at the colour exposure.
+    pub color_from_table: Pose,
+    /// Colour camera from table at the depth exposure.
+    pub color_from_table_at_depth: Pose,
+    /// World from table at the colour exposure: the light is fixed in the world.
+    pub world_from_table: Pose,
+}
+
+impl ViewTiming {
+    /// Sensor `s` watching the turntable at `color_deg` for the colour image and `depth_deg`
+    /// for the depth image.
+    pub fn turntable(s: &RigSensor, color_deg: f64, depth_deg: f64) -> Self {
+        Self {
+            color_from_table: s.h_color_from_world * world_from_table(color_deg),
+            color_from_table_at_depth: s.h_color_from_world * world_from_table(depth_deg),
+            world_from_table: world_from_table(color_deg),
+        }
+    }
 }
 
 /// A rendered view: [`RenderedFrame`] without its BigBIRD name.
@@ -246,15 +260,13 @@ pub(crate) fn render_view(
     let n_obj = scene.object_triangles() as u32;
 
     // Colour camera.
-    let h_color_from_table = s.h_color_from_world * world_from_table(timing.color_angle_deg);
-    let gc = render_gbuffer(scene, &s.rgbd.color, &h_color_from_table);
-    let mut color = shade(scene, &gc, timing.color_angle_deg);
+    let gc = render_gbuffer(scene, &s.rgbd.color, &timing.color_from_table);
+    let mut color = shade(scene, &gc, &timing.world_from_table);
     let mask = Mask::from_vec(gc.width, gc.height, gc.triangle.iter().map(|&t| t < n_obj).collect()).expect("sized");
     let color_depth = depth_map(&gc);
 
     // Depth camera.
-    let h_color_from_depth_table = s.h_color_from_world * world_from_table(timing.depth_angle_deg);
-    let h_depth_from_table = s.rgbd.color_from_depth.inverse() * h_color_from_depth_table;
+    let h_depth_from_table = s.rgbd.color_from_depth.inverse() * timing.color_from_table_at_depth;
     let gd = render_gbuffer(scene, &s.rgbd.depth, &h_depth_from_table);
     let clean_depth = depth_map(&gd);
     let depth_object =

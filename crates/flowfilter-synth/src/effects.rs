@@ -70,6 +70,14 @@ impl FrameEffects {
         row_shear_px_per_row: 0.004,
     };
 
+    /// What the real YCB-Video sample (`../shared/data/ycb-video/0001`, Xtion) shows, measured
+    /// against its synthetic twin (`cargo xtask twin`): its label masks are offset from the exact
+    /// silhouettes by the same 2-3 px in every frame (within 0.1-0.7 px from frame to frame,
+    /// areas within 2%), so a frame draws no mask shift or growth of its own (the common offset
+    /// is [`crate::TwinOptions::mask_offset_px`]); the rows shear as [`Self::REAL_SENSOR`]'s;
+    /// exposure and white balance as there (not measured).
+    pub const XTION_SAMPLE: Self = Self { mask_shift_px: 0, mask_grow_px: 0, ..Self::REAL_SENSOR };
+
     /// Draw one frame's values.
     pub fn draw(&self, rng: &mut impl Rng) -> FrameDraw {
         let mut symmetric = |bound: f64| if bound > 0.0 { rng.random_range(-bound..=bound) } else { 0.0 };

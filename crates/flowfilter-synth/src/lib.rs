@@ -24,6 +24,7 @@ mod rig;
 mod scene;
 mod texture;
 mod truth_flow;
+mod twin;
 
 pub use bop::{BopSceneOptions, BopView, bop_sensor, render_bop_view, write_bop_scene};
 pub use capture::{
@@ -37,6 +38,7 @@ pub use procedural::{PROCEDURAL_NAMES, procedural};
 pub use rig::{Rig, RigSensor, look_at, world_from_table};
 pub use scene::{Scene, TABLE_RADIUS};
 pub use truth_flow::{TrueFlow, true_flow};
+pub use twin::{TwinOptions, TwinView, render_twin_view};
 
 /// The README's examples, compiled and run as doctests.
 #[cfg(doctest)]

@@ -158,6 +158,18 @@ impl TexturedMesh {
         (lo, hi)
     }
 
+    /// Translate so that the bounding box's centre is the origin: the object frame of the
+    /// YCB-Video annotations (its models are the YCB scans moved so), where the scans themselves
+    /// put the origin elsewhere.
+    pub fn centred(mut self) -> Self {
+        let (lo, hi) = self.bounds();
+        let shift = -(lo.coords + hi.coords) / 2.0;
+        for p in &mut self.positions {
+            *p += shift;
+        }
+        self
+    }
+
     /// Translate so that the bounding box is centred on the z axis and rests on `z = 0`
     /// (how an object stands on the turntable), plus an extra `(dx, dy)` offset.
     pub fn placed_on_table(mut self, dx: f32, dy: f32) -> Self {

@@ -1,0 +1,201 @@
+//! `cargo xtask twin`: the synthetic twin of a folder of real YCB-Video frames. Every annotated
+//! object whose textured scan is in `--meshes` is rendered where each frame's annotation puts it,
+//! through that frame's camera, under the synthetic sensor model (`flowfilter_synth::twin`).
+//! Each object gets a folder in the same layout (`OUT/NNNN/NNNNNN-color.png`, `-depth.png`,
+//! `-label.png`, `-gt.json` holding that object), so that
+//! `cargo xtask bench-bop --data OUT` measures the twin exactly as `--data REAL` measures the
+//! real frames: the same objects, views and motions, side by side.
+
+use crate::sequence::{Sequence, YcbVideoFrames};
+use anyhow::{Context, bail};
+use clap::Args;
+use flowfilter_pipeline::CameraFile;
+use flowfilter_synth::{FrameEffects, NoiseProfile, TexturedMesh, TwinOptions, render_twin_view};
+use image::{ImageBuffer, Luma};
+use std::path::{Path, PathBuf};
+
+/// Options of `cargo xtask twin`.
+#[derive(Args, Debug, Clone)]
+pub struct TwinArgs {
+    /// A folder of real YCB-Video frames (`NNNNNN-color.png`, `-depth.png`, `-label.png`,
+    /// `-gt.json`, as `../shared/data/ycb-video/0001`).
+    #[arg(long)]
+    pub data: PathBuf,
+    /// Directories of textured scans, one per object name (`NAME/textured.obj`).
+    #[arg(long, default_value = "../shared/data/ycb")]
+    pub meshes: PathBuf,
+    /// Noise profile: `carmine`, `none` or a TOML file.
+    #[arg(long, default_value = "carmine")]
+    pub noise: String,
+    /// Effects of real captures: `sample` (measured on the real YCB-Video sample:
+    /// `FrameEffects::XTION_SAMPLE`, masks offset by (-2, 2) px in every frame), `real` (the
+    /// embedded BOP scenes' `FrameEffects::REAL_SENSOR`: masks up to 2 px off and 2 px too large
+    /// or small, drawn per frame) or `none`.
+    #[arg(long, default_value = "sample", value_parser = ["sample", "real", "none"])]
+    pub effects: String,
+    /// Seed of the noise and the per-frame effects.
+    #[arg(long, default_value_t = 7)]
+    pub seed: u64,
+    /// Output folder (one sub-folder per object, named by its class id).
+    #[arg(long, default_value = "target/twin")]
+    pub out: PathBuf,
+}
+
+/// Run `cargo xtask twin`.
+pub fn run(args: &TwinArgs) -> anyhow::Result<()> {
+    let written = write_twin(args)?;
+    for (name, dir) in &written {
+        println!("{name}: {}", dir.display());
+    }
+    println!("twin of {} objects in {}", written.len(), args.out.display());
+    Ok(())
+}
+
+/// Write the twin; the objects written, with their folders.
+pub fn write_twin(args: &TwinArgs) -> anyhow::Result<Vec<(String, PathBuf)>> {
+    let real = YcbVideoFrames::open(&args.data).map_err(anyhow::Error::msg)?;
+    let noise = NoiseProfile::resolve(&args.noise).with_context(|| format!("--noise {}", args.noise))?;
+    let sample = TwinOptions::default();
+    let (effects, mask_offset_px) = match args.effects.as_str() {
+        "none" => (FrameEffects::NONE, (0, 0)),
+        "real" => (FrameEffects::REAL_SENSOR, (0, 0)),
+        _ => (sample.effects, sample.mask_offset_px),
+    };
+    let opts = TwinOptions { noise, effects, mask_offset_px, seed: args.seed, ..sample };
+    let mut written = vec![];
+    for obj in real.object_ids() {
+        let name = real.object_name(obj).unwrap_or_else(|| format!("class_{obj}"));
+        let mesh_path = args.meshes.join(&name).join("textured.obj");
+        if !mesh_path.is_file() {
+            tracing::warn!("{name}: no scan at {}; left out of the twin", mesh_path.display());
+            continue;
+        }
+        let mesh = TexturedMesh::load_obj(&mesh_path)?.centred();
+        let dir = args.out.join(format!("{obj:04}"));
+        std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+        for im in real.image_ids() {
+            write_frame(&real, &args.data, &dir, im, obj, &mesh, &opts)?;
+        }
+        written.push((name, dir));
+    }
+    if written.is_empty() {
+        bail!("{}: none of the annotated objects has a scan in {}", args.data.display(), args.meshes.display());
+    }
+    Ok(written)
+}
+
+/// Frame `im` of object `obj`: the real frame's camera and the object's annotated pose, rendered.
+fn write_frame(
+    real: &YcbVideoFrames,
+    real_dir: &Path,
+    dir: &Path,
+    im: u32,
+    obj: u32,
+    mesh: &TexturedMesh,
+    opts: &TwinOptions,
+) -> anyhow::Result<()> {
+    let gt_path = real_dir.join(format!("{im:06}-gt.json"));
+    let text = std::fs::read_to_string(&gt_path).with_context(|| format!("reading {}", gt_path.display()))?;
+    let mut gt: serde_json::Value = serde_json::from_str(&text).with_context(|| gt_path.display().to_string())?;
+    let (width, height) = image::image_dimensions(real_dir.join(format!("{im:06}-color.png")))
+        .with_context(|| format!("{}: the colour image's size", real_dir.display()))?;
+    let sensor =
+        CameraFile::from_json_value(&gt, &gt_path.display().to_string())?.registered_sensor(Some((width, height)))?;
+    let pose = real.pose(im, obj).map_err(anyhow::Error::msg)?;
+    let view = render_twin_view(mesh, &sensor, &pose, opts, im)?;
+    let stem = dir.join(format!("{im:06}"));
+    let label: ImageBuffer<Luma<u8>, Vec<u8>> = ImageBuffer::from_fn(width, height, |x, y| {
+        Luma([if *view.mask.at(x as usize, y as usize) { u8::try_from(obj).unwrap_or(u8::MAX) } else { 0 }])
+    });
+    let depth: ImageBuffer<Luma<u16>, Vec<u16>> =
+        ImageBuffer::from_fn(width, height, |x, y| Luma([*view.depth.at(x as usize, y as usize)]));
+    view.color.save(stem.with_file_name(format!("{im:06}-color.png")))?;
+    depth.save(stem.with_file_name(format!("{im:06}-depth.png")))?;
+    label.save(stem.with_file_name(format!("{im:06}-label.png")))?;
+    // The annotation, with this object alone.
+    if let Some(list) = gt["objects"].as_array_mut() {
+        list.retain(|o| o["class_id"].as_u64() == Some(u64::from(obj)));
+    }
+    let gt_out = dir.join(format!("{im:06}-gt.json"));
+    std::fs::write(&gt_out, serde_json::to_string_pretty(&gt)? + "\n")
+        .with_context(|| format!("writing {}", gt_out.display()))?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::repo_root;
+
+    fn real_sample() -> Option<PathBuf> {
+        let data = repo_root().join("../shared/data/ycb-video/0001");
+        let meshes = repo_root().join("../shared/data/ycb");
+        if data.is_dir() && meshes.is_dir() {
+            Some(data)
+        } else {
+            eprintln!(
+                "skipping: {} or its scans are absent (the shared data sits beside the repository)",
+                data.display()
+            );
+            None
+        }
+    }
+
+    fn label(path: &Path, id: u8) -> Vec<bool> {
+        image::open(path).unwrap().to_luma8().pixels().map(|p| p.0[0] == id).collect()
+    }
+
+    /// The twin of the real sample: every object with a scan, the real frames' motions, and each
+    /// object where the real frame shows it (the master chef can, which nothing hides, overlaps
+    /// its real label by more than 85%: the scans' frame is the annotation's once centred).
+    #[test]
+    fn the_twin_of_the_real_sample_puts_each_object_where_the_real_frames_show_it() {
+        let Some(data) = real_sample() else { return };
+        let tmp = tempfile::tempdir().unwrap();
+        let args = TwinArgs {
+            data: data.clone(),
+            meshes: repo_root().join("../shared/data/ycb"),
+            noise: "carmine".into(),
+            effects: "none".into(),
+            seed: 7,
+            out: tmp.path().to_path_buf(),
+        };
+        let written = write_twin(&args).unwrap();
+        let names: Vec<&str> = written.iter().map(|(n, _)| n.as_str()).collect();
+        assert_eq!(names, ["002_master_chef_can", "003_cracker_box", "004_sugar_box", "006_mustard_bottle"]);
+        let (real, twin) = (YcbVideoFrames::open(&data).unwrap(), YcbVideoFrames::open(&written[0].1).unwrap());
+        assert_eq!(twin.image_ids(), real.image_ids());
+        for (a, b) in [(1, 2), (1, 5)] {
+            assert_eq!(twin.relative_motion(a, b, 1).unwrap(), real.relative_motion(a, b, 1).unwrap());
+        }
+        for im in [1, 5] {
+            let ours = label(&written[0].1.join(format!("{im:06}-label.png")), 1);
+            let theirs = label(&data.join(format!("{im:06}-label.png")), 1);
+            let both = ours.iter().zip(&theirs).filter(|(a, b)| **a && **b).count();
+            let either = ours.iter().zip(&theirs).filter(|(a, b)| **a || **b).count();
+            let iou = both as f64 / either as f64;
+            assert!(iou > 0.85, "frame {im}: the twin's can overlaps the real one by {iou:.3}");
+        }
+        // Depth in the real frames' units, at the object's distance (about 0.9-1.1 m).
+        let depth = image::open(written[0].1.join("000001-depth.png")).unwrap().to_luma16();
+        let on: Vec<u16> = depth.pixels().map(|p| p.0[0]).filter(|d| *d > 0).collect();
+        let mean_m = on.iter().map(|d| f64::from(*d)).sum::<f64>() / on.len() as f64 / 10_000.0;
+        assert!((0.7..1.3).contains(&mean_m), "{mean_m} m");
+    }
+
+    #[test]
+    fn a_twin_without_scans_is_refused() {
+        let Some(data) = real_sample() else { return };
+        let tmp = tempfile::tempdir().unwrap();
+        let args = TwinArgs {
+            data,
+            meshes: tmp.path().to_path_buf(),
+            noise: "carmine".into(),
+            effects: "real".into(),
+            seed: 7,
+            out: tmp.path().join("out"),
+        };
+        let e = write_twin(&args).unwrap_err().to_string();
+        assert!(e.contains("none of the annotated objects has a scan"), "{e}");
+    }
+}
