@@ -1,6 +1,7 @@
 //! `cargo xtask twin`: the synthetic twin of a folder of real YCB-Video frames. Every annotated
 //! object whose textured scan is in `--meshes` is rendered where each frame's annotation puts it,
-//! through that frame's camera, under the synthetic sensor model (`flowfilter_synth::twin`).
+//! through that frame's camera, under the synthetic sensor model (`flowfilter_synth::twin`),
+//! hidden where another annotated object is nearer.
 //! Each object gets a folder in the same layout (`OUT/NNNN/NNNNNN-color.png`, `-depth.png`,
 //! `-label.png`, `-gt.json` holding that object), so that
 //! `cargo xtask bench-bop --data OUT` measures the twin exactly as `--data REAL` measures the
@@ -10,7 +11,7 @@ use crate::sequence::{Sequence, YcbVideoFrames};
 use anyhow::{Context, bail};
 use clap::Args;
 use flowfilter_pipeline::CameraFile;
-use flowfilter_synth::{FrameEffects, NoiseProfile, TexturedMesh, TwinOptions, render_twin_view};
+use flowfilter_synth::{FrameEffects, NoiseProfile, Occluder, TexturedMesh, TwinOptions, render_twin_view};
 use image::{ImageBuffer, Luma};
 use std::path::{Path, PathBuf};
 
@@ -62,21 +63,15 @@ pub fn write_twin(args: &TwinArgs) -> anyhow::Result<Vec<(String, PathBuf)>> {
         _ => (sample.effects, sample.mask_offset_px),
     };
     let opts = TwinOptions { noise, effects, mask_offset_px, seed: args.seed, ..sample };
+    let scans = load_scans(&real, &args.meshes)?;
     let mut written = vec![];
-    for obj in real.object_ids() {
-        let name = real.object_name(obj).unwrap_or_else(|| format!("class_{obj}"));
-        let mesh_path = args.meshes.join(&name).join("textured.obj");
-        if !mesh_path.is_file() {
-            tracing::warn!("{name}: no scan at {}; left out of the twin", mesh_path.display());
-            continue;
-        }
-        let mesh = TexturedMesh::load_obj(&mesh_path)?.centred();
+    for (&obj, (name, _)) in &scans {
         let dir = args.out.join(format!("{obj:04}"));
         std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
         for im in real.image_ids() {
-            write_frame(&real, &args.data, &dir, im, obj, &mesh, &opts)?;
+            write_frame(&real, &args.data, &dir, im, obj, &scans, &opts)?;
         }
-        written.push((name, dir));
+        written.push((name.clone(), dir));
     }
     if written.is_empty() {
         bail!("{}: none of the annotated objects has a scan in {}", args.data.display(), args.meshes.display());
@@ -84,14 +79,31 @@ pub fn write_twin(args: &TwinArgs) -> anyhow::Result<Vec<(String, PathBuf)>> {
     Ok(written)
 }
 
-/// Frame `im` of object `obj`: the real frame's camera and the object's annotated pose, rendered.
+/// Class id -> (name, centred scan) of every annotated object with a scan in `meshes`.
+type Scans = std::collections::BTreeMap<u32, (String, TexturedMesh)>;
+
+fn load_scans(real: &YcbVideoFrames, meshes: &Path) -> anyhow::Result<Scans> {
+    let mut scans = Scans::new();
+    for obj in real.object_ids() {
+        let name = real.object_name(obj).unwrap_or_else(|| format!("class_{obj}"));
+        let mesh_path = meshes.join(&name).join("textured.obj");
+        if mesh_path.is_file() {
+            scans.insert(obj, (name, TexturedMesh::load_obj(&mesh_path)?.centred()));
+        } else {
+            tracing::warn!("{name}: no scan at {}; left out of the twin", mesh_path.display());
+        }
+    }
+    Ok(scans)
+}
+
+/// Frame `im` of object `obj`: the real frame's camera and the annotated poses, rendered.
 fn write_frame(
     real: &YcbVideoFrames,
     real_dir: &Path,
     dir: &Path,
     im: u32,
     obj: u32,
-    mesh: &TexturedMesh,
+    scans: &Scans,
     opts: &TwinOptions,
 ) -> anyhow::Result<()> {
     let gt_path = real_dir.join(format!("{im:06}-gt.json"));
@@ -102,7 +114,14 @@ fn write_frame(
     let sensor =
         CameraFile::from_json_value(&gt, &gt_path.display().to_string())?.registered_sensor(Some((width, height)))?;
     let pose = real.pose(im, obj).map_err(anyhow::Error::msg)?;
-    let view = render_twin_view(mesh, &sensor, &pose, opts, im)?;
+    let occluders: Vec<Occluder<'_>> = scans
+        .iter()
+        .filter(|(other, _)| **other != obj)
+        .filter_map(|(&other, (_, mesh))| {
+            real.pose(im, other).ok().map(|camera_from_object| Occluder { mesh, camera_from_object })
+        })
+        .collect();
+    let view = render_twin_view(&scans[&obj].1, &sensor, &pose, &occluders, opts, im)?;
     let stem = dir.join(format!("{im:06}"));
     let label: ImageBuffer<Luma<u8>, Vec<u8>> = ImageBuffer::from_fn(width, height, |x, y| {
         Luma([if *view.mask.at(x as usize, y as usize) { u8::try_from(obj).unwrap_or(u8::MAX) } else { 0 }])
@@ -125,7 +144,7 @@ fn write_frame(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::repo_root;
+    use crate::{dir_name, repo_root};
 
     fn real_sample() -> Option<PathBuf> {
         let data = repo_root().join("../shared/data/ycb-video/0001");
@@ -146,8 +165,10 @@ mod tests {
     }
 
     /// The twin of the real sample: every object with a scan, the real frames' motions, and each
-    /// object where the real frame shows it (the master chef can, which nothing hides, overlaps
-    /// its real label by more than 85%: the scans' frame is the annotation's once centred).
+    /// object where the real frame shows it: with the other objects in front of it and the
+    /// sample's mask offset, every twin label overlaps the real one by more than 80% (the
+    /// mustard bottle, half hidden by the sugar box, 85%; the others 93-99%), the master chef
+    /// can by more than 95% (the scans' frame is the annotation's once centred).
     #[test]
     fn the_twin_of_the_real_sample_puts_each_object_where_the_real_frames_show_it() {
         let Some(data) = real_sample() else { return };
@@ -156,7 +177,7 @@ mod tests {
             data: data.clone(),
             meshes: repo_root().join("../shared/data/ycb"),
             noise: "carmine".into(),
-            effects: "none".into(),
+            effects: "sample".into(),
             seed: 7,
             out: tmp.path().to_path_buf(),
         };
@@ -168,13 +189,15 @@ mod tests {
         for (a, b) in [(1, 2), (1, 5)] {
             assert_eq!(twin.relative_motion(a, b, 1).unwrap(), real.relative_motion(a, b, 1).unwrap());
         }
-        for im in [1, 5] {
-            let ours = label(&written[0].1.join(format!("{im:06}-label.png")), 1);
-            let theirs = label(&data.join(format!("{im:06}-label.png")), 1);
+        for (im, (name, dir)) in [1, 5].into_iter().flat_map(|im| written.iter().map(move |w| (im, w))) {
+            let id: u8 = dir_name(dir).parse().unwrap();
+            let ours = label(&dir.join(format!("{im:06}-label.png")), id);
+            let theirs = label(&data.join(format!("{im:06}-label.png")), id);
             let both = ours.iter().zip(&theirs).filter(|(a, b)| **a && **b).count();
             let either = ours.iter().zip(&theirs).filter(|(a, b)| **a || **b).count();
             let iou = both as f64 / either as f64;
-            assert!(iou > 0.85, "frame {im}: the twin's can overlaps the real one by {iou:.3}");
+            let least = if id == 1 { 0.95 } else { 0.8 };
+            assert!(iou > least, "frame {im}: the twin's {name} overlaps the real one by {iou:.3}");
         }
         // Depth in the real frames' units, at the object's distance (about 0.9-1.1 m).
         let depth = image::open(written[0].1.join("000001-depth.png")).unwrap().to_luma16();

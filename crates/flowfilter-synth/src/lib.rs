@@ -38,7 +38,7 @@ pub use procedural::{PROCEDURAL_NAMES, procedural};
 pub use rig::{Rig, RigSensor, look_at, world_from_table};
 pub use scene::{Scene, TABLE_RADIUS};
 pub use truth_flow::{TrueFlow, true_flow};
-pub use twin::{TwinOptions, TwinView, render_twin_view};
+pub use twin::{Occluder, TwinOptions, TwinView, render_twin_view};
 
 /// The README's examples, compiled and run as doctests.
 #[cfg(doctest)]

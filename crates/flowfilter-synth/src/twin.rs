@@ -4,11 +4,12 @@
 //! distance, object pose and motion), so its errors predict the real ones object by object, or
 //! show what the synthetic model of the sensor is missing.
 //!
-//! The object is rendered alone: no table and no other objects (the real frames' surroundings
-//! are not annotated), lit by the scene's light fixed in the object's frame (a static scene).
-//! The depth image is taken at the colour exposure (no delay between the two).
+//! Other annotated objects may be rendered with it ([`Occluder`]): where one is nearer, it hides
+//! the object (colour, depth and mask). The unannotated surroundings (table, background) are not
+//! rendered. Each object is lit by the scene's light fixed in its own frame (a static scene). The
+//! depth image is taken at the colour exposure (no delay between the two).
 
-use crate::capture::{ViewTiming, render_view};
+use crate::capture::{RenderedView, ViewTiming, render_view};
 use crate::effects::{FrameDraw, FrameEffects};
 use crate::error::SynthError;
 use crate::mesh::TexturedMesh;
@@ -73,12 +74,22 @@ pub struct TwinView {
     pub draw: FrameDraw,
 }
 
+/// Another object of the frame, rendered with the object so that it can hide it.
+#[derive(Debug, Clone, Copy)]
+pub struct Occluder<'a> {
+    /// Its scan.
+    pub mesh: &'a TexturedMesh,
+    /// `T_camera_from_object` of it.
+    pub camera_from_object: Pose,
+}
+
 fn frame_seed(seed: u64, frame: u32) -> u64 {
     seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ u64::from(frame) ^ 0x7781
 }
 
-/// Render `object` seen by `sensor` (depth registered to colour) at `camera_from_object`, as
-/// frame `frame` of a twin (the frame number seeds its noise and effects).
+/// Render `object` seen by `sensor` (depth registered to colour) at `camera_from_object`, hidden
+/// where any of `occluders` is nearer, as frame `frame` of a twin (the frame number seeds its
+/// noise and effects).
 ///
 /// # Errors
 /// [`SynthError::BadOption`] when `sensor`'s depth is not registered to its colour image, or for
@@ -94,7 +105,7 @@ fn frame_seed(seed: u64, frame: u32) -> u64 {
 /// let sensor = RgbdSensor::registered(camera, 1e-4)?;
 /// let object = procedural("box", 1)?;
 /// let pose = Pose::new(Vector3::new(0.0, 0.0, 0.8), Vector3::new(1.6, 0.0, 0.0));
-/// let view = render_twin_view(&object, &sensor, &pose, &TwinOptions::default(), 1)?;
+/// let view = render_twin_view(&object, &sensor, &pose, &[], &TwinOptions::default(), 1)?;
 /// assert!(view.true_mask.as_slice().iter().any(|m| *m));
 /// # Ok::<(), Box<dyn std::error::Error>>(())
 /// ```
@@ -102,11 +113,11 @@ pub fn render_twin_view(
     object: &TexturedMesh,
     sensor: &RgbdSensor,
     camera_from_object: &Pose,
+    occluders: &[Occluder<'_>],
     opts: &TwinOptions,
     frame: u32,
 ) -> Result<TwinView, SynthError> {
     check_options(sensor, opts)?;
-    let scene = Scene::new(object.clone(), opts.seed).object_only();
     let rig_sensor = RigSensor {
         rgbd: *sensor,
         h_color_from_world: Pose::identity(),
@@ -117,12 +128,20 @@ pub fn render_twin_view(
     let mut draw = opts.effects.draw(&mut rng);
     draw.mask_shift.0 += opts.mask_offset_px.0;
     draw.mask_shift.1 += opts.mask_offset_px.1;
-    let timing = ViewTiming {
-        color_from_table: *camera_from_object,
-        color_from_table_at_depth: *camera_from_object,
-        world_from_table: Pose::identity(),
+    let mut render = |mesh: &TexturedMesh, pose: &Pose| {
+        let scene = Scene::new(mesh.clone(), opts.seed).object_only();
+        let timing = ViewTiming {
+            color_from_table: *pose,
+            color_from_table_at_depth: *pose,
+            world_from_table: Pose::identity(),
+        };
+        render_view(&scene, &rig_sensor, timing, opts.noise.as_ref(), opts.depth_focal_px, &mut rng)
     };
-    let mut view = render_view(&scene, &rig_sensor, timing, opts.noise.as_ref(), opts.depth_focal_px, &mut rng);
+    let mut view = render(object, camera_from_object);
+    for o in occluders {
+        let other = render(o.mesh, &o.camera_from_object);
+        hide_behind(&mut view, &other);
+    }
     draw.apply_gain(&mut view.color);
     draw.apply_row_shear(&mut view.color);
     Ok(TwinView {
@@ -132,6 +151,22 @@ pub fn render_twin_view(
         true_mask: view.mask,
         draw,
     })
+}
+
+/// Where `other`'s surface is nearer than `view`'s (or `view` shows nothing), `view` shows
+/// `other`: its colour and depth, and no object in the mask.
+fn hide_behind(view: &mut RenderedView, other: &RenderedView) {
+    let (ours, theirs) = (view.clean_depth.as_slice().to_vec(), other.clean_depth.as_slice());
+    let width = view.color.width() as usize;
+    for (k, (&z, &o)) in ours.iter().zip(theirs).enumerate() {
+        if o > 0.0 && (z <= 0.0 || o < z) {
+            let (x, y) = ((k % width) as u32, (k / width) as u32);
+            view.color.put_pixel(x, y, *other.color.get_pixel(x, y));
+            view.raw_depth.as_mut_slice()[k] = other.raw_depth.as_slice()[k];
+            view.clean_depth.as_mut_slice()[k] = o;
+            view.mask.as_mut_slice()[k] = false;
+        }
+    }
 }
 
 fn check_options(sensor: &RgbdSensor, opts: &TwinOptions) -> Result<(), SynthError> {
@@ -175,7 +210,7 @@ mod tests {
             TwinOptions { noise: None, effects: FrameEffects::NONE, mask_offset_px: (0, 0), ..TwinOptions::default() };
         for (x, y) in [(0.0, 0.0), (0.06, -0.03)] {
             let pose = Pose::new(Vector3::new(x, y, 0.9), Vector3::new(0.3, 0.2, 0.1));
-            let view = render_twin_view(&object, &sensor(), &pose, &opts, 1).unwrap();
+            let view = render_twin_view(&object, &sensor(), &pose, &[], &opts, 1).unwrap();
             let (w, _) = view.true_mask.dims();
             let on: Vec<usize> =
                 (0..view.true_mask.as_slice().len()).filter(|&k| view.true_mask.as_slice()[k]).collect();
@@ -196,16 +231,41 @@ mod tests {
         }
     }
 
+    /// An object in front hides what it covers: colour, depth and mask show the occluder
+    /// there; one behind hides nothing.
+    #[test]
+    fn a_nearer_object_hides_the_object() {
+        let object = procedural("box", 3).unwrap().centred();
+        let other = procedural("can", 4).unwrap().centred();
+        let opts =
+            TwinOptions { noise: None, effects: FrameEffects::NONE, mask_offset_px: (0, 0), ..TwinOptions::default() };
+        let pose = Pose::new(Vector3::new(0.0, 0.0, 0.9), Vector3::new(0.3, 0.2, 0.1));
+        let count = |m: &Mask| m.as_slice().iter().filter(|v| **v).count();
+        let alone = render_twin_view(&object, &sensor(), &pose, &[], &opts, 1).unwrap();
+        let front =
+            Occluder { mesh: &other, camera_from_object: Pose::new(Vector3::new(0.03, 0.0, 0.6), Vector3::zeros()) };
+        let hidden = render_twin_view(&object, &sensor(), &pose, &[front], &opts, 1).unwrap();
+        assert!(count(&hidden.mask) < count(&alone.mask) * 9 / 10, "{} of {}", count(&hidden.mask), count(&alone.mask));
+        let k =
+            (0..alone.mask.as_slice().len()).find(|&k| alone.mask.as_slice()[k] && !hidden.mask.as_slice()[k]).unwrap();
+        let (z_alone, z_hidden) = (alone.depth.as_slice()[k], hidden.depth.as_slice()[k]);
+        assert!(z_hidden > 0 && z_hidden < z_alone, "{z_hidden} against {z_alone}");
+        let behind =
+            Occluder { camera_from_object: Pose::new(Vector3::new(0.03, 0.0, 1.4), Vector3::zeros()), ..front };
+        let unhidden = render_twin_view(&object, &sensor(), &pose, &[behind], &opts, 1).unwrap();
+        assert_eq!(unhidden.mask, alone.mask);
+    }
+
     #[test]
     fn bad_options_are_refused() {
         let object = procedural("can", 1).unwrap().centred();
         let pose = Pose::new(Vector3::new(0.0, 0.0, 0.8), Vector3::zeros());
         let opts = TwinOptions { depth_focal_px: 0.0, ..TwinOptions::default() };
-        let e = render_twin_view(&object, &sensor(), &pose, &opts, 1).unwrap_err().to_string();
+        let e = render_twin_view(&object, &sensor(), &pose, &[], &opts, 1).unwrap_err().to_string();
         assert!(e.contains("depth_focal_px"), "{e}");
         let camera = sensor().color;
         let apart = RgbdSensor::new(camera, camera, Pose::translation(0.025, 0.0, 0.0), 1e-4).unwrap();
-        let e = render_twin_view(&object, &apart, &pose, &TwinOptions::default(), 1).unwrap_err().to_string();
+        let e = render_twin_view(&object, &apart, &pose, &[], &TwinOptions::default(), 1).unwrap_err().to_string();
         assert!(e.contains("registered"), "{e}");
     }
 }
