@@ -64,19 +64,42 @@ pub fn write_twin(args: &TwinArgs) -> anyhow::Result<Vec<(String, PathBuf)>> {
     };
     let opts = TwinOptions { noise, effects, mask_offset_px, seed: args.seed, ..sample };
     let scans = load_scans(&real, &args.meshes)?;
-    let mut written = vec![];
-    for (&obj, (name, _)) in &scans {
-        let dir = args.out.join(format!("{obj:04}"));
-        std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
-        for im in real.image_ids() {
-            write_frame(&real, &args.data, &dir, im, obj, &scans, &opts)?;
-        }
-        written.push((name.clone(), dir));
-    }
-    if written.is_empty() {
+    if scans.is_empty() {
         bail!("{}: none of the annotated objects has a scan in {}", args.data.display(), args.meshes.display());
     }
+    let written: Vec<(String, PathBuf)> =
+        scans.iter().map(|(obj, (name, _))| (name.clone(), args.out.join(format!("{obj:04}")))).collect();
+    for (_, dir) in &written {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    // Each real frame's annotation and camera are read once, for all its objects.
+    for im in real.image_ids() {
+        let frame = RealFrame::read(&args.data, im)?;
+        for ((&obj, _), (_, dir)) in scans.iter().zip(&written) {
+            write_frame(&real, &frame, dir, obj, &scans, &opts)?;
+        }
+    }
     Ok(written)
+}
+
+/// One real frame: its number, annotation (as read) and camera.
+struct RealFrame {
+    im: u32,
+    gt: serde_json::Value,
+    sensor: flowfilter_pipeline::RgbdSensor,
+    size: (u32, u32),
+}
+
+impl RealFrame {
+    fn read(real_dir: &Path, im: u32) -> anyhow::Result<Self> {
+        let gt_path = real_dir.join(format!("{im:06}-gt.json"));
+        let text = std::fs::read_to_string(&gt_path).with_context(|| format!("reading {}", gt_path.display()))?;
+        let gt: serde_json::Value = serde_json::from_str(&text).with_context(|| gt_path.display().to_string())?;
+        let size = image::image_dimensions(real_dir.join(format!("{im:06}-color.png")))
+            .with_context(|| format!("{}: the colour image's size", real_dir.display()))?;
+        let sensor = CameraFile::from_json_value(&gt, &gt_path.display().to_string())?.registered_sensor(Some(size))?;
+        Ok(Self { im, gt, sensor, size })
+    }
 }
 
 /// Class id -> (name, centred scan) of every annotated object with a scan in `meshes`.
@@ -96,23 +119,16 @@ fn load_scans(real: &YcbVideoFrames, meshes: &Path) -> anyhow::Result<Scans> {
     Ok(scans)
 }
 
-/// Frame `im` of object `obj`: the real frame's camera and the annotated poses, rendered.
+/// Object `obj` in `frame`: the real frame's camera and the annotated poses, rendered.
 fn write_frame(
     real: &YcbVideoFrames,
-    real_dir: &Path,
+    frame: &RealFrame,
     dir: &Path,
-    im: u32,
     obj: u32,
     scans: &Scans,
     opts: &TwinOptions,
 ) -> anyhow::Result<()> {
-    let gt_path = real_dir.join(format!("{im:06}-gt.json"));
-    let text = std::fs::read_to_string(&gt_path).with_context(|| format!("reading {}", gt_path.display()))?;
-    let mut gt: serde_json::Value = serde_json::from_str(&text).with_context(|| gt_path.display().to_string())?;
-    let (width, height) = image::image_dimensions(real_dir.join(format!("{im:06}-color.png")))
-        .with_context(|| format!("{}: the colour image's size", real_dir.display()))?;
-    let sensor =
-        CameraFile::from_json_value(&gt, &gt_path.display().to_string())?.registered_sensor(Some((width, height)))?;
+    let (im, (width, height)) = (frame.im, frame.size);
     let pose = real.pose(im, obj).map_err(anyhow::Error::msg)?;
     let occluders: Vec<Occluder<'_>> = scans
         .iter()
@@ -121,17 +137,17 @@ fn write_frame(
             real.pose(im, other).ok().map(|camera_from_object| Occluder { mesh, camera_from_object })
         })
         .collect();
-    let view = render_twin_view(&scans[&obj].1, &sensor, &pose, &occluders, opts, im)?;
-    let stem = dir.join(format!("{im:06}"));
+    let view = render_twin_view(&scans[&obj].1, &frame.sensor, &pose, &occluders, opts, im)?;
     let label: ImageBuffer<Luma<u8>, Vec<u8>> = ImageBuffer::from_fn(width, height, |x, y| {
         Luma([if *view.mask.at(x as usize, y as usize) { u8::try_from(obj).unwrap_or(u8::MAX) } else { 0 }])
     });
     let depth: ImageBuffer<Luma<u16>, Vec<u16>> =
         ImageBuffer::from_fn(width, height, |x, y| Luma([*view.depth.at(x as usize, y as usize)]));
-    view.color.save(stem.with_file_name(format!("{im:06}-color.png")))?;
-    depth.save(stem.with_file_name(format!("{im:06}-depth.png")))?;
-    label.save(stem.with_file_name(format!("{im:06}-label.png")))?;
+    view.color.save(dir.join(format!("{im:06}-color.png")))?;
+    depth.save(dir.join(format!("{im:06}-depth.png")))?;
+    label.save(dir.join(format!("{im:06}-label.png")))?;
     // The annotation, with this object alone.
+    let mut gt = frame.gt.clone();
     if let Some(list) = gt["objects"].as_array_mut() {
         list.retain(|o| o["class_id"].as_u64() == Some(u64::from(obj)));
     }

@@ -156,9 +156,9 @@ pub fn render_twin_view(
 /// Where `other`'s surface is nearer than `view`'s (or `view` shows nothing), `view` shows
 /// `other`: its colour and depth, and no object in the mask.
 fn hide_behind(view: &mut RenderedView, other: &RenderedView) {
-    let (ours, theirs) = (view.clean_depth.as_slice().to_vec(), other.clean_depth.as_slice());
     let width = view.color.width() as usize;
-    for (k, (&z, &o)) in ours.iter().zip(theirs).enumerate() {
+    for (k, &o) in other.clean_depth.as_slice().iter().enumerate() {
+        let z = view.clean_depth.as_slice()[k];
         if o > 0.0 && (z <= 0.0 || o < z) {
             let (x, y) = ((k % width) as u32, (k / width) as u32);
             view.color.put_pixel(x, y, *other.color.get_pixel(x, y));
