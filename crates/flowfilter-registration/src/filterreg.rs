@@ -161,9 +161,25 @@ struct Sums {
     mn: Vec<Vector3>,
 }
 
+/// The lattice's kernel scale in 3-D, computed once per process.
 fn lattice_scale() -> f64 {
     static SCALE: OnceLock<f64> = OnceLock::new();
-    *SCALE.get_or_init(|| Lattice::kernel_scale(3))
+    computed_once(&SCALE, || Lattice::kernel_scale(3))
+}
+
+/// The value in `cell`, computed by `compute` and stored if the cell is empty.
+///
+/// Unlike `OnceLock::get_or_init`, no lock is held while computing: the lattice's computation
+/// runs rayon jobs, and while it waits for them its worker may steal another registration that
+/// asks for the same value, re-entering the initialisation on the same thread (a deadlock).
+/// `compute` must be deterministic: threads that race here compute the same value, and the
+/// first one stored is kept.
+fn computed_once(cell: &OnceLock<f64>, compute: impl Fn() -> f64) -> f64 {
+    if let Some(value) = cell.get() {
+        return *value;
+    }
+    let value = compute();
+    *cell.get_or_init(|| value)
 }
 
 /// Target values per point: `[1, y, |y|^2]` and, with normals, `n`.
@@ -599,6 +615,24 @@ fn permuted<T: Copy>(values: &[T], order: &[u32]) -> Vec<T> {
 mod tests {
     use super::*;
     use nalgebra::{Translation3, UnitQuaternion};
+
+    /// A rayon worker computing the kernel scale may steal a job that asks for it again, on the
+    /// same thread. That nested request must compute the value rather than wait on the outer one
+    /// (with `OnceLock::get_or_init` it deadlocks).
+    #[test]
+    fn the_kernel_scale_may_be_requested_while_it_is_being_computed() {
+        let (done, finished) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let cell = OnceLock::new();
+            let outer = computed_once(&cell, || computed_once(&cell, || 2.0) + 0.0);
+            done.send((outer, cell.get().copied())).unwrap();
+        });
+        let (outer, stored) = finished
+            .recv_timeout(std::time::Duration::from_secs(10))
+            .expect("a nested request for the value blocked on the outer one");
+        assert_eq!((outer, stored), (2.0, Some(2.0)));
+        assert_eq!(lattice_scale(), Lattice::kernel_scale(3));
+    }
 
     fn cloud(n: usize, seed: u64) -> Vec<Point3> {
         crate::test_clouds::uniform_box(n, seed, (0.1, 0.1, 0.02))
