@@ -145,6 +145,7 @@ fn mean_stages<'a>(times: impl Iterator<Item = &'a StageTimes>) -> Option<StageT
         acc.flow += t.flow;
         acc.correspondences += t.correspondences;
         acc.registration += t.registration;
+        acc.judge += t.judge;
         acc.total += t.total;
         n += 1;
     }
@@ -156,6 +157,7 @@ fn mean_stages<'a>(times: impl Iterator<Item = &'a StageTimes>) -> Option<StageT
             flow: acc.flow * k,
             correspondences: acc.correspondences * k,
             registration: acc.registration * k,
+            judge: acc.judge * k,
             total: acc.total * k,
         }
     })

@@ -83,6 +83,8 @@ pub struct PipelineConfig {
     pub flow: FlowStageConfig,
     /// Backend parameters.
     pub registration: RegistrationConfig,
+    /// The photometric judge after the registration (Flow Filter methods only).
+    pub judge: crate::judge::JudgeConfig,
 }
 
 impl Default for PipelineConfig {
@@ -93,6 +95,7 @@ impl Default for PipelineConfig {
             cloud: CloudPrepConfig::default(),
             flow: FlowStageConfig::default(),
             registration: RegistrationConfig::default(),
+            judge: crate::judge::JudgeConfig::default(),
         }
     }
 }
@@ -129,6 +132,7 @@ impl PipelineConfig {
     /// A message naming the key or table at fault.
     pub fn validate(&self) -> Result<(), String> {
         check_method_name(&self.method)?;
+        self.judge.validate()?;
         flowfilter_flow::check_estimator_name(&self.flow.estimator)
             .map_err(|e| format!("key 'flow.estimator': {e}"))?;
         self.validate_stages()

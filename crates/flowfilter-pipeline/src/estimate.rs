@@ -88,6 +88,9 @@ pub struct StageTimes {
     pub correspondences: f64,
     /// Registration.
     pub registration: f64,
+    /// The photometric judge, with any re-tracking and re-registration it ran.
+    #[serde(default)]
+    pub judge: f64,
     /// Everything.
     pub total: f64,
 }
@@ -130,6 +133,9 @@ pub struct Estimate {
     pub correspondences: Option<CorrespondenceSummary>,
     /// Time per stage.
     pub stage_ms: StageTimes,
+    /// What the photometric judge saw (methods that use flow correspondences).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub judge: Option<crate::judge::JudgeReport>,
     /// Conditions the caller should know about.
     pub warnings: Vec<PipelineWarning>,
     /// Ground truth, when known.

@@ -24,6 +24,7 @@ mod error;
 mod estimate;
 mod frame;
 pub mod frame_checks;
+pub mod judge;
 mod pipeline;
 mod source;
 mod stages;
@@ -36,6 +37,7 @@ pub use estimate::{
     RegistrationSummary, StageTimes, matrix_rows,
 };
 pub use frame::{ImagesError, RgbdFrame, load_bigbird_frame};
+pub use judge::{JudgeConfig, JudgeReport};
 pub use pipeline::Pipeline;
 pub use source::{FrameFiles, MaskSource};
 pub use stages::{CorrespondenceFinder, DepthPreparer, FlowCorrespondenceFinder, FramePreparer, PreparedFrame};

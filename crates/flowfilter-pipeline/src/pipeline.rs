@@ -4,9 +4,11 @@ use crate::config::PipelineConfig;
 use crate::error::PipelineError;
 use crate::estimate::{CorrespondenceSummary, ESTIMATE_SCHEMA, Estimate, RegistrationSummary, StageTimes, matrix_rows};
 use crate::frame::RgbdFrame;
+use crate::judge::{self, JudgeReport};
 use crate::stages::{CorrespondenceFinder, DepthPreparer, FlowCorrespondenceFinder, FramePreparer, PreparedFrame};
 use crate::warning::PipelineWarning;
 use flowfilter_geometry::Pose;
+use flowfilter_registration::judge::TurnHypotheses;
 use flowfilter_registration::{Registrar, Registration, RegistrationProblem, registrar_by_name};
 use std::time::Instant;
 
@@ -178,10 +180,23 @@ impl Pipeline {
         let tr = Instant::now();
         let reg = self.registrar.register_checked(&problem)?;
         times.registration = tr.elapsed().as_secs_f64() * 1e3;
+        let tj = Instant::now();
+        let (reg, judge) = match found.is_some() {
+            true => self.judge(model, target, &problem, reg)?,
+            false => (reg, None),
+        };
+        times.judge = tj.elapsed().as_secs_f64() * 1e3;
         times.total = times.depth_model + times.depth_target + t0.elapsed().as_secs_f64() * 1e3;
-        let summary = found.map(|f| correspondence_summary(&f, &reg));
+        let summary = match judge.as_ref().and_then(|j| j.retracked) {
+            Some(counts) => {
+                Some(CorrespondenceSummary { tracked: counts.0, consistent: counts.1, inliers: counts.2, guided: true })
+            }
+            None => found.map(|f| correspondence_summary(&f, &reg)),
+        };
         warnings.extend(reg.warnings.iter().cloned().map(PipelineWarning::from));
-        Ok(self.assemble(model, target, reg, summary, times, warnings))
+        let mut estimate = self.assemble(model, target, reg, summary, times, warnings);
+        estimate.judge = judge.map(|j| j.report);
+        Ok(estimate)
     }
 
     /// The correspondence stage, its failures turned into warnings: `None` when it did not run.
@@ -234,6 +249,55 @@ impl Pipeline {
         Ok(found)
     }
 
+    /// The photometric judge ([`crate::judge`]) on the registration's answer: when a turned
+    /// candidate agrees clearly better with the target image, the flow is tracked again from it
+    /// and the registration re-run; that result replaces the answer when it agrees better.
+    fn judge(
+        &self,
+        model: &PreparedFrame,
+        target: &PreparedFrame,
+        problem: &RegistrationProblem,
+        reg: Registration,
+    ) -> Result<(Registration, Option<Judged>), PipelineError> {
+        let cfg = &self.config.judge;
+        let Some(finder) = self.finder().filter(|_| cfg.enabled) else { return Ok((reg, None)) };
+        let images = judge::Textures::new(model, target, cfg.texture_radius_px);
+        let Some(answer_score) = judge::photometric_score(&images, &reg.transform, cfg) else {
+            return Ok((reg, None));
+        };
+        let Some(hypotheses) = TurnHypotheses::new(problem, reg.transform, &cfg.sweep) else { return Ok((reg, None)) };
+        let (candidates, best) = judge::best_candidate(&hypotheses, &images, cfg);
+        let mut report = JudgeReport {
+            answer_score,
+            candidates,
+            best_score: best.map(|b| b.0),
+            best_turn_deg: best.map(|b| b.1.deg),
+            best_axis: best.map(|b| b.1.axis),
+            retracked_score: None,
+            replaced: false,
+        };
+        let Some((_, candidate)) = best.filter(|(s, _)| *s < cfg.ratio * answer_score) else {
+            return Ok((reg, Some(Judged { report, retracked: None })));
+        };
+        // Tracked again from the candidate, the flow follows the texture there.
+        let Ok(found) = finder.find_guided(model, target, &candidate.pose) else {
+            return Ok((reg, Some(Judged { report, retracked: None })));
+        };
+        let counts = (found.tracked, found.pairs.len(), found.pairs.usable());
+        // From the original start: the candidate is only where the flow was tracked from (a
+        // registration started there slides back along the symmetry, which the motion check
+        // would then take for the geometry's own answer).
+        let mut retry = problem.geometry_only().with_correspondences(found.pairs);
+        retry.prior.clone_from(&problem.prior);
+        let again = self.registrar.register_checked(&retry)?;
+        report.retracked_score = judge::photometric_score(&images, &again.transform, cfg);
+        if report.retracked_score.is_some_and(|s| s < answer_score) {
+            report.replaced = true;
+            return Ok((again, Some(Judged { report, retracked: Some(counts) })));
+        }
+        Ok((reg, Some(Judged { report, retracked: None })))
+    }
+
     /// The estimate from the registration and what the stages reported.
     fn assemble(
         &self,
@@ -259,11 +323,19 @@ impl Pipeline {
             registration: RegistrationSummary::new(&reg, model.cloud.len(), target.cloud.len()),
             correspondences,
             stage_ms,
+            judge: None,
             warnings,
             ground_truth: None,
             pose: reg.transform,
         }
     }
+}
+
+/// The judge's report and, when its re-tracked result replaced the answer, that search's counts
+/// (tracked, consistent, inliers).
+struct Judged {
+    report: JudgeReport,
+    retracked: Option<(usize, usize, usize)>,
 }
 
 /// The counts of the set the registrar used (the first when it does not say).

@@ -58,6 +58,8 @@ fn bad_values_are_named() {
         ("[flow.lk]\nwindow = 20", "lk.window"),
         ("[flow.dis]\npatch_stride = 0", "patch_stride"),
         ("method = 3", "method"),
+        ("[judge]\nratio = 2.0", "judge.ratio"),
+        ("[judge.sweep]\nsweep_deg = [-6.0]", "judge.sweep"),
     ] {
         let msg = PipelineConfig::from_toml_str(text, origin).unwrap_err().to_string();
         assert!(msg.contains("x.toml") && msg.contains(needle), "{text}: {msg}");

@@ -13,6 +13,7 @@ mod filterreg;
 mod flowfilter;
 mod gmm;
 mod icp;
+pub mod judge;
 pub mod lattice;
 pub mod plausibility;
 mod problem;

@@ -1,0 +1,234 @@
+//! The photometric judge: when the object may have turned further than the flow followed.
+//!
+//! Flow and geometry both fail towards "no motion" on an object whose silhouette and shading
+//! stay put while it turns (cans, bottles, mugs at 20-30 degree steps). The surface's texture
+//! does turn with it. After the registration, the judge asks the registration crate for the
+//! poses the clouds allow ([`TurnHypotheses`]: the answer turned about the model's normal-scatter
+//! axes, kept where the clouds still fit) and scores each by photometric consistency: the model
+//! frame's object pixels, back-projected with their depth, moved by the pose and projected into
+//! the target frame, compared with the target's grey values where the target's depth agrees
+//! (pixels visible in both). The score is one minus the normalised cross-correlation, so a
+//! change of exposure (gain and offset) does not count. When a candidate agrees clearly better
+//! than the answer, the flow is tracked again from it and the registration re-run; the result
+//! replaces the answer if its own photometric score is the better one.
+
+use crate::stages::PreparedFrame;
+use flowfilter_flow::lk::Gray;
+use flowfilter_geometry::Pose;
+use flowfilter_registration::judge::{TurnCandidate, TurnHypotheses, TurnSweepConfig};
+use serde::{Deserialize, Serialize};
+
+/// The judge's parameters (`[judge]` in the pipeline configuration).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct JudgeConfig {
+    /// Run the judge after methods that use flow correspondences.
+    pub enabled: bool,
+    /// The candidate sweep.
+    pub sweep: TurnSweepConfig,
+    /// The fine sweep around the best coarse candidate: step (degrees).
+    pub fine_step_deg: f64,
+    /// ... and reach on either side (degrees).
+    pub fine_reach_deg: f64,
+    /// A candidate is tried when its score is below this fraction of the answer's. Lower
+    /// keeps more answers the flow found (and more of its failures); higher re-tracks more
+    /// pairs (each costs a guided flow pass and a registration).
+    pub ratio: f64,
+    /// Every `stride`-th model pixel in each direction is compared.
+    pub stride: usize,
+    /// A moved model pixel counts as visible in the target when the target's depth there is
+    /// within this of its own (metres).
+    pub depth_agreement_m: f64,
+    /// Fewer compared pixels than this give no score.
+    pub min_pixels: usize,
+    /// Half-width of the box whose mean is taken from the grey values before comparing
+    /// (pixels; see [`high_pass`]).
+    pub texture_radius_px: usize,
+}
+
+impl Default for JudgeConfig {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            sweep: TurnSweepConfig::default(),
+            fine_step_deg: 1.0,
+            fine_reach_deg: 4.0,
+            ratio: 0.8,
+            stride: 2,
+            depth_agreement_m: 0.01,
+            min_pixels: 100,
+            texture_radius_px: 4,
+        }
+    }
+}
+
+impl JudgeConfig {
+    /// Ranges serde cannot check.
+    ///
+    /// # Errors
+    /// A message naming the key.
+    pub fn validate(&self) -> Result<(), String> {
+        let positive = |v: f64| v > 0.0 && v.is_finite();
+        let non_negative = |v: f64| v >= 0.0 && v.is_finite();
+        if !positive(self.fine_step_deg) || !non_negative(self.fine_reach_deg) {
+            return Err(format!(
+                "keys 'judge.fine_step_deg' and 'judge.fine_reach_deg' must be > 0 and >= 0, found {} and {}",
+                self.fine_step_deg, self.fine_reach_deg
+            ));
+        }
+        if !(self.ratio > 0.0 && self.ratio <= 1.0) {
+            return Err(format!("key 'judge.ratio' must be in (0, 1], found {}", self.ratio));
+        }
+        if self.stride == 0 || self.min_pixels == 0 || !positive(self.depth_agreement_m) {
+            return Err("keys 'judge.stride', 'judge.min_pixels' and 'judge.depth_agreement_m' must be > 0".into());
+        }
+        let s = &self.sweep;
+        if s.sweep_deg.iter().any(|d| !positive(*d))
+            || !non_negative(s.fit_tolerance)
+            || !non_negative(s.fit_slack_m)
+            || !positive(s.tau_m)
+        {
+            return Err(
+                "keys 'judge.sweep.*' must be positive (sweep_deg, tau_m) or >= 0 (fit_tolerance, fit_slack_m)".into(),
+            );
+        }
+        Ok(())
+    }
+}
+
+/// What the judge saw on one pair (reported in the estimate).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct JudgeReport {
+    /// The answer's photometric score (1 - normalised cross-correlation; lower agrees better).
+    pub answer_score: f64,
+    /// Candidates that fit the clouds well enough.
+    pub candidates: usize,
+    /// The best candidate's score and turn (degrees about axis `best_axis` of [`TurnHypotheses::axes`]).
+    pub best_score: Option<f64>,
+    /// See `best_score`.
+    pub best_turn_deg: Option<f64>,
+    /// See `best_score`.
+    pub best_axis: Option<usize>,
+    /// The re-tracked result's score, when a candidate was tried.
+    pub retracked_score: Option<f64>,
+    /// Whether the re-tracked result replaced the answer.
+    pub replaced: bool,
+}
+
+/// The grey image less its local mean over a `(2r+1)^2` box (a high-pass): what stays is the
+/// texture, not the shading or the contrast between large regions (a can's white lid against
+/// its dark label), which do not turn with the surface.
+pub fn high_pass(img: &Gray, r: usize) -> Gray {
+    let (w, h) = img.dims();
+    // Integral image, one row and column of zeros in front.
+    let mut sum = vec![0.0f64; (w + 1) * (h + 1)];
+    for y in 0..h {
+        let mut row = 0.0;
+        for x in 0..w {
+            row += f64::from(*img.at(x, y));
+            sum[(y + 1) * (w + 1) + x + 1] = sum[y * (w + 1) + x + 1] + row;
+        }
+    }
+    Gray::from_fn(w, h, |x, y| {
+        let (x0, y0, x1, y1) = (x.saturating_sub(r), y.saturating_sub(r), (x + r + 1).min(w), (y + r + 1).min(h));
+        let s = sum[y1 * (w + 1) + x1] - sum[y0 * (w + 1) + x1] - sum[y1 * (w + 1) + x0] + sum[y0 * (w + 1) + x0];
+        let mean = s / ((x1 - x0) * (y1 - y0)) as f64;
+        (f64::from(*img.at(x, y)) - mean) as f32
+    })
+}
+
+/// Bilinear grey value at `(x, y)`; `None` outside the image.
+fn bilinear(img: &Gray, x: f64, y: f64) -> Option<f64> {
+    let (w, h) = img.dims();
+    if !(x >= 0.0 && y >= 0.0 && x <= (w - 1) as f64 && y <= (h - 1) as f64) {
+        return None;
+    }
+    let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+    let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+    let (fx, fy) = (x - x0 as f64, y - y0 as f64);
+    let v = |xx, yy| f64::from(*img.at(xx, yy));
+    Some((1.0 - fy) * ((1.0 - fx) * v(x0, y0) + fx * v(x1, y0)) + fy * ((1.0 - fx) * v(x0, y1) + fx * v(x1, y1)))
+}
+
+/// Both frames and their textures ([`high_pass`]), computed once per judgement.
+pub struct Textures<'a> {
+    /// The model frame.
+    pub model: &'a PreparedFrame,
+    /// The target frame.
+    pub target: &'a PreparedFrame,
+    model_texture: Gray,
+    target_texture: Gray,
+}
+
+impl<'a> Textures<'a> {
+    /// The textures of both frames, with a box of `2r+1` pixels.
+    pub fn new(model: &'a PreparedFrame, target: &'a PreparedFrame, r: usize) -> Self {
+        Self { model, target, model_texture: high_pass(&model.gray, r), target_texture: high_pass(&target.gray, r) }
+    }
+}
+
+/// One minus the normalised cross-correlation of the model's object pixels moved by `pose` and
+/// the target's grey values under them, over the pixels visible in both; `None` with fewer
+/// than `cfg.min_pixels` of those or a flat patch.
+pub fn photometric_score(images: &Textures<'_>, pose: &Pose, cfg: &JudgeConfig) -> Option<f64> {
+    let (model, target) = (images.model, images.target);
+    let (w, h) = model.gray.dims();
+    let camera = &target.sensor.color;
+    let (mut n, mut sa, mut sb, mut saa, mut sbb, mut sab) = (0usize, 0.0, 0.0, 0.0, 0.0, 0.0);
+    for y in (0..h).step_by(cfg.stride) {
+        for x in (0..w).step_by(cfg.stride) {
+            let z = f64::from(*model.depth.at(x, y));
+            if !*model.mask.at(x, y) || z <= 0.0 {
+                continue;
+            }
+            let Some(p) = model.rays.backproject(x, y, z) else { continue };
+            let q = pose * p;
+            let Some(px) = camera.project(&q) else { continue };
+            let (u, v) = (px.x.round(), px.y.round());
+            if u < 0.0 || v < 0.0 || u >= w as f64 || v >= h as f64 {
+                continue;
+            }
+            let zt = f64::from(*target.depth.at(u as usize, v as usize));
+            if zt <= 0.0 || (zt - q.z).abs() > cfg.depth_agreement_m {
+                continue;
+            }
+            let Some(b) = bilinear(&images.target_texture, px.x, px.y) else { continue };
+            let a = f64::from(*images.model_texture.at(x, y));
+            n += 1;
+            (sa, sb, saa, sbb, sab) = (sa + a, sb + b, saa + a * a, sbb + b * b, sab + a * b);
+        }
+    }
+    if n < cfg.min_pixels {
+        return None;
+    }
+    let nf = n as f64;
+    let (va, vb) = (saa - sa * sa / nf, sbb - sb * sb / nf);
+    if va <= 1e-12 || vb <= 1e-12 {
+        return None;
+    }
+    Some(1.0 - (sab - sa * sb / nf) / (va * vb).sqrt())
+}
+
+/// The best candidate the clouds allow, by photometric score: the coarse sweep, then the fine
+/// sweep around its best. `None` when no candidate can be scored.
+pub fn best_candidate(
+    hypotheses: &TurnHypotheses<'_>,
+    images: &Textures<'_>,
+    cfg: &JudgeConfig,
+) -> (usize, Option<(f64, TurnCandidate)>) {
+    let coarse = hypotheses.coarse(&cfg.sweep);
+    let scored = |c: TurnCandidate| photometric_score(images, &c.pose, cfg).map(|s| (s, c));
+    let mut best = coarse.iter().copied().filter_map(scored).min_by(|a, b| a.0.total_cmp(&b.0));
+    if let Some((_, around)) = best {
+        let steps = (cfg.fine_reach_deg / cfg.fine_step_deg).round() as i32;
+        for s in (-steps..=steps).filter(|s| *s != 0) {
+            let deg = around.deg + f64::from(s) * cfg.fine_step_deg;
+            if let Some((score, c)) = hypotheses.candidate(around.axis, deg).and_then(scored)
+                && best.as_ref().is_none_or(|b| score < b.0)
+            {
+                best = Some((score, c));
+            }
+        }
+    }
+    (coarse.len(), best)
+}
