@@ -4,7 +4,7 @@
 use anyhow::Context;
 use flowfilter_eval::PoseErrors;
 use flowfilter_pipeline::{
-    Pipeline, PipelineConfig, PipelineWarning, Pose, PreparedFrame, RgbdFrame, StageTimes, Uncertainty,
+    JudgeReport, Pipeline, PipelineConfig, PipelineWarning, Pose, PreparedFrame, RgbdFrame, StageTimes, Uncertainty,
 };
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
@@ -73,6 +73,9 @@ pub struct PairResult {
     pub stage_ms: Option<StageTimes>,
     /// Warnings of the pipeline (fallbacks taken), as `{code, message}` objects.
     pub warnings: Vec<serde_json::Value>,
+    /// What the photometric judge saw (Flow Filter methods).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub judge: Option<JudgeReport>,
     /// The stage that failed and why.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub failure: Option<String>,
@@ -252,6 +255,7 @@ impl Methods<'_> {
             seconds: None,
             stage_ms: None,
             warnings: vec![],
+            judge: None,
             failure: None,
         };
         let group = self.groups[m.unwrap_or(0)];
@@ -275,6 +279,7 @@ impl Methods<'_> {
             row.errors = Some(PoseErrors::new(&e.pose, truth, Some(&model.cloud.points)));
             row.stage_ms = Some(e.stage_ms);
             row.warnings = e.warnings.iter().map(warning_json).collect();
+            row.judge = e.judge;
             Ok(())
         })();
         row.failure = outcome.err();

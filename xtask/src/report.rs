@@ -399,13 +399,13 @@ fn write_manifest(
 
 fn pairs_csv(results: &[PairResult]) -> String {
     let mut csv = String::from(
-        "object,camera,from,to,step,motion_deg,method,angle_error_deg,geodesic_error_deg,translation_error_m,add_s_m,success,converged,seconds,failure\n",
+        "object,camera,from,to,step,motion_deg,method,angle_error_deg,geodesic_error_deg,translation_error_m,add_s_m,success,converged,seconds,failure,judge_answer_score,judge_best_score,judge_best_turn_deg,judge_replaced\n",
     );
     for r in results {
         let e = r.errors;
         let _ = writeln!(
             csv,
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
             r.object,
             r.camera,
             r.from,
@@ -420,7 +420,11 @@ fn pairs_csv(results: &[PairResult]) -> String {
             e.map_or("-".into(), |e| e.success.to_string()),
             r.converged.map_or("-".into(), |c| c.to_string()),
             fmt(r.seconds, 4),
-            r.failure.clone().unwrap_or_default().replace(',', ";")
+            r.failure.clone().unwrap_or_default().replace(',', ";"),
+            fmt(r.judge.as_ref().map(|j| j.answer_score), 4),
+            fmt(r.judge.as_ref().and_then(|j| j.best_score), 4),
+            fmt(r.judge.as_ref().and_then(|j| j.best_turn_deg), 1),
+            r.judge.as_ref().map_or("-".into(), |j| j.replaced.to_string()),
         );
     }
     csv
@@ -434,7 +438,7 @@ fn overall<'s>(summary: &'s [Summary], method: &str) -> Option<&'s Summary> {
 /// Mean time per stage and method over all objects (ms).
 fn stage_table(summary: &[Summary], methods: &[String]) -> String {
     let mut t = String::from(
-        "| method | depth (per frame) | flow | correspondences | registration | pair total | pairs with a warning |\n| --- | --- | --- | --- | --- | --- | --- |\n",
+        "| method | depth (per frame) | flow | correspondences | registration | judge | pair total | pairs with a warning |\n| --- | --- | --- | --- | --- | --- | --- | --- |\n",
     );
     for m in methods {
         if let Some(s) = overall(summary, m)
@@ -442,11 +446,12 @@ fn stage_table(summary: &[Summary], methods: &[String]) -> String {
         {
             let _ = writeln!(
                 t,
-                "| {m} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {} |",
+                "| {m} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {} |",
                 0.5 * (st.depth_model + st.depth_target),
                 st.flow,
                 st.correspondences,
                 st.registration,
+                st.judge,
                 st.total,
                 s.warned
             );
@@ -546,6 +551,7 @@ mod tests {
             seconds: Some(0.1),
             stage_ms: None,
             warnings: vec![],
+            judge: None,
             failure: None,
         }
     }

@@ -14,7 +14,7 @@
 
 use crate::stages::PreparedFrame;
 use flowfilter_flow::lk::Gray;
-use flowfilter_geometry::Pose;
+use flowfilter_geometry::{Point3, Pose};
 use flowfilter_registration::judge::{TurnCandidate, TurnHypotheses, TurnSweepConfig};
 use serde::{Deserialize, Serialize};
 
@@ -137,66 +137,114 @@ pub fn high_pass(img: &Gray, r: usize) -> Gray {
     })
 }
 
-/// Bilinear grey value at `(x, y)`; `None` outside the image.
-fn bilinear(img: &Gray, x: f64, y: f64) -> Option<f64> {
-    let (w, h) = img.dims();
-    if !(x >= 0.0 && y >= 0.0 && x <= (w - 1) as f64 && y <= (h - 1) as f64) {
-        return None;
-    }
-    let (x0, y0) = (x.floor() as usize, y.floor() as usize);
-    let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
-    let (fx, fy) = (x - x0 as f64, y - y0 as f64);
-    let v = |xx, yy| f64::from(*img.at(xx, yy));
-    Some((1.0 - fy) * ((1.0 - fx) * v(x0, y0) + fx * v(x1, y0)) + fy * ((1.0 - fx) * v(x0, y1) + fx * v(x1, y1)))
+/// A frame's texture ([`high_pass`]) on the rectangle where it is needed.
+pub struct Texture {
+    x0: usize,
+    y0: usize,
+    grid: Gray,
 }
 
-/// Both frames and their textures ([`high_pass`]), computed once per judgement.
+impl Texture {
+    /// The texture of `img` on the bounding box of the pixels where `depth` is set, exact
+    /// there (the box is widened by `r` for the local means and clamped to the image). Empty
+    /// without any depth.
+    pub fn new(img: &Gray, depth: &flowfilter_geometry::DepthMap, r: usize) -> Self {
+        let (w, h) = img.dims();
+        let Some((bx0, by0, bx1, by1)) = depth_bbox(depth) else {
+            return Self { x0: 0, y0: 0, grid: Gray::filled(0, 0, 0.0) };
+        };
+        let (x0, y0) = (bx0.saturating_sub(r), by0.saturating_sub(r));
+        let (x1, y1) = ((bx1 + r + 1).min(w), (by1 + r + 1).min(h));
+        Self { x0, y0, grid: high_pass(&img.crop(x0, y0, x1 - x0, y1 - y0), r) }
+    }
+
+    /// The texture at pixel `(x, y)` of the full image; `None` outside the rectangle.
+    fn at(&self, x: usize, y: usize) -> Option<f64> {
+        let (gx, gy) = (x.checked_sub(self.x0)?, y.checked_sub(self.y0)?);
+        self.grid.get(gx, gy).map(|v| f64::from(*v))
+    }
+
+    /// Bilinear texture at `(x, y)` of the full image; `None` outside the rectangle.
+    fn bilinear(&self, x: f64, y: f64) -> Option<f64> {
+        let (gx, gy) = (x - self.x0 as f64, y - self.y0 as f64);
+        let (w, h) = self.grid.dims();
+        if w == 0 || h == 0 || !(gx >= 0.0 && gy >= 0.0 && gx <= (w - 1) as f64 && gy <= (h - 1) as f64) {
+            return None;
+        }
+        let (x0, y0) = (gx.floor() as usize, gy.floor() as usize);
+        let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+        let (fx, fy) = (gx - x0 as f64, gy - y0 as f64);
+        let v = |xx, yy| f64::from(*self.grid.at(xx, yy));
+        Some((1.0 - fy) * ((1.0 - fx) * v(x0, y0) + fx * v(x1, y0)) + fy * ((1.0 - fx) * v(x0, y1) + fx * v(x1, y1)))
+    }
+}
+
+/// The bounding box `(x0, y0, x1, y1)` (inclusive) of the pixels with depth.
+fn depth_bbox(depth: &flowfilter_geometry::DepthMap) -> Option<(usize, usize, usize, usize)> {
+    let mut bb: Option<(usize, usize, usize, usize)> = None;
+    for y in 0..depth.height() {
+        let row = depth.row(y);
+        let (Some(first), Some(last)) = (row.iter().position(|d| *d > 0.0), row.iter().rposition(|d| *d > 0.0)) else {
+            continue;
+        };
+        bb = Some(bb.map_or((first, y, last, y), |(a, b, c, _)| (a.min(first), b, c.max(last), y)));
+    }
+    bb
+}
+
+/// What the scores compare, prepared once per judgement: the model's object pixels (every
+/// `stride`-th, with depth) back-projected with their texture, and the target's texture.
 pub struct Textures<'a> {
-    /// The model frame.
-    pub model: &'a PreparedFrame,
-    /// The target frame.
-    pub target: &'a PreparedFrame,
-    model_texture: Gray,
-    target_texture: Gray,
+    target: &'a PreparedFrame,
+    samples: Vec<(Point3, f64)>,
+    target_texture: Texture,
 }
 
 impl<'a> Textures<'a> {
-    /// The textures of both frames, with a box of `2r+1` pixels.
-    pub fn new(model: &'a PreparedFrame, target: &'a PreparedFrame, r: usize) -> Self {
-        Self { model, target, model_texture: high_pass(&model.gray, r), target_texture: high_pass(&target.gray, r) }
+    /// The samples of `model` and the texture of `target` ([`high_pass`] with `cfg`'s radius).
+    pub fn new(model: &PreparedFrame, target: &'a PreparedFrame, cfg: &JudgeConfig) -> Self {
+        let r = cfg.texture_radius_px;
+        let model_texture = Texture::new(&model.gray, &model.depth, r);
+        let (w, h) = model.gray.dims();
+        let mut samples = Vec::new();
+        for y in (0..h).step_by(cfg.stride) {
+            for x in (0..w).step_by(cfg.stride) {
+                let z = f64::from(*model.depth.at(x, y));
+                if !*model.mask.at(x, y) || z <= 0.0 {
+                    continue;
+                }
+                if let (Some(p), Some(t)) = (model.rays.backproject(x, y, z), model_texture.at(x, y)) {
+                    samples.push((p, t));
+                }
+            }
+        }
+        Self { target, samples, target_texture: Texture::new(&target.gray, &target.depth, r) }
     }
 }
 
 /// One minus the normalised cross-correlation of the model's object pixels moved by `pose` and
-/// the target's grey values under them, over the pixels visible in both; `None` with fewer
-/// than `cfg.min_pixels` of those or a flat patch.
+/// the target's texture under them, over the pixels visible in both (the target's depth there
+/// agrees with the moved pixel's); `None` with fewer than `cfg.min_pixels` of those or a flat
+/// patch.
 pub fn photometric_score(images: &Textures<'_>, pose: &Pose, cfg: &JudgeConfig) -> Option<f64> {
-    let (model, target) = (images.model, images.target);
-    let (w, h) = model.gray.dims();
+    let target = images.target;
+    let (w, h) = target.depth.dims();
     let camera = &target.sensor.color;
     let (mut n, mut sa, mut sb, mut saa, mut sbb, mut sab) = (0usize, 0.0, 0.0, 0.0, 0.0, 0.0);
-    for y in (0..h).step_by(cfg.stride) {
-        for x in (0..w).step_by(cfg.stride) {
-            let z = f64::from(*model.depth.at(x, y));
-            if !*model.mask.at(x, y) || z <= 0.0 {
-                continue;
-            }
-            let Some(p) = model.rays.backproject(x, y, z) else { continue };
-            let q = pose * p;
-            let Some(px) = camera.project(&q) else { continue };
-            let (u, v) = (px.x.round(), px.y.round());
-            if u < 0.0 || v < 0.0 || u >= w as f64 || v >= h as f64 {
-                continue;
-            }
-            let zt = f64::from(*target.depth.at(u as usize, v as usize));
-            if zt <= 0.0 || (zt - q.z).abs() > cfg.depth_agreement_m {
-                continue;
-            }
-            let Some(b) = bilinear(&images.target_texture, px.x, px.y) else { continue };
-            let a = f64::from(*images.model_texture.at(x, y));
-            n += 1;
-            (sa, sb, saa, sbb, sab) = (sa + a, sb + b, saa + a * a, sbb + b * b, sab + a * b);
+    for (p, a) in &images.samples {
+        let q = pose * p;
+        let Some(px) = camera.project(&q) else { continue };
+        let (u, v) = (px.x.round(), px.y.round());
+        if u < 0.0 || v < 0.0 || u >= w as f64 || v >= h as f64 {
+            continue;
         }
+        let zt = f64::from(*target.depth.at(u as usize, v as usize));
+        if zt <= 0.0 || (zt - q.z).abs() > cfg.depth_agreement_m {
+            continue;
+        }
+        let Some(b) = images.target_texture.bilinear(px.x, px.y) else { continue };
+        n += 1;
+        (sa, sb, saa, sbb, sab) = (sa + a, sb + b, saa + a * a, sbb + b * b, sab + a * b);
     }
     if n < cfg.min_pixels {
         return None;

@@ -261,7 +261,7 @@ impl Pipeline {
     ) -> Result<(Registration, Option<Judged>), PipelineError> {
         let cfg = &self.config.judge;
         let Some(finder) = self.finder().filter(|_| cfg.enabled) else { return Ok((reg, None)) };
-        let images = judge::Textures::new(model, target, cfg.texture_radius_px);
+        let images = judge::Textures::new(model, target, cfg);
         let Some(answer_score) = judge::photometric_score(&images, &reg.transform, cfg) else {
             return Ok((reg, None));
         };

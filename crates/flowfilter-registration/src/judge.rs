@@ -43,6 +43,9 @@ impl Default for TurnSweepConfig {
     }
 }
 
+/// The turn that tests an axis (degrees): large enough that a wrong axis shows in the fit.
+const AXIS_TEST_DEG: f64 = 20.0;
+
 /// One axis the candidates turn about (model coordinates).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TurnAxis {
@@ -93,6 +96,23 @@ impl<'a> TurnHypotheses<'a> {
             axes,
         };
         h.fit_limit = h.fit(&answer) * (1.0 + cfg.fit_tolerance) + cfg.fit_slack_m;
+        // The refinement can wander where little of the side is seen (a flat can): of the seed
+        // and its refinement, keep the axis the model turns about with the better fit.
+        for (k, seed) in directions.iter().enumerate() {
+            let seed = TurnAxis {
+                pivot: revolution_pivot(&problem.source.points, normals, seed).unwrap_or(centroid),
+                direction: *seed,
+            };
+            let (a, b) = (h.turn_fit(&seed), h.turn_fit(&h.axes[k]));
+            if a < b {
+                h.axes[k] = seed;
+            }
+        }
+        // The axis the model turns about best is the candidate axis of revolution: tilt it
+        // where that fits better still (a pattern search, steps of 2, 1 and 0.5 degrees).
+        let fits: Vec<f64> = h.axes.iter().map(|a| h.turn_fit(a)).collect();
+        let k = (0..3).min_by(|&a, &b| fits[a].total_cmp(&fits[b])).unwrap_or(0);
+        h.axes[k] = h.tilted_to_fit(h.axes[k], fits[k], &problem.source.points, normals, centroid);
         Some(h)
     }
 
@@ -105,6 +125,45 @@ impl<'a> TurnHypotheses<'a> {
     pub fn fit(&self, pose: &Pose) -> f64 {
         let p = self.problem;
         visible_residual(&p.source.points, p.source.normals.as_deref(), &self.index, pose, self.tau, 0.3)
+    }
+
+    /// How well the model fits when turned both ways about `axis` by [`AXIS_TEST_DEG`]: the
+    /// mean visible-point residual (metres).
+    fn turn_fit(&self, axis: &TurnAxis) -> f64 {
+        let turn = |deg| self.fit(&turned(&self.answer, &axis.pivot, &axis.direction, deg));
+        0.5 * (turn(AXIS_TEST_DEG) + turn(-AXIS_TEST_DEG))
+    }
+
+    /// `axis` tilted, step by step, while turning about it fits better (pivots re-found).
+    fn tilted_to_fit(
+        &self,
+        mut axis: TurnAxis,
+        mut fit: f64,
+        points: &[Point3],
+        normals: &[Vector3],
+        centroid: Point3,
+    ) -> TurnAxis {
+        for step_deg in [2.0f64, 1.0, 0.5] {
+            let u = axis
+                .direction
+                .cross(&if axis.direction.x.abs() < 0.9 { Vector3::x() } else { Vector3::y() })
+                .normalize();
+            let v = axis.direction.cross(&u);
+            loop {
+                let tries = [u, -u, v, -v].map(|w| {
+                    let direction = UnitQuaternion::from_scaled_axis(w * step_deg.to_radians()) * axis.direction;
+                    let pivot = revolution_pivot(points, normals, &direction).unwrap_or(centroid);
+                    let tried = TurnAxis { pivot, direction };
+                    (self.turn_fit(&tried), tried)
+                });
+                let Some((f, best)) = tries.into_iter().min_by(|a, b| a.0.total_cmp(&b.0)).filter(|(f, _)| *f < fit)
+                else {
+                    break;
+                };
+                (fit, axis) = (f, best);
+            }
+        }
+        axis
     }
 
     /// The answer turned by `deg` about axis `axis`, if it fits well enough.
