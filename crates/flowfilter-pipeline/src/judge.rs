@@ -41,6 +41,14 @@ pub struct JudgeConfig {
     pub depth_agreement_m: f64,
     /// Fewer compared pixels than this give no score.
     pub min_pixels: usize,
+    /// Another pose is as good as the estimate when its score exceeds the estimate's by at most
+    /// this (scores are 1 - correlation): an [`crate::PipelineWarning::AmbiguousPose`] then
+    /// names it. Larger warns on objects whose texture tells the poses apart only weakly;
+    /// smaller misses a plain object, whose turned candidates, a little off its axis, match its
+    /// edges a little worse than the estimate.
+    pub ambiguity_tolerance: f64,
+    /// ... and when it is turned at least this far from the estimate (degrees).
+    pub ambiguity_min_turn_deg: f64,
     /// Half-width of the box whose mean is taken from the grey values before comparing
     /// (pixels; see [`high_pass`]).
     pub texture_radius_px: usize,
@@ -58,6 +66,8 @@ impl Default for JudgeConfig {
             depth_agreement_m: 0.01,
             min_pixels: 100,
             texture_radius_px: 4,
+            ambiguity_tolerance: 0.05,
+            ambiguity_min_turn_deg: 12.0,
         }
     }
 }
@@ -78,6 +88,9 @@ impl JudgeConfig {
         }
         if !(self.ratio > 0.0 && self.ratio <= 1.0) {
             return Err(format!("key 'judge.ratio' must be in (0, 1], found {}", self.ratio));
+        }
+        if !non_negative(self.ambiguity_tolerance) || !non_negative(self.ambiguity_min_turn_deg) {
+            return Err("keys 'judge.ambiguity_tolerance' and 'judge.ambiguity_min_turn_deg' must be >= 0".into());
         }
         if self.stride == 0 || self.min_pixels == 0 || !positive(self.depth_agreement_m) {
             return Err("keys 'judge.stride', 'judge.min_pixels' and 'judge.depth_agreement_m' must be > 0".into());
@@ -257,26 +270,65 @@ pub fn photometric_score(images: &Textures<'_>, pose: &Pose, cfg: &JudgeConfig) 
     Some(1.0 - (sab - sa * sb / nf) / (va * vb).sqrt())
 }
 
-/// The best candidate the clouds allow, by photometric score: the coarse sweep, then the fine
-/// sweep around its best. `None` when no candidate can be scored.
-pub fn best_candidate(
-    hypotheses: &TurnHypotheses<'_>,
-    images: &Textures<'_>,
-    cfg: &JudgeConfig,
-) -> (usize, Option<(f64, TurnCandidate)>) {
-    let coarse = hypotheses.coarse(&cfg.sweep);
-    let scored = |c: TurnCandidate| photometric_score(images, &c.pose, cfg).map(|s| (s, c));
-    let mut best = coarse.iter().copied().filter_map(scored).min_by(|a, b| a.0.total_cmp(&b.0));
+/// The candidates of one judgement: the coarse sweep's, each with its score, and the best of
+/// them after the fine sweep.
+pub struct Sweep {
+    /// The coarse candidates (those that fit the clouds) and their scores.
+    pub coarse: Vec<(TurnCandidate, Option<f64>)>,
+    /// The best candidate and its score; `None` when no candidate can be scored.
+    pub best: Option<(f64, TurnCandidate)>,
+}
+
+/// The candidates the clouds allow, scored: the coarse sweep, then the fine sweep around its
+/// best.
+pub fn sweep(hypotheses: &TurnHypotheses<'_>, images: &Textures<'_>, cfg: &JudgeConfig) -> Sweep {
+    let score = |c: &TurnCandidate| photometric_score(images, &c.pose, cfg);
+    let coarse: Vec<(TurnCandidate, Option<f64>)> =
+        hypotheses.coarse(&cfg.sweep).into_iter().map(|c| (c, score(&c))).collect();
+    let mut best = coarse.iter().filter_map(|(c, s)| s.map(|s| (s, *c))).min_by(|a, b| a.0.total_cmp(&b.0));
     if let Some((_, around)) = best {
         let steps = (cfg.fine_reach_deg / cfg.fine_step_deg).round() as i32;
         for s in (-steps..=steps).filter(|s| *s != 0) {
             let deg = around.deg + f64::from(s) * cfg.fine_step_deg;
-            if let Some((score, c)) = hypotheses.candidate(around.axis, deg).and_then(scored)
+            if let Some(c) = hypotheses.candidate(around.axis, deg)
+                && let Some(score) = score(&c)
                 && best.as_ref().is_none_or(|b| score < b.0)
             {
                 best = Some((score, c));
             }
         }
     }
-    (coarse.len(), best)
+    Sweep { coarse, best }
+}
+
+/// Other poses the clouds and the images allow as well as the estimate: coarse candidates at
+/// least `cfg.ambiguity_min_turn_deg` from the estimate's turn `at_deg` on axis `at_axis` (the
+/// estimate is the answer itself when `at_axis` is `None`), whose score is within
+/// `cfg.ambiguity_tolerance` of the estimate's `score` (or that cannot be scored, like the
+/// estimate, when the texture is flat). The axis with the most of them and their turns
+/// relative to the estimate; `None` when there are none.
+pub fn ambiguity(
+    sweep: &Sweep,
+    score: Option<f64>,
+    at: Option<(usize, f64)>,
+    cfg: &JudgeConfig,
+) -> Option<(usize, Vec<f64>)> {
+    let admitted = |s: Option<f64>| match (s, score) {
+        (Some(s), Some(best)) => s <= best + cfg.ambiguity_tolerance,
+        (None, None) => true,
+        _ => false,
+    };
+    let mut per_axis: [Vec<f64>; 3] = Default::default();
+    for (c, s) in &sweep.coarse {
+        let relative = match at {
+            None => c.deg,
+            Some((axis, deg)) if axis == c.axis => c.deg - deg,
+            Some(_) => continue,
+        };
+        if relative.abs() >= cfg.ambiguity_min_turn_deg && admitted(*s) {
+            per_axis[c.axis].push(relative);
+        }
+    }
+    let (axis, turns) = per_axis.into_iter().enumerate().max_by_key(|(_, t)| t.len())?;
+    (!turns.is_empty()).then_some((axis, turns))
 }

@@ -194,8 +194,10 @@ impl Pipeline {
             None => found.map(|f| correspondence_summary(&f, &reg)),
         };
         warnings.extend(reg.warnings.iter().cloned().map(PipelineWarning::from));
+        let (report, ambiguity) = judge.map_or((None, None), |j| (j.report, j.warning));
+        warnings.extend(ambiguity);
         let mut estimate = self.assemble(model, target, reg, summary, times, warnings);
-        estimate.judge = judge.map(|j| j.report);
+        estimate.judge = report;
         Ok(estimate)
     }
 
@@ -261,27 +263,35 @@ impl Pipeline {
     ) -> Result<(Registration, Option<Judged>), PipelineError> {
         let cfg = &self.config.judge;
         let Some(finder) = self.finder().filter(|_| cfg.enabled) else { return Ok((reg, None)) };
-        let images = judge::Textures::new(model, target, cfg);
-        let Some(answer_score) = judge::photometric_score(&images, &reg.transform, cfg) else {
-            return Ok((reg, None));
-        };
         let Some(hypotheses) = TurnHypotheses::new(problem, reg.transform, &cfg.sweep) else { return Ok((reg, None)) };
-        let (candidates, best) = judge::best_candidate(&hypotheses, &images, cfg);
+        let images = judge::Textures::new(model, target, cfg);
+        let answer_score = judge::photometric_score(&images, &reg.transform, cfg);
+        let sweep = judge::sweep(&hypotheses, &images, cfg);
+        let Some(answer_score) = answer_score else {
+            // A flat texture: the clouds alone decide, and say what else they allow.
+            let warning = self.ambiguity(&hypotheses, &sweep, None, None);
+            return Ok((reg, Some(Judged { report: None, retracked: None, warning })));
+        };
+        let best = sweep.best;
         let mut report = JudgeReport {
             answer_score,
-            candidates,
+            candidates: sweep.coarse.len(),
             best_score: best.map(|b| b.0),
             best_turn_deg: best.map(|b| b.1.deg),
             best_axis: best.map(|b| b.1.axis),
             retracked_score: None,
             replaced: false,
         };
+        let kept = |report: JudgeReport| {
+            let warning = self.ambiguity(&hypotheses, &sweep, Some(answer_score), None);
+            Judged { report: Some(report), retracked: None, warning }
+        };
         let Some((_, candidate)) = best.filter(|(s, _)| *s < cfg.ratio * answer_score) else {
-            return Ok((reg, Some(Judged { report, retracked: None })));
+            return Ok((reg, Some(kept(report))));
         };
         // Tracked again from the candidate, the flow follows the texture there.
         let Ok(found) = finder.find_guided(model, target, &candidate.pose) else {
-            return Ok((reg, Some(Judged { report, retracked: None })));
+            return Ok((reg, Some(kept(report))));
         };
         let counts = (found.tracked, found.pairs.len(), found.pairs.usable());
         // From the original start: the candidate is only where the flow was tracked from (a
@@ -291,11 +301,31 @@ impl Pipeline {
         retry.prior.clone_from(&problem.prior);
         let again = self.registrar.register_checked(&retry)?;
         report.retracked_score = judge::photometric_score(&images, &again.transform, cfg);
-        if report.retracked_score.is_some_and(|s| s < answer_score) {
-            report.replaced = true;
-            return Ok((again, Some(Judged { report, retracked: Some(counts) })));
+        match report.retracked_score.filter(|s| *s < answer_score) {
+            Some(score) => {
+                report.replaced = true;
+                let warning = self.ambiguity(&hypotheses, &sweep, Some(score), Some((candidate.axis, candidate.deg)));
+                Ok((again, Some(Judged { report: Some(report), retracked: Some(counts), warning })))
+            }
+            None => Ok((reg, Some(kept(report)))),
         }
-        Ok((reg, Some(Judged { report, retracked: None })))
+    }
+
+    /// [`judge::ambiguity`] as a warning (the axis in the model frame).
+    fn ambiguity(
+        &self,
+        hypotheses: &TurnHypotheses<'_>,
+        sweep: &judge::Sweep,
+        score: Option<f64>,
+        at: Option<(usize, f64)>,
+    ) -> Option<PipelineWarning> {
+        let (axis, turns_deg) = judge::ambiguity(sweep, score, at, &self.config.judge)?;
+        let a = hypotheses.axes[axis];
+        Some(PipelineWarning::AmbiguousPose {
+            axis: [a.direction.x, a.direction.y, a.direction.z],
+            pivot_m: [a.pivot.x, a.pivot.y, a.pivot.z],
+            turns_deg,
+        })
     }
 
     /// The estimate from the registration and what the stages reported.
@@ -331,11 +361,13 @@ impl Pipeline {
     }
 }
 
-/// The judge's report and, when its re-tracked result replaced the answer, that search's counts
-/// (tracked, consistent, inliers).
+/// The judge's report (none when the texture is flat) and, when its re-tracked result replaced
+/// the answer, that search's counts (tracked, consistent, inliers).
 struct Judged {
-    report: JudgeReport,
+    report: Option<JudgeReport>,
     retracked: Option<(usize, usize, usize)>,
+    /// Other poses that the clouds and the images allow as well.
+    warning: Option<PipelineWarning>,
 }
 
 /// The counts of the set the registrar used (the first when it does not say).

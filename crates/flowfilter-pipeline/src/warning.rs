@@ -30,6 +30,18 @@ pub enum PipelineWarning {
         /// Fraction of the image in the mask.
         fraction: f64,
     },
+    /// Other poses fit the clouds and match the images as well as the estimate: the model
+    /// turned about `axis` through `pivot_m` (model camera frame) by any of `turns_deg` (from
+    /// the estimate). A symmetric object whose texture does not tell the poses apart (a plain
+    /// can, a bottle seen from above); the estimate is one of several.
+    AmbiguousPose {
+        /// Unit direction of the axis.
+        axis: [f64; 3],
+        /// A point on it, metres.
+        pivot_m: [f64; 3],
+        /// The turns that are as good, degrees.
+        turns_deg: Vec<f64>,
+    },
     /// The registration backend's warning.
     Registration(RegistrationWarning),
 }
@@ -41,6 +53,7 @@ impl PipelineWarning {
             Self::FlowSkipped { .. } => "flow_skipped",
             Self::FlowFailed { .. } => "flow_failed",
             Self::MaskCoversFrame { .. } => "mask_covers_frame",
+            Self::AmbiguousPose { .. } => "ambiguous_pose",
             Self::Registration(w) => w.code(),
         }
     }
@@ -70,6 +83,22 @@ impl fmt::Display for PipelineWarning {
                 "the mask of frame {frame} covers {:.1}% of the image: the registration aligns the scene, not an object",
                 fraction * 100.0
             ),
+            Self::AmbiguousPose { axis, pivot_m, turns_deg } => {
+                let turns: Vec<String> = turns_deg.iter().map(|t| format!("{t:+.0}")).collect();
+                write!(
+                    f,
+                    "ambiguous pose: turned by {} deg about the axis ({:.3}, {:.3}, {:.3}) through ({:.3}, {:.3}, {:.3}) m \
+                     (model camera frame), the object fits the clouds and matches the images as well (a symmetric \
+                     object whose texture does not tell the poses apart)",
+                    turns.join(", "),
+                    axis[0],
+                    axis[1],
+                    axis[2],
+                    pivot_m[0],
+                    pivot_m[1],
+                    pivot_m[2]
+                )
+            }
             Self::Registration(w) => w.fmt(f),
         }
     }

@@ -59,6 +59,7 @@ fn bad_values_are_named() {
         ("[flow.dis]\npatch_stride = 0", "patch_stride"),
         ("method = 3", "method"),
         ("[judge]\nratio = 2.0", "judge.ratio"),
+        ("[judge]\nambiguity_tolerance = -1.0", "judge.ambiguity_tolerance"),
         ("[judge.sweep]\nsweep_deg = [-6.0]", "judge.sweep"),
     ] {
         let msg = PipelineConfig::from_toml_str(text, origin).unwrap_err().to_string();
