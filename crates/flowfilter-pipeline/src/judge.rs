@@ -117,12 +117,16 @@ pub struct JudgeReport {
     /// Candidates that fit the clouds well enough.
     pub candidates: usize,
     /// The best candidate's score and turn (degrees about axis `best_axis` of [`TurnHypotheses::axes`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub best_score: Option<f64>,
     /// See `best_score`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub best_turn_deg: Option<f64>,
     /// See `best_score`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub best_axis: Option<usize>,
     /// The re-tracked result's score, when a candidate was tried.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub retracked_score: Option<f64>,
     /// Whether the re-tracked result replaced the answer.
     pub replaced: bool,
@@ -281,7 +285,7 @@ pub struct Sweep {
 
 /// The candidates the clouds allow, scored: the coarse sweep, then the fine sweep around its
 /// best.
-pub fn sweep(hypotheses: &TurnHypotheses<'_>, images: &Textures<'_>, cfg: &JudgeConfig) -> Sweep {
+pub fn sweep(hypotheses: &TurnHypotheses, images: &Textures<'_>, cfg: &JudgeConfig) -> Sweep {
     let score = |c: &TurnCandidate| photometric_score(images, &c.pose, cfg);
     let coarse: Vec<(TurnCandidate, Option<f64>)> =
         hypotheses.coarse(&cfg.sweep).into_iter().map(|c| (c, score(&c))).collect();

@@ -314,7 +314,7 @@ impl Pipeline {
     /// [`judge::ambiguity`] as a warning (the axis in the model frame).
     fn ambiguity(
         &self,
-        hypotheses: &TurnHypotheses<'_>,
+        hypotheses: &TurnHypotheses,
         sweep: &judge::Sweep,
         score: Option<f64>,
         at: Option<(usize, f64)>,

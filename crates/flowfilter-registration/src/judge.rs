@@ -43,6 +43,10 @@ impl Default for TurnSweepConfig {
     }
 }
 
+/// At most this many model points measure a candidate's fit (every k-th of the cloud): the
+/// fit is a mean, which a few thousand evenly spread points give to a few per cent.
+const FIT_POINTS: usize = 1500;
+
 /// The turn that tests an axis (degrees): large enough that a wrong axis shows in the fit.
 const AXIS_TEST_DEG: f64 = 20.0;
 
@@ -67,8 +71,11 @@ pub struct TurnCandidate {
 }
 
 /// The turned candidates of one answer (see the module documentation).
-pub struct TurnHypotheses<'a> {
-    problem: &'a RegistrationProblem,
+pub struct TurnHypotheses {
+    /// The model points the fit is measured on (evenly thinned to at most [`FIT_POINTS`]) and
+    /// their normals.
+    fit_points: Vec<Point3>,
+    fit_normals: Vec<Vector3>,
     index: KnnIndex,
     answer: Pose,
     fit_limit: f64,
@@ -77,18 +84,20 @@ pub struct TurnHypotheses<'a> {
     pub axes: [TurnAxis; 3],
 }
 
-impl<'a> TurnHypotheses<'a> {
+impl TurnHypotheses {
     /// The hypotheses around `answer`; `None` without normals on the model cloud (the
     /// visibility test and the pivot need them) or with fewer than 10 model points.
-    pub fn new(problem: &'a RegistrationProblem, answer: Pose, cfg: &TurnSweepConfig) -> Option<Self> {
+    pub fn new(problem: &RegistrationProblem, answer: Pose, cfg: &TurnSweepConfig) -> Option<Self> {
         let normals = problem.source.normals.as_deref()?;
         if problem.source.points.len() < 10 || problem.target.points.is_empty() {
             return None;
         }
         let (centroid, directions) = principal_axes(&problem.source.points, normals);
         let axes = directions.map(|direction| revolution_axis(&problem.source.points, normals, direction, centroid));
+        let every = problem.source.points.len().div_ceil(FIT_POINTS);
         let mut h = Self {
-            problem,
+            fit_points: problem.source.points.iter().step_by(every).copied().collect(),
+            fit_normals: normals.iter().step_by(every).copied().collect(),
             index: KnnIndex::new(&problem.target.points),
             answer,
             fit_limit: 0.0,
@@ -121,10 +130,10 @@ impl<'a> TurnHypotheses<'a> {
         self.answer
     }
 
-    /// The visible-point residual of the model moved by `pose` against the target (metres).
+    /// The visible-point residual of the model (thinned) moved by `pose` against the target
+    /// (metres).
     pub fn fit(&self, pose: &Pose) -> f64 {
-        let p = self.problem;
-        visible_residual(&p.source.points, p.source.normals.as_deref(), &self.index, pose, self.tau, 0.3)
+        visible_residual(&self.fit_points, Some(&self.fit_normals), &self.index, pose, self.tau, 0.3)
     }
 
     /// How well the model fits when turned both ways about `axis` by [`AXIS_TEST_DEG`]: the
