@@ -76,9 +76,20 @@ pub struct PairResult {
     /// What the photometric judge saw (Flow Filter methods).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub judge: Option<JudgeReport>,
+    /// When the judge re-tracked a candidate: the geodesic error (degrees) of the result it did
+    /// not take (the re-tracked one when it kept the answer, else the answer).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub judge_other_error_deg: Option<f64>,
     /// The stage that failed and why.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub failure: Option<String>,
+}
+
+/// A pose from its 4x4 row-major matrix.
+fn pose_from_rows(m: &[[f64; 4]; 4]) -> Pose {
+    let r = nalgebra::Matrix3::from_fn(|i, j| m[i][j]);
+    let rotation = nalgebra::UnitQuaternion::from_matrix(&r);
+    Pose::from_parts(nalgebra::Translation3::new(m[0][3], m[1][3], m[2][3]), rotation)
 }
 
 /// A pipeline warning as its JSON object (`{code, message}`).
@@ -256,6 +267,7 @@ impl Methods<'_> {
             stage_ms: None,
             warnings: vec![],
             judge: None,
+            judge_other_error_deg: None,
             failure: None,
         };
         let group = self.groups[m.unwrap_or(0)];
@@ -279,6 +291,10 @@ impl Methods<'_> {
             row.errors = Some(PoseErrors::new(&e.pose, truth, Some(&model.cloud.points)));
             row.stage_ms = Some(e.stage_ms);
             row.warnings = e.warnings.iter().map(warning_json).collect();
+            row.judge_other_error_deg = e.judge.as_ref().and_then(|j| {
+                let other = if j.replaced { Some(j.answer_transform) } else { j.retracked_transform }?;
+                Some(PoseErrors::new(&pose_from_rows(&other), truth, None).geodesic_error_deg)
+            });
             row.judge = e.judge;
             Ok(())
         })();

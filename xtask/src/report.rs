@@ -320,7 +320,9 @@ pub fn write_outputs(
     columns.push(NO_MOTION.into());
     let plots = crate::plots::write_all(&dir, results, &summary_for_plots(&summary), &columns)?;
     let [object_table, step_table, motion_table] = tables(&summary, &columns, spec.step_label);
-    let stages = stage_table(&summary, spec.methods) + &bounds_lines(&summary, spec.methods);
+    let stages = stage_table(&summary, spec.methods)
+        + &bounds_lines(&summary, spec.methods)
+        + &judge_lines(results, spec.methods);
     let failures = results.iter().filter(|r| r.failure.is_some()).count();
     let md = format!(
         "# {} results\n\nMean absolute rotation-angle error (degrees; the paper's metric) and success rate (< 2 deg, < 1 cm) per object and method; `{NO_MOTION}` is the identity answer (its error is the true motion). {} rows, {} failed, {:.0} s.\n\nDataset: {}. Protocol: {}.\n\n{object_table}\nPer {}:\n\n{step_table}\nPer range of the true rotation (where answering \"no motion\" is hard to beat):\n\n{motion_table}\n{stages}\n{}\n{}",
@@ -479,6 +481,32 @@ fn bounds_lines(summary: &[Summary], methods: &[String]) -> String {
     t
 }
 
+/// For each method with the photometric judge: how often it re-tracked a candidate, how often
+/// the result replaced the answer, and how often it took the one of the two nearer the truth.
+fn judge_lines(results: &[PairResult], methods: &[String]) -> String {
+    let mut t = String::new();
+    for m in methods {
+        let rows: Vec<&PairResult> = results.iter().filter(|r| &r.method == m && r.judge.is_some()).collect();
+        let tried: Vec<(&PairResult, f64)> =
+            rows.iter().filter_map(|r| r.judge_other_error_deg.map(|o| (*r, o))).collect();
+        if rows.is_empty() {
+            continue;
+        }
+        let replaced = tried.iter().filter(|(r, _)| r.judge.as_ref().is_some_and(|j| j.replaced)).count();
+        let nearer = tried.iter().filter(|(r, other)| r.errors.is_some_and(|e| e.geodesic_error_deg <= *other)).count();
+        let _ = writeln!(
+            t,
+            "\n{m}: the judge ran on {} pairs, re-tracked a candidate on {}, took the re-tracked result on {}; it took the one of the two nearer the truth on {} of {}.",
+            rows.len(),
+            tried.len(),
+            replaced,
+            nearer,
+            tried.len()
+        );
+    }
+    t
+}
+
 /// What the plots need of the per-object summary.
 fn summary_for_plots(summary: &[Summary]) -> Vec<crate::plots::MethodObject> {
     summary
@@ -552,8 +580,43 @@ mod tests {
             stage_ms: None,
             warnings: vec![],
             judge: None,
+            judge_other_error_deg: None,
             failure: None,
         }
+    }
+
+    #[test]
+    fn the_judge_line_counts_its_choices_against_the_truth() {
+        let judged = |error: f64, other: Option<f64>, replaced: bool| {
+            let mut r = row("can", 30, 30.0, "flowfilter", error);
+            r.judge = Some(flowfilter_pipeline::JudgeReport {
+                answer_score: 0.5,
+                candidates: 10,
+                best_score: Some(0.2),
+                best_turn_deg: Some(30.0),
+                best_axis: Some(0),
+                retracked_score: other.map(|_| 0.1),
+                replaced,
+                answer_transform: [[0.0; 4]; 4],
+                retracked_transform: None,
+            });
+            r.judge_other_error_deg = other;
+            r
+        };
+        let rows = vec![
+            judged(0.3, Some(29.0), true),  // re-tracked, taken, right
+            judged(0.5, Some(0.9), false),  // re-tracked, kept the answer, right
+            judged(20.0, Some(10.0), true), // taken, wrong
+            judged(0.2, None, false),       // nothing re-tracked
+            row("can", 30, 30.0, "icp-pt2pl", 1.0),
+        ];
+        let t = judge_lines(&rows, &["flowfilter".into(), "icp-pt2pl".into()]);
+        assert!(
+            t.contains("the judge ran on 4 pairs, re-tracked a candidate on 3, took the re-tracked result on 2"),
+            "{t}"
+        );
+        assert!(t.contains("nearer the truth on 2 of 3"), "{t}");
+        assert!(!t.contains("icp-pt2pl"), "{t}");
     }
 
     #[test]

@@ -130,6 +130,12 @@ pub struct JudgeReport {
     pub retracked_score: Option<f64>,
     /// Whether the re-tracked result replaced the answer.
     pub replaced: bool,
+    /// The registration's answer before the judge (4x4 row-major, as `transform`).
+    pub answer_transform: [[f64; 4]; 4],
+    /// The re-tracked result, when a candidate was tried (whether or not it replaced the
+    /// answer).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub retracked_transform: Option<[[f64; 4]; 4]>,
 }
 
 /// The grey image less its local mean over a `(2r+1)^2` box (a high-pass): what stays is the

@@ -281,6 +281,8 @@ impl Pipeline {
             best_axis: best.map(|b| b.1.axis),
             retracked_score: None,
             replaced: false,
+            answer_transform: matrix_rows(&reg.transform),
+            retracked_transform: None,
         };
         let kept = |report: JudgeReport| {
             let warning = self.ambiguity(&hypotheses, &sweep, Some(answer_score), None);
@@ -301,6 +303,7 @@ impl Pipeline {
         retry.prior.clone_from(&problem.prior);
         let again = self.registrar.register_checked(&retry)?;
         report.retracked_score = judge::photometric_score(&images, &again.transform, cfg);
+        report.retracked_transform = Some(matrix_rows(&again.transform));
         match report.retracked_score.filter(|s| *s < answer_score) {
             Some(score) => {
                 report.replaced = true;
