@@ -34,8 +34,10 @@ pub struct JudgeConfig {
     /// keeps more answers the flow found (and more of its failures); higher re-tracks more
     /// pairs (each costs a guided flow pass and a registration).
     pub ratio: f64,
-    /// Every `stride`-th model pixel in each direction is compared.
+    /// Every `stride`-th model pixel in each direction is compared...
     pub stride: usize,
+    /// ... and at most this many of them (evenly thinned on large objects).
+    pub max_pixels: usize,
     /// A moved model pixel counts as visible in the target when the target's depth there is
     /// within this of its own (metres).
     pub depth_agreement_m: f64,
@@ -63,6 +65,7 @@ impl Default for JudgeConfig {
             fine_reach_deg: 4.0,
             ratio: 0.8,
             stride: 2,
+            max_pixels: 4000,
             depth_agreement_m: 0.01,
             min_pixels: 100,
             texture_radius_px: 4,
@@ -92,8 +95,14 @@ impl JudgeConfig {
         if !non_negative(self.ambiguity_tolerance) || !non_negative(self.ambiguity_min_turn_deg) {
             return Err("keys 'judge.ambiguity_tolerance' and 'judge.ambiguity_min_turn_deg' must be >= 0".into());
         }
-        if self.stride == 0 || self.min_pixels == 0 || !positive(self.depth_agreement_m) {
-            return Err("keys 'judge.stride', 'judge.min_pixels' and 'judge.depth_agreement_m' must be > 0".into());
+        if self.stride == 0
+            || self.min_pixels == 0
+            || self.max_pixels < self.min_pixels
+            || !positive(self.depth_agreement_m)
+        {
+            return Err("keys 'judge.stride', 'judge.min_pixels' and 'judge.depth_agreement_m' must be > 0, and \
+                 'judge.max_pixels' at least 'judge.min_pixels'"
+                .into());
         }
         let s = &self.sweep;
         if s.sweep_deg.iter().any(|d| !positive(*d))
@@ -181,6 +190,12 @@ impl Texture {
         Self { x0, y0, grid: high_pass(&img.crop(x0, y0, x1 - x0, y1 - y0), r) }
     }
 
+    /// The rectangle `((x0, y0), (x1, y1))` (exclusive ends) the texture covers.
+    fn bounds(&self) -> ((usize, usize), (usize, usize)) {
+        let (w, h) = self.grid.dims();
+        ((self.x0, self.y0), (self.x0 + w, self.y0 + h))
+    }
+
     /// The texture at pixel `(x, y)` of the full image; `None` outside the rectangle.
     fn at(&self, x: usize, y: usize) -> Option<f64> {
         let (gx, gy) = (x.checked_sub(self.x0)?, y.checked_sub(self.y0)?);
@@ -228,10 +243,10 @@ impl<'a> Textures<'a> {
     pub fn new(model: &PreparedFrame, target: &'a PreparedFrame, cfg: &JudgeConfig) -> Self {
         let r = cfg.texture_radius_px;
         let model_texture = Texture::new(&model.gray, &model.depth, r);
-        let (w, h) = model.gray.dims();
+        let ((x0, y0), (x1, y1)) = model_texture.bounds();
         let mut samples = Vec::new();
-        for y in (0..h).step_by(cfg.stride) {
-            for x in (0..w).step_by(cfg.stride) {
+        for y in (y0.next_multiple_of(cfg.stride)..y1).step_by(cfg.stride) {
+            for x in (x0.next_multiple_of(cfg.stride)..x1).step_by(cfg.stride) {
                 let z = f64::from(*model.depth.at(x, y));
                 if !*model.mask.at(x, y) || z <= 0.0 {
                     continue;
@@ -241,6 +256,9 @@ impl<'a> Textures<'a> {
                 }
             }
         }
+        // A large object: every k-th sample, enough to rank candidates a degree apart.
+        let every = samples.len().div_ceil(cfg.max_pixels.max(1));
+        let samples = samples.into_iter().step_by(every.max(1)).collect();
         Self { target, samples, target_texture: Texture::new(&target.gray, &target.depth, r) }
     }
 }

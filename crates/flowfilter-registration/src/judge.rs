@@ -107,21 +107,25 @@ impl TurnHypotheses {
         h.fit_limit = h.fit(&answer) * (1.0 + cfg.fit_tolerance) + cfg.fit_slack_m;
         // The refinement can wander where little of the side is seen (a flat can): of the seed
         // and its refinement, keep the axis the model turns about with the better fit.
+        let mut fits = [0.0; 3];
         for (k, seed) in directions.iter().enumerate() {
             let seed = TurnAxis {
                 pivot: revolution_pivot(&problem.source.points, normals, seed).unwrap_or(centroid),
                 direction: *seed,
             };
             let (a, b) = (h.turn_fit(&seed), h.turn_fit(&h.axes[k]));
+            fits[k] = a.min(b);
             if a < b {
                 h.axes[k] = seed;
             }
         }
         // The axis the model turns about best is the candidate axis of revolution: tilt it
-        // where that fits better still (a pattern search, steps of 2, 1 and 0.5 degrees).
-        let fits: Vec<f64> = h.axes.iter().map(|a| h.turn_fit(a)).collect();
+        // where that fits better still (a pattern search, steps of 2, 1 and 0.5 degrees). Not
+        // where no turn about any axis fits (a box): no tilt of a few degrees changes that.
         let k = (0..3).min_by(|&a, &b| fits[a].total_cmp(&fits[b])).unwrap_or(0);
-        h.axes[k] = h.tilted_to_fit(h.axes[k], fits[k], &problem.source.points, normals, centroid);
+        if fits[k] <= h.fit_limit {
+            h.axes[k] = h.tilted_to_fit(h.axes[k], fits[k], &problem.source.points, normals, centroid);
+        }
         Some(h)
     }
 
@@ -182,12 +186,19 @@ impl TurnHypotheses {
         (self.fit(&pose) <= self.fit_limit).then_some(TurnCandidate { axis, deg, pose })
     }
 
-    /// Every coarse candidate that fits well enough.
+    /// The coarse candidates that fit well enough: about each axis and each way, the turns in
+    /// increasing size up to the first that does not fit (the fit worsens as the turn grows;
+    /// a box stops at its first turn).
     pub fn coarse(&self, cfg: &TurnSweepConfig) -> Vec<TurnCandidate> {
-        (0..3)
-            .flat_map(|axis| cfg.sweep_deg.iter().flat_map(move |&d| [(axis, d), (axis, -d)]))
-            .filter_map(|(axis, deg)| self.candidate(axis, deg))
-            .collect()
+        let mut turns = cfg.sweep_deg.clone();
+        turns.sort_by(f64::total_cmp);
+        let mut out = vec![];
+        for axis in 0..3 {
+            for sign in [1.0, -1.0] {
+                out.extend(turns.iter().map_while(|&d| self.candidate(axis, sign * d)));
+            }
+        }
+        out
     }
 }
 
