@@ -119,6 +119,13 @@ fn load_scans(real: &YcbVideoFrames, meshes: &Path) -> anyhow::Result<Scans> {
     Ok(scans)
 }
 
+/// Class id `obj` as a value of the 8-bit label images YCB-Video writes.
+fn label_value(obj: u32) -> anyhow::Result<u8> {
+    u8::try_from(obj).ok().filter(|v| *v > 0).ok_or_else(|| {
+        anyhow::anyhow!("class id {obj} does not fit an 8-bit label image (1-255; YCB-Video's are 1-21)")
+    })
+}
+
 /// Object `obj` in `frame`: the real frame's camera and the annotated poses, rendered.
 fn write_frame(
     real: &YcbVideoFrames,
@@ -137,9 +144,10 @@ fn write_frame(
             real.pose(im, other).ok().map(|camera_from_object| Occluder { mesh, camera_from_object })
         })
         .collect();
+    let class = label_value(obj)?;
     let view = render_twin_view(&scans[&obj].1, &frame.sensor, &pose, &occluders, opts, im)?;
     let label: ImageBuffer<Luma<u8>, Vec<u8>> = ImageBuffer::from_fn(width, height, |x, y| {
-        Luma([if *view.mask.at(x as usize, y as usize) { u8::try_from(obj).unwrap_or(u8::MAX) } else { 0 }])
+        Luma([if *view.mask.at(x as usize, y as usize) { class } else { 0 }])
     });
     let depth: ImageBuffer<Luma<u16>, Vec<u16>> =
         ImageBuffer::from_fn(width, height, |x, y| Luma([*view.depth.at(x as usize, y as usize)]));
@@ -173,6 +181,15 @@ mod tests {
                 data.display()
             );
             None
+        }
+    }
+
+    #[test]
+    fn class_ids_that_do_not_fit_a_label_image_are_refused() {
+        assert_eq!(label_value(21).unwrap(), 21);
+        for bad in [0, 256, 70_000] {
+            let e = label_value(bad).unwrap_err().to_string();
+            assert!(e.contains(&bad.to_string()) && e.contains("8-bit"), "{e}");
         }
     }
 
