@@ -87,6 +87,13 @@ impl Estimate {
     fn warnings<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
         json_object(py, &self.estimate.warnings)
     }
+    /// What the photometric judge saw (answer_score, candidates, best_score, best_turn_deg,
+    /// best_axis, retracked_score, replaced, answer_transform, retracked_transform), or None
+    /// for methods without flow and where the texture is flat.
+    #[getter]
+    fn judge<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        json_object(py, &self.estimate.judge)
+    }
     /// The true transform and the errors against it, when `gt` was given; else None.
     #[getter]
     fn ground_truth<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {

@@ -183,6 +183,11 @@ class Estimate:
     def warnings(self) -> List[Dict[str, str]]:
         """Conditions to know about, as dicts {"code", "message"}."""
     @property
+    def judge(self) -> Optional[Dict[str, Any]]:
+        """What the photometric judge saw (answer_score, candidates, best_score, best_turn_deg,
+        best_axis, retracked_score, replaced, answer_transform, retracked_transform); None for
+        methods without flow and where the texture is flat."""
+    @property
     def ground_truth(self) -> Optional[Dict[str, Any]]:
         """The true transform and the errors against it, when `gt` was given."""
     def to_dict(self) -> Dict[str, Any]:
