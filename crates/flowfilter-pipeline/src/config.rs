@@ -132,7 +132,6 @@ impl PipelineConfig {
     /// A message naming the key or table at fault.
     pub fn validate(&self) -> Result<(), String> {
         check_method_name(&self.method)?;
-        self.judge.validate()?;
         flowfilter_flow::check_estimator_name(&self.flow.estimator)
             .map_err(|e| format!("key 'flow.estimator': {e}"))?;
         self.validate_stages()
@@ -148,6 +147,7 @@ impl PipelineConfig {
         self.flow.lk.validate().map_err(|e| format!("table [flow.lk]: {e}"))?;
         self.flow.dis.validate().map_err(|e| format!("table [flow.dis]: {e}"))?;
         self.flow.correspondences.validate().map_err(|e| format!("table [flow.correspondences]: {e}"))?;
+        self.judge.validate()?;
         self.registration.validate().map_err(|e| e.within("registration").to_string())
     }
 }

@@ -73,3 +73,18 @@ fn a_can_seen_from_above_is_reported_ambiguous_about_its_axis() {
     assert!(!turns_deg.is_empty() && turns_deg.iter().all(|t| t.abs() >= 12.0), "{turns_deg:?}");
     assert!(warning.to_string().contains("ambiguous pose"), "{warning}");
 }
+
+/// A judge configuration out of range is refused when the pipeline is built, not met as a hang
+/// (a zero step) or a panic later.
+#[test]
+fn a_judge_configuration_out_of_range_is_refused() {
+    for judge in [
+        JudgeConfig { fine_step_deg: 0.0, ..JudgeConfig::default() },
+        JudgeConfig { stride: 0, ..JudgeConfig::default() },
+        JudgeConfig { ratio: f64::NAN, ..JudgeConfig::default() },
+        JudgeConfig { max_pixels: 10, ..JudgeConfig::default() },
+    ] {
+        let e = Pipeline::from_config(PipelineConfig { judge, ..PipelineConfig::default() }).err().expect("refused");
+        assert!(e.to_string().contains("judge."), "{e}");
+    }
+}
