@@ -268,7 +268,7 @@ impl Pipeline {
         let answer_score = judge::photometric_score(&images, &reg.transform, cfg);
         let sweep = judge::sweep(&hypotheses, &images, cfg);
         let Some(answer_score) = answer_score else {
-            // A flat texture: the clouds alone decide, and say what else they allow.
+            // No texture to compare: the judge can only say what else the clouds allow.
             let warning = self.ambiguity(&hypotheses, &sweep, None, None);
             return Ok((reg, Some(Judged { report: None, retracked: None, warning })));
         };
@@ -291,17 +291,9 @@ impl Pipeline {
         let Some((_, candidate)) = best.filter(|(s, _)| *s < cfg.ratio * answer_score) else {
             return Ok((reg, Some(kept(report))));
         };
-        // Tracked again from the candidate, the flow follows the texture there.
-        let Ok(found) = finder.find_guided(model, target, &candidate.pose) else {
+        let Some((again, counts)) = self.retracked(finder, model, target, problem, &candidate.pose)? else {
             return Ok((reg, Some(kept(report))));
         };
-        let counts = (found.tracked, found.pairs.len(), found.pairs.usable());
-        // From the original start: the candidate is only where the flow was tracked from (a
-        // registration started there slides back along the symmetry, which the motion check
-        // would then take for the geometry's own answer).
-        let mut retry = problem.geometry_only().with_correspondences(found.pairs);
-        retry.prior.clone_from(&problem.prior);
-        let again = self.registrar.register_checked(&retry)?;
         report.retracked_score = judge::photometric_score(&images, &again.transform, cfg);
         report.retracked_transform = Some(matrix_rows(&again.transform));
         match report.retracked_score.filter(|s| *s < answer_score) {
@@ -312,6 +304,27 @@ impl Pipeline {
             }
             None => Ok((reg, Some(kept(report)))),
         }
+    }
+
+    /// The registration with the flow tracked again from `guide` (where the flow follows the
+    /// texture), and that search's counts (tracked, consistent, inliers); `None` when the
+    /// search fails.
+    fn retracked(
+        &self,
+        finder: &dyn CorrespondenceFinder,
+        model: &PreparedFrame,
+        target: &PreparedFrame,
+        problem: &RegistrationProblem,
+        guide: &Pose,
+    ) -> Result<Option<(Registration, (usize, usize, usize))>, PipelineError> {
+        let Ok(found) = finder.find_guided(model, target, guide) else { return Ok(None) };
+        let counts = (found.tracked, found.pairs.len(), found.pairs.usable());
+        // From the original start: the guide is only where the flow was tracked from (a
+        // registration started there slides back along the symmetry, which the motion check
+        // would then take for the geometry's own answer).
+        let mut retry = problem.geometry_only().with_correspondences(found.pairs);
+        retry.prior.clone_from(&problem.prior);
+        Ok(Some((self.registrar.register_checked(&retry)?, counts)))
     }
 
     /// [`judge::ambiguity`] as a warning (the axis in the model frame).
