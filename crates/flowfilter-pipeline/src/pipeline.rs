@@ -316,7 +316,7 @@ impl Pipeline {
         target: &PreparedFrame,
         problem: &RegistrationProblem,
         guide: &Pose,
-    ) -> Result<Option<(Registration, (usize, usize, usize))>, PipelineError> {
+    ) -> Result<Option<(Registration, SearchCounts)>, PipelineError> {
         let Ok(found) = finder.find_guided(model, target, guide) else { return Ok(None) };
         let counts = (found.tracked, found.pairs.len(), found.pairs.usable());
         // From the original start: the guide is only where the flow was tracked from (a
@@ -377,11 +377,14 @@ impl Pipeline {
     }
 }
 
+/// A correspondence search's counts: tracked, consistent, inliers.
+type SearchCounts = (usize, usize, usize);
+
 /// The judge's report (none when the texture is flat) and, when its re-tracked result replaced
 /// the answer, that search's counts (tracked, consistent, inliers).
 struct Judged {
     report: Option<JudgeReport>,
-    retracked: Option<(usize, usize, usize)>,
+    retracked: Option<SearchCounts>,
     /// Other poses that the clouds and the images allow as well.
     warning: Option<PipelineWarning>,
 }
