@@ -3,6 +3,7 @@
 
 use anyhow::Context;
 use flowfilter_eval::PoseErrors;
+use flowfilter_pipeline::geometry::rigid_from_matrix;
 use flowfilter_pipeline::{
     JudgeReport, Pipeline, PipelineConfig, PipelineWarning, Pose, PreparedFrame, RgbdFrame, StageTimes, Uncertainty,
 };
@@ -83,13 +84,6 @@ pub struct PairResult {
     /// The stage that failed and why.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub failure: Option<String>,
-}
-
-/// A pose from its 4x4 row-major matrix.
-fn pose_from_rows(m: &[[f64; 4]; 4]) -> Pose {
-    let r = nalgebra::Matrix3::from_fn(|i, j| m[i][j]);
-    let rotation = nalgebra::UnitQuaternion::from_matrix(&r);
-    Pose::from_parts(nalgebra::Translation3::new(m[0][3], m[1][3], m[2][3]), rotation)
 }
 
 /// A pipeline warning as its JSON object (`{code, message}`).
@@ -293,7 +287,8 @@ impl Methods<'_> {
             row.warnings = e.warnings.iter().map(warning_json).collect();
             row.judge_other_error_deg = e.judge.as_ref().and_then(|j| {
                 let other = if j.replaced { Some(j.answer_transform) } else { j.retracked_transform }?;
-                Some(PoseErrors::new(&pose_from_rows(&other), truth, None).geodesic_error_deg)
+                let other = rigid_from_matrix(&nalgebra::Matrix4::from_fn(|r, c| other[r][c])).ok()?;
+                Some(PoseErrors::new(&other, truth, None).geodesic_error_deg)
             });
             row.judge = e.judge;
             Ok(())

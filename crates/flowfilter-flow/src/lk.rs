@@ -52,8 +52,8 @@ pub fn downsample(img: &Gray) -> Gray {
     })
 }
 
-/// Bilinear sample with clamped borders (shared by the estimators).
-pub(crate) fn bilinear(img: &Gray, x: f32, y: f32) -> f32 {
+/// Bilinear sample with clamped borders (shared by the estimators and the pipeline's judge).
+pub fn bilinear(img: &Gray, x: f32, y: f32) -> f32 {
     BilinearTap::new(img.width(), img.height(), x, y).sample(img.as_slice())
 }
 

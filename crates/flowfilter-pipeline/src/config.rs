@@ -147,7 +147,7 @@ impl PipelineConfig {
         self.flow.lk.validate().map_err(|e| format!("table [flow.lk]: {e}"))?;
         self.flow.dis.validate().map_err(|e| format!("table [flow.dis]: {e}"))?;
         self.flow.correspondences.validate().map_err(|e| format!("table [flow.correspondences]: {e}"))?;
-        self.judge.validate()?;
+        self.judge.validate().map_err(|e| e.within("judge").to_string())?;
         self.registration.validate().map_err(|e| e.within("registration").to_string())
     }
 }

@@ -14,7 +14,7 @@
 
 use crate::stages::PreparedFrame;
 use flowfilter_flow::lk::Gray;
-use flowfilter_geometry::{Point3, Pose};
+use flowfilter_geometry::{Mask, ParamError, Point3, Pose, mask_bbox, params};
 use flowfilter_registration::judge::{TurnCandidate, TurnHypotheses, TurnSweepConfig};
 use serde::{Deserialize, Serialize};
 
@@ -79,42 +79,18 @@ impl JudgeConfig {
     /// Ranges serde cannot check.
     ///
     /// # Errors
-    /// A message naming the key.
-    pub fn validate(&self) -> Result<(), String> {
-        let positive = |v: f64| v > 0.0 && v.is_finite();
-        let non_negative = |v: f64| v >= 0.0 && v.is_finite();
-        if !positive(self.fine_step_deg) || !non_negative(self.fine_reach_deg) {
-            return Err(format!(
-                "keys 'judge.fine_step_deg' and 'judge.fine_reach_deg' must be > 0 and >= 0, found {} and {}",
-                self.fine_step_deg, self.fine_reach_deg
-            ));
-        }
-        if !(self.ratio > 0.0 && self.ratio <= 1.0) {
-            return Err(format!("key 'judge.ratio' must be in (0, 1], found {}", self.ratio));
-        }
-        if !non_negative(self.ambiguity_tolerance) || !non_negative(self.ambiguity_min_turn_deg) {
-            return Err("keys 'judge.ambiguity_tolerance' and 'judge.ambiguity_min_turn_deg' must be >= 0".into());
-        }
-        if self.stride == 0
-            || self.min_pixels == 0
-            || self.max_pixels < self.min_pixels
-            || !positive(self.depth_agreement_m)
-        {
-            return Err("keys 'judge.stride', 'judge.min_pixels' and 'judge.depth_agreement_m' must be > 0, and \
-                 'judge.max_pixels' at least 'judge.min_pixels'"
-                .into());
-        }
-        let s = &self.sweep;
-        if s.sweep_deg.iter().any(|d| !positive(*d))
-            || !non_negative(s.fit_tolerance)
-            || !non_negative(s.fit_slack_m)
-            || !positive(s.tau_m)
-        {
-            return Err(
-                "keys 'judge.sweep.*' must be positive (sweep_deg, tau_m) or >= 0 (fit_tolerance, fit_slack_m)".into(),
-            );
-        }
-        Ok(())
+    /// [`ParamError`] naming the key.
+    pub fn validate(&self) -> Result<(), ParamError> {
+        params::positive("fine_step_deg", self.fine_step_deg)?;
+        params::non_negative("fine_reach_deg", self.fine_reach_deg)?;
+        params::require(self.ratio > 0.0 && self.ratio <= 1.0, "ratio", "in (0, 1]", self.ratio)?;
+        params::count_positive("stride", self.stride)?;
+        params::count_positive("min_pixels", self.min_pixels)?;
+        params::require(self.max_pixels >= self.min_pixels, "max_pixels", "at least min_pixels", self.max_pixels)?;
+        params::positive("depth_agreement_m", self.depth_agreement_m)?;
+        params::non_negative("ambiguity_tolerance", self.ambiguity_tolerance)?;
+        params::non_negative("ambiguity_min_turn_deg", self.ambiguity_min_turn_deg)?;
+        self.sweep.validate().map_err(|e| e.within("sweep"))
     }
 }
 
@@ -177,12 +153,12 @@ pub struct Texture {
 }
 
 impl Texture {
-    /// The texture of `img` on the bounding box of the pixels where `depth` is set, exact
-    /// there (the box is widened by `r` for the local means and clamped to the image). Empty
-    /// without any depth.
-    pub fn new(img: &Gray, depth: &flowfilter_geometry::DepthMap, r: usize) -> Self {
+    /// The texture of `img` on the bounding box of the object's `mask` (its depth lies within
+    /// it), exact there (the box is widened by `r` for the local means and clamped to the
+    /// image). Empty with an empty mask.
+    pub fn new(img: &Gray, mask: &Mask, r: usize) -> Self {
         let (w, h) = img.dims();
-        let Some((bx0, by0, bx1, by1)) = depth_bbox(depth) else {
+        let Some((bx0, by0, bx1, by1)) = mask_bbox(mask) else {
             return Self { x0: 0, y0: 0, grid: Gray::filled(0, 0, 0.0) };
         };
         let (x0, y0) = (bx0.saturating_sub(r), by0.saturating_sub(r));
@@ -206,28 +182,9 @@ impl Texture {
     fn bilinear(&self, x: f64, y: f64) -> Option<f64> {
         let (gx, gy) = (x - self.x0 as f64, y - self.y0 as f64);
         let (w, h) = self.grid.dims();
-        if w == 0 || h == 0 || !(gx >= 0.0 && gy >= 0.0 && gx <= (w - 1) as f64 && gy <= (h - 1) as f64) {
-            return None;
-        }
-        let (x0, y0) = (gx.floor() as usize, gy.floor() as usize);
-        let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
-        let (fx, fy) = (gx - x0 as f64, gy - y0 as f64);
-        let v = |xx, yy| f64::from(*self.grid.at(xx, yy));
-        Some((1.0 - fy) * ((1.0 - fx) * v(x0, y0) + fx * v(x1, y0)) + fy * ((1.0 - fx) * v(x0, y1) + fx * v(x1, y1)))
+        let inside = w > 0 && h > 0 && gx >= 0.0 && gy >= 0.0 && gx <= (w - 1) as f64 && gy <= (h - 1) as f64;
+        inside.then(|| f64::from(flowfilter_flow::lk::bilinear(&self.grid, gx as f32, gy as f32)))
     }
-}
-
-/// The bounding box `(x0, y0, x1, y1)` (inclusive) of the pixels with depth.
-fn depth_bbox(depth: &flowfilter_geometry::DepthMap) -> Option<(usize, usize, usize, usize)> {
-    let mut bb: Option<(usize, usize, usize, usize)> = None;
-    for y in 0..depth.height() {
-        let row = depth.row(y);
-        let (Some(first), Some(last)) = (row.iter().position(|d| *d > 0.0), row.iter().rposition(|d| *d > 0.0)) else {
-            continue;
-        };
-        bb = Some(bb.map_or((first, y, last, y), |(a, b, c, _)| (a.min(first), b, c.max(last), y)));
-    }
-    bb
 }
 
 /// What the scores compare, prepared once per judgement: the model's object pixels (every
@@ -242,7 +199,7 @@ impl<'a> Textures<'a> {
     /// The samples of `model` and the texture of `target` ([`high_pass`] with `cfg`'s radius).
     pub fn new(model: &PreparedFrame, target: &'a PreparedFrame, cfg: &JudgeConfig) -> Self {
         let r = cfg.texture_radius_px;
-        let model_texture = Texture::new(&model.gray, &model.depth, r);
+        let model_texture = Texture::new(&model.gray, &model.mask, r);
         let ((x0, y0), (x1, y1)) = model_texture.bounds();
         let mut samples = Vec::new();
         for y in (y0.next_multiple_of(cfg.stride)..y1).step_by(cfg.stride) {
@@ -259,7 +216,7 @@ impl<'a> Textures<'a> {
         // A large object: every k-th sample, enough to rank candidates a degree apart.
         let every = samples.len().div_ceil(cfg.max_pixels.max(1));
         let samples = samples.into_iter().step_by(every.max(1)).collect();
-        Self { target, samples, target_texture: Texture::new(&target.gray, &target.depth, r) }
+        Self { target, samples, target_texture: Texture::new(&target.gray, &target.mask, r) }
     }
 }
 

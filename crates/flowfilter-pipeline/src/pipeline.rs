@@ -7,6 +7,7 @@ use crate::frame::RgbdFrame;
 use crate::judge::{self, JudgeReport};
 use crate::stages::{CorrespondenceFinder, DepthPreparer, FlowCorrespondenceFinder, FramePreparer, PreparedFrame};
 use crate::warning::PipelineWarning;
+use flowfilter_flow::correspondences::FlowPairs;
 use flowfilter_geometry::Pose;
 use flowfilter_registration::judge::TurnHypotheses;
 use flowfilter_registration::{Registrar, Registration, RegistrationProblem, registrar_by_name};
@@ -30,7 +31,7 @@ pub struct Pipeline {
 /// The correspondence stage's candidate sets, in the order handed to the registrar.
 struct FoundSets {
     /// Per set: pixels tracked, pairs found, pairs with a positive weight.
-    counts: Vec<(usize, usize, usize)>,
+    counts: Vec<SearchCounts>,
     /// Seconds spent in flow estimation.
     flow_seconds: f64,
 }
@@ -181,16 +182,11 @@ impl Pipeline {
         let reg = self.registrar.register_checked(&problem)?;
         times.registration = tr.elapsed().as_secs_f64() * 1e3;
         let tj = Instant::now();
-        let (reg, judge) = match found.is_some() {
-            true => self.judge(model, target, &problem, reg)?,
-            false => (reg, None),
-        };
+        let (reg, judge) = if found.is_some() { self.judge(model, target, &problem, reg)? } else { (reg, None) };
         times.judge = tj.elapsed().as_secs_f64() * 1e3;
         times.total = times.depth_model + times.depth_target + t0.elapsed().as_secs_f64() * 1e3;
         let summary = match judge.as_ref().and_then(|j| j.retracked) {
-            Some(counts) => {
-                Some(CorrespondenceSummary { tracked: counts.0, consistent: counts.1, inliers: counts.2, guided: true })
-            }
+            Some(counts) => Some(summary(counts, true)),
             None => found.map(|f| correspondence_summary(&f, &reg)),
         };
         warnings.extend(reg.warnings.iter().cloned().map(PipelineWarning::from));
@@ -242,7 +238,7 @@ impl Pipeline {
             problem.prior = Some(prior);
         }
         let found = FoundSets {
-            counts: sets.iter().map(|s| (s.tracked, s.pairs.len(), s.pairs.usable())).collect(),
+            counts: sets.iter().map(search_counts).collect(),
             flow_seconds: sets.iter().map(|s| s.flow_seconds).sum(),
         };
         let mut pairs = sets.into_iter().map(|s| s.pairs);
@@ -318,7 +314,7 @@ impl Pipeline {
         guide: &Pose,
     ) -> Result<Option<(Registration, SearchCounts)>, PipelineError> {
         let Ok(found) = finder.find_guided(model, target, guide) else { return Ok(None) };
-        let counts = (found.tracked, found.pairs.len(), found.pairs.usable());
+        let counts = search_counts(&found);
         // From the original start: the guide is only where the flow was tracked from (a
         // registration started there slides back along the symmetry, which the motion check
         // would then take for the geometry's own answer).
@@ -377,7 +373,8 @@ impl Pipeline {
     }
 }
 
-/// A correspondence search's counts: tracked, consistent, inliers.
+/// A correspondence search's counts: pixels tracked, pairs found (consistent), pairs with a
+/// positive weight (inliers).
 type SearchCounts = (usize, usize, usize);
 
 /// The judge's report (none when the texture is flat) and, when its re-tracked result replaced
@@ -389,9 +386,18 @@ struct Judged {
     warning: Option<PipelineWarning>,
 }
 
+/// A search's counts.
+fn search_counts(s: &FlowPairs) -> SearchCounts {
+    (s.tracked, s.pairs.len(), s.pairs.usable())
+}
+
+/// The summary of a search with these counts.
+fn summary((tracked, consistent, inliers): SearchCounts, guided: bool) -> CorrespondenceSummary {
+    CorrespondenceSummary { tracked, consistent, inliers, guided }
+}
+
 /// The counts of the set the registrar used (the first when it does not say).
 fn correspondence_summary(found: &FoundSets, reg: &Registration) -> CorrespondenceSummary {
     let set = reg.correspondence_set.filter(|&k| k < found.counts.len()).unwrap_or(0);
-    let (tracked, consistent, inliers) = found.counts[set];
-    CorrespondenceSummary { tracked, consistent, inliers, guided: set > 0 }
+    summary(found.counts[set], set > 0)
 }

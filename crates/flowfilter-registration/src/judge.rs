@@ -10,7 +10,7 @@
 
 use crate::evaluate::visible_residual;
 use crate::problem::RegistrationProblem;
-use flowfilter_geometry::{KnnIndex, Point3, Pose, Vector3};
+use flowfilter_geometry::{KnnIndex, ParamError, Point3, Pose, Vector3, params};
 use nalgebra::{Matrix2, Matrix3, Translation3, UnitQuaternion, Vector2};
 use serde::{Deserialize, Serialize};
 
@@ -40,6 +40,21 @@ impl Default for TurnSweepConfig {
             fit_slack_m: 0.0005,
             tau_m: 0.01,
         }
+    }
+}
+
+impl TurnSweepConfig {
+    /// Ranges serde cannot check.
+    ///
+    /// # Errors
+    /// [`ParamError`] naming the key.
+    pub fn validate(&self) -> Result<(), ParamError> {
+        for d in &self.sweep_deg {
+            params::positive("sweep_deg", *d)?;
+        }
+        params::non_negative("fit_tolerance", self.fit_tolerance)?;
+        params::non_negative("fit_slack_m", self.fit_slack_m)?;
+        params::positive("tau_m", self.tau_m)
     }
 }
 
@@ -92,7 +107,7 @@ impl TurnHypotheses {
         if problem.source.points.len() < 10 || problem.target.points.is_empty() {
             return None;
         }
-        let (centroid, directions) = principal_axes(&problem.source.points, normals);
+        let (centroid, directions) = normal_scatter_axes(&problem.source.points, normals);
         let axes = directions.map(|direction| revolution_axis(&problem.source.points, normals, direction, centroid));
         let every = problem.source.points.len().div_ceil(FIT_POINTS);
         let mut h = Self {
@@ -129,11 +144,6 @@ impl TurnHypotheses {
         Some(h)
     }
 
-    /// The answer.
-    pub fn answer(&self) -> Pose {
-        self.answer
-    }
-
     /// The visible-point residual of the model (thinned) moved by `pose` against the target
     /// (metres).
     pub fn fit(&self, pose: &Pose) -> f64 {
@@ -157,11 +167,7 @@ impl TurnHypotheses {
         centroid: Point3,
     ) -> TurnAxis {
         for step_deg in [2.0f64, 1.0, 0.5] {
-            let u = axis
-                .direction
-                .cross(&if axis.direction.x.abs() < 0.9 { Vector3::x() } else { Vector3::y() })
-                .normalize();
-            let v = axis.direction.cross(&u);
+            let (u, v) = across(&axis.direction);
             loop {
                 let tries = [u, -u, v, -v].map(|w| {
                     let direction = UnitQuaternion::from_scaled_axis(w * step_deg.to_radians()) * axis.direction;
@@ -204,9 +210,9 @@ impl TurnHypotheses {
 
 /// The centroid of `points` and the eigenvectors of the normals' scatter matrix: on a surface
 /// of revolution seen with its lid, the normals of the side are across the axis and those of
-/// the lid along it, so the axis is one of them (the points' own normal-scatter axes are not, on a
+/// the lid along it, so the axis is one of them (the points' own principal axes are not, on a
 /// partial view); on a box, they are the faces' normals.
-fn principal_axes(points: &[Point3], normals: &[Vector3]) -> (Point3, [Vector3; 3]) {
+fn normal_scatter_axes(points: &[Point3], normals: &[Vector3]) -> (Point3, [Vector3; 3]) {
     let n = points.len().max(1) as f64;
     let c = points.iter().fold(Vector3::zeros(), |a, p| a + p.coords) / n;
     let scatter = normals.iter().fold(Matrix3::zeros(), |a, m| a + m * m.transpose());
@@ -215,13 +221,18 @@ fn principal_axes(points: &[Point3], normals: &[Vector3]) -> (Point3, [Vector3; 
     (Point3::from(c), [axis(0), axis(1), axis(2)])
 }
 
+/// Two unit vectors across the unit vector `axis` and across each other.
+fn across(axis: &Vector3) -> (Vector3, Vector3) {
+    let u = axis.cross(&if axis.x.abs() < 0.9 { Vector3::x() } else { Vector3::y() }).normalize();
+    (u, axis.cross(&u))
+}
+
 /// A point on the axis of direction `axis` about which the surface is one of revolution: every
 /// normal line of such a surface meets its axis, so in the plane across the axis the normals'
 /// lines meet in one point (least squares over the points whose normals are not along the
 /// axis). `None` when they do not pin that point down (parallel normals: a plane).
 fn revolution_pivot(points: &[Point3], normals: &[Vector3], axis: &Vector3) -> Option<Point3> {
-    let u = axis.cross(&if axis.x.abs() < 0.9 { Vector3::x() } else { Vector3::y() }).normalize();
-    let v = axis.cross(&u);
+    let (u, v) = across(axis);
     let (mut a, mut b) = (Matrix2::<f64>::zeros(), Vector2::<f64>::zeros());
     let mut along = 0.0;
     for (p, n) in points.iter().zip(normals) {
@@ -277,7 +288,7 @@ fn revolution_axis(points: &[Point3], normals: &[Vector3], direction: Vector3, c
 }
 
 /// `answer` preceded by a turn of `deg` about `axis` through `pivot` (model coordinates).
-pub fn turned(answer: &Pose, pivot: &Point3, axis: &Vector3, deg: f64) -> Pose {
+fn turned(answer: &Pose, pivot: &Point3, axis: &Vector3, deg: f64) -> Pose {
     let r = UnitQuaternion::from_scaled_axis(axis * deg.to_radians());
     let about = Translation3::from(pivot.coords)
         * Pose::from_parts(Translation3::identity(), r)
@@ -294,8 +305,7 @@ mod tests {
     /// its lid, its axis `axis` through `base`, points with outward normals.
     fn can(axis: Vector3, base: Point3, whole: bool) -> PointCloud {
         let a = axis.normalize();
-        let u = a.cross(&Vector3::x()).normalize();
-        let v = a.cross(&u);
+        let (u, v) = across(&a);
         let (mut points, mut normals) = (vec![], vec![]);
         let arc = if whole { std::f64::consts::TAU } else { std::f64::consts::PI };
         for i in 0..40 {
@@ -325,7 +335,7 @@ mod tests {
         let base = Point3::new(0.01, 0.02, 0.75);
         let can = can(axis, base, false);
         let normals = can.normals.as_deref().unwrap();
-        let (centroid, directions) = principal_axes(&can.points, normals);
+        let (centroid, directions) = normal_scatter_axes(&can.points, normals);
         let found: Vec<TurnAxis> =
             directions.iter().map(|d| revolution_axis(&can.points, normals, *d, centroid)).collect();
         let best =
