@@ -5,7 +5,8 @@ use anyhow::Context;
 use flowfilter_eval::PoseErrors;
 use flowfilter_pipeline::geometry::rigid_from_matrix;
 use flowfilter_pipeline::{
-    JudgeReport, Pipeline, PipelineConfig, PipelineWarning, Pose, PreparedFrame, RgbdFrame, StageTimes, Uncertainty,
+    JudgeReport, Pipeline, PipelineConfig, PipelineWarning, PolishReport, Pose, PreparedFrame, RgbdFrame, StageTimes,
+    Uncertainty,
 };
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
@@ -81,6 +82,12 @@ pub struct PairResult {
     /// not take (the re-tracked one when it kept the answer, else the answer).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub judge_other_error_deg: Option<f64>,
+    /// ... and of the one it took, before the polish moved it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub judge_chosen_error_deg: Option<f64>,
+    /// What the photometric polish did (Flow Filter methods).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub polish: Option<PolishReport>,
     /// The stage that failed and why.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub failure: Option<String>,
@@ -262,6 +269,8 @@ impl Methods<'_> {
             warnings: vec![],
             judge: None,
             judge_other_error_deg: None,
+            judge_chosen_error_deg: None,
+            polish: None,
             failure: None,
         };
         let group = self.groups[m.unwrap_or(0)];
@@ -285,12 +294,21 @@ impl Methods<'_> {
             row.errors = Some(PoseErrors::new(&e.pose, truth, Some(&model.cloud.points)));
             row.stage_ms = Some(e.stage_ms);
             row.warnings = e.warnings.iter().map(warning_json).collect();
-            row.judge_other_error_deg = e.judge.as_ref().and_then(|j| {
-                let other = if j.replaced { Some(j.answer_transform) } else { j.retracked_transform }?;
-                let other = rigid_from_matrix(&nalgebra::Matrix4::from_fn(|r, c| other[r][c])).ok()?;
-                Some(PoseErrors::new(&other, truth, None).geodesic_error_deg)
-            });
+            let error_of = |m: &[[f64; 4]; 4]| {
+                let pose = rigid_from_matrix(&nalgebra::Matrix4::from_fn(|r, c| m[r][c])).ok()?;
+                Some(PoseErrors::new(&pose, truth, None).geodesic_error_deg)
+            };
+            if let Some(j) = e.judge.as_ref().filter(|j| j.retracked_transform.is_some()) {
+                let (chosen, other) = if j.replaced {
+                    (j.retracked_transform, Some(j.answer_transform))
+                } else {
+                    (Some(j.answer_transform), j.retracked_transform)
+                };
+                row.judge_chosen_error_deg = chosen.as_ref().and_then(error_of);
+                row.judge_other_error_deg = other.as_ref().and_then(error_of);
+            }
             row.judge = e.judge;
+            row.polish = e.polish;
             Ok(())
         })();
         row.failure = outcome.err();

@@ -91,6 +91,9 @@ pub struct StageTimes {
     /// The photometric judge, with any re-tracking and re-registration it ran.
     #[serde(default)]
     pub judge: f64,
+    /// The photometric polish.
+    #[serde(default)]
+    pub polish: f64,
     /// Everything.
     pub total: f64,
 }
@@ -136,6 +139,9 @@ pub struct Estimate {
     /// What the photometric judge saw (methods that use flow correspondences).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub judge: Option<crate::judge::JudgeReport>,
+    /// What the photometric polish did (methods that use flow correspondences).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub polish: Option<crate::polish::PolishReport>,
     /// Conditions the caller should know about.
     pub warnings: Vec<PipelineWarning>,
     /// Ground truth, when known.

@@ -166,14 +166,24 @@ impl Texture {
         Self { x0, y0, grid: high_pass(&img.crop(x0, y0, x1 - x0, y1 - y0), r) }
     }
 
+    /// The texture smoothed by a box of half-width `r` (unchanged for 0).
+    pub(crate) fn smoothed(self, r: usize) -> Self {
+        if r == 0 {
+            return self;
+        }
+        let detail = high_pass(&self.grid, r);
+        let grid = Gray::from_fn(self.grid.dims().0, self.grid.dims().1, |x, y| self.grid.at(x, y) - detail.at(x, y));
+        Self { grid, ..self }
+    }
+
     /// The rectangle `((x0, y0), (x1, y1))` (exclusive ends) the texture covers.
-    fn bounds(&self) -> ((usize, usize), (usize, usize)) {
+    pub(crate) fn bounds(&self) -> ((usize, usize), (usize, usize)) {
         let (w, h) = self.grid.dims();
         ((self.x0, self.y0), (self.x0 + w, self.y0 + h))
     }
 
     /// The texture at pixel `(x, y)` of the full image; `None` outside the rectangle.
-    fn at(&self, x: usize, y: usize) -> Option<f64> {
+    pub(crate) fn at(&self, x: usize, y: usize) -> Option<f64> {
         let (gx, gy) = (x.checked_sub(self.x0)?, y.checked_sub(self.y0)?);
         self.grid.get(gx, gy).map(|v| f64::from(*v))
     }
@@ -184,6 +194,15 @@ impl Texture {
         let (w, h) = self.grid.dims();
         let inside = w > 0 && h > 0 && gx >= 0.0 && gy >= 0.0 && gx <= (w - 1) as f64 && gy <= (h - 1) as f64;
         inside.then(|| f64::from(flowfilter_flow::lk::bilinear(&self.grid, gx as f32, gy as f32)))
+    }
+
+    /// Bilinear texture at `(x, y)` and its gradient (central differences one pixel either
+    /// side); `None` where any of them leaves the rectangle.
+    pub(crate) fn bilinear_gradient(&self, x: f64, y: f64) -> Option<(f64, f64, f64)> {
+        let v = self.bilinear(x, y)?;
+        let gx = (self.bilinear(x + 1.0, y)? - self.bilinear(x - 1.0, y)?) / 2.0;
+        let gy = (self.bilinear(x, y + 1.0)? - self.bilinear(x, y - 1.0)?) / 2.0;
+        Some((v, gx, gy))
     }
 }
 

@@ -26,6 +26,7 @@ mod frame;
 pub mod frame_checks;
 pub mod judge;
 mod pipeline;
+pub mod polish;
 mod source;
 mod stages;
 mod warning;
@@ -39,6 +40,7 @@ pub use estimate::{
 pub use frame::{ImagesError, RgbdFrame, load_bigbird_frame};
 pub use judge::{JudgeConfig, JudgeReport};
 pub use pipeline::Pipeline;
+pub use polish::{PolishConfig, PolishReport};
 pub use source::{FrameFiles, MaskSource};
 pub use stages::{CorrespondenceFinder, DepthPreparer, FlowCorrespondenceFinder, FramePreparer, PreparedFrame};
 pub use warning::PipelineWarning;

@@ -5,6 +5,7 @@ use crate::error::PipelineError;
 use crate::estimate::{CorrespondenceSummary, ESTIMATE_SCHEMA, Estimate, RegistrationSummary, StageTimes, matrix_rows};
 use crate::frame::RgbdFrame;
 use crate::judge::{self, JudgeReport};
+use crate::polish::PolishReport;
 use crate::stages::{CorrespondenceFinder, DepthPreparer, FlowCorrespondenceFinder, FramePreparer, PreparedFrame};
 use crate::warning::PipelineWarning;
 use flowfilter_flow::correspondences::FlowPairs;
@@ -184,6 +185,9 @@ impl Pipeline {
         let tj = Instant::now();
         let (reg, judge) = if found.is_some() { self.judge(model, target, &problem, reg)? } else { (reg, None) };
         times.judge = tj.elapsed().as_secs_f64() * 1e3;
+        let tp = Instant::now();
+        let (reg, polished) = if found.is_some() { self.polished(model, target, reg) } else { (reg, None) };
+        times.polish = tp.elapsed().as_secs_f64() * 1e3;
         times.total = times.depth_model + times.depth_target + t0.elapsed().as_secs_f64() * 1e3;
         let summary = match judge.as_ref().and_then(|j| j.retracked) {
             Some(counts) => Some(summary(counts, true)),
@@ -194,6 +198,7 @@ impl Pipeline {
         warnings.extend(ambiguity);
         let mut estimate = self.assemble(model, target, reg, summary, times, warnings);
         estimate.judge = report;
+        estimate.polish = polished;
         Ok(estimate)
     }
 
@@ -302,6 +307,31 @@ impl Pipeline {
         }
     }
 
+    /// The registration's pose refined by the photometric polish ([`crate::polish`]), when it
+    /// is enabled and the images can be aligned; its error bounds widened by the polish's move.
+    fn polished(
+        &self,
+        model: &PreparedFrame,
+        target: &PreparedFrame,
+        mut reg: Registration,
+    ) -> (Registration, Option<PolishReport>) {
+        let cfg = &self.config.polish;
+        if !cfg.enabled {
+            return (reg, None);
+        }
+        let Some((pose, report)) = crate::polish::polish(model, target, &reg.transform, cfg) else {
+            return (reg, None);
+        };
+        reg.transform = pose;
+        // The registration's bounds hold for its own pose: widened by the polish's move, they
+        // hold for the polished one.
+        if let Some(u) = reg.uncertainty.as_mut() {
+            u.rotation_deg += report.turn_deg;
+            u.translation_m += report.shift_m;
+        }
+        (reg, Some(report))
+    }
+
     /// The registration with the flow tracked again from `guide` (where the flow follows the
     /// texture), and that search's counts (tracked, consistent, inliers); `None` when the
     /// search fails.
@@ -366,6 +396,7 @@ impl Pipeline {
             correspondences,
             stage_ms,
             judge: None,
+            polish: None,
             warnings,
             ground_truth: None,
             pose: reg.transform,

@@ -94,6 +94,13 @@ impl Estimate {
     fn judge<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
         json_object(py, &self.estimate.judge)
     }
+    /// What the photometric polish did (pixels, iterations, cost_before, cost_after, turn_deg,
+    /// shift_m, accepted), or None for methods without flow and where the images cannot be
+    /// aligned.
+    #[getter]
+    fn polish<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        json_object(py, &self.estimate.polish)
+    }
     /// The true transform and the errors against it, when `gt` was given; else None.
     #[getter]
     fn ground_truth<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {

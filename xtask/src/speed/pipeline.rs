@@ -76,8 +76,8 @@ pub struct Throughput {
     /// Fraction of pairs within the success thresholds.
     pub success: f64,
     /// Mean stage times per pair (ms): depth (both frames), flow, correspondences,
-    /// registration, the photometric judge.
-    pub stage_ms: [f64; 5],
+    /// registration, the photometric judge, the photometric polish.
+    pub stage_ms: [f64; 6],
 }
 
 /// Every pair through `config`'s pipeline in `pool` (pairs side by side), both frames prepared
@@ -116,6 +116,7 @@ pub fn throughput(
             mean(&|(e, _)| e.stage_ms.correspondences),
             mean(&|(e, _)| e.stage_ms.registration),
             mean(&|(e, _)| e.stage_ms.judge),
+            mean(&|(e, _)| e.stage_ms.polish),
         ],
     })
 }

@@ -184,14 +184,14 @@ impl SpeedReport {
         if !self.pipeline.is_empty() {
             let _ = writeln!(
                 s,
-                "## pipeline (two frames in, pose out)\n\n{}\n\n| method | threads | pairs/s | mean rotation error (deg) | success | depth, both frames (ms) | flow (ms) | correspondences (ms) | registration (ms) | judge (ms) |\n| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+                "## pipeline (two frames in, pose out)\n\n{}\n\n| method | threads | pairs/s | mean rotation error (deg) | success | depth, both frames (ms) | flow (ms) | correspondences (ms) | registration (ms) | judge (ms) | polish (ms) |\n| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
                 self.pipeline_pairs
             );
             for r in &self.pipeline {
                 let t = &r.throughput;
                 let _ = writeln!(
                     s,
-                    "| {} | {} | {:.2} | {:.3} | {:.0}% | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} |",
+                    "| {} | {} | {:.2} | {:.3} | {:.0}% | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} |",
                     r.method,
                     r.threads,
                     t.pairs_per_second,
@@ -201,7 +201,8 @@ impl SpeedReport {
                     t.stage_ms[1],
                     t.stage_ms[2],
                     t.stage_ms[3],
-                    t.stage_ms[4]
+                    t.stage_ms[4],
+                    t.stage_ms[5]
                 );
             }
             s.push_str("\nStage times are per pair, with pairs side by side on the pool's threads.\n\n");
