@@ -5,7 +5,7 @@ use anyhow::Context;
 use flowfilter_eval::PoseErrors;
 use flowfilter_pipeline::geometry::rigid_from_matrix;
 use flowfilter_pipeline::{
-    JudgeReport, Pipeline, PipelineConfig, PipelineWarning, PolishReport, Pose, PreparedFrame, RgbdFrame, StageTimes,
+    AlignReport, JudgeReport, Pipeline, PipelineConfig, PipelineWarning, Pose, PreparedFrame, RgbdFrame, StageTimes,
     Uncertainty,
 };
 use indicatif::{ProgressBar, ProgressStyle};
@@ -82,12 +82,12 @@ pub struct PairResult {
     /// not take (the re-tracked one when it kept the answer, else the answer).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub judge_other_error_deg: Option<f64>,
-    /// ... and of the one it took, before the polish moved it.
+    /// ... and of the one it took, before the alignment moved it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub judge_chosen_error_deg: Option<f64>,
-    /// What the photometric polish did (Flow Filter methods).
+    /// What the direct alignment did (Flow Filter methods).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub polish: Option<PolishReport>,
+    pub align: Option<AlignReport>,
     /// The stage that failed and why.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub failure: Option<String>,
@@ -270,7 +270,7 @@ impl Methods<'_> {
             judge: None,
             judge_other_error_deg: None,
             judge_chosen_error_deg: None,
-            polish: None,
+            align: None,
             failure: None,
         };
         let group = self.groups[m.unwrap_or(0)];
@@ -308,7 +308,7 @@ impl Methods<'_> {
                 row.judge_other_error_deg = other.as_ref().and_then(error_of);
             }
             row.judge = e.judge;
-            row.polish = e.polish;
+            row.align = e.align;
             Ok(())
         })();
         row.failure = outcome.err();

@@ -146,7 +146,7 @@ fn mean_stages<'a>(times: impl Iterator<Item = &'a StageTimes>) -> Option<StageT
         acc.correspondences += t.correspondences;
         acc.registration += t.registration;
         acc.judge += t.judge;
-        acc.polish += t.polish;
+        acc.align += t.align;
         acc.total += t.total;
         n += 1;
     }
@@ -159,7 +159,7 @@ fn mean_stages<'a>(times: impl Iterator<Item = &'a StageTimes>) -> Option<StageT
             correspondences: acc.correspondences * k,
             registration: acc.registration * k,
             judge: acc.judge * k,
-            polish: acc.polish * k,
+            align: acc.align * k,
             total: acc.total * k,
         }
     })
@@ -403,7 +403,7 @@ fn write_manifest(
 
 fn pairs_csv(results: &[PairResult]) -> String {
     let mut csv = String::from(
-        "object,camera,from,to,step,motion_deg,method,angle_error_deg,geodesic_error_deg,translation_error_m,add_s_m,success,converged,seconds,failure,judge_answer_score,judge_best_score,judge_best_turn_deg,judge_replaced,polish_turn_deg,polish_accepted\n",
+        "object,camera,from,to,step,motion_deg,method,angle_error_deg,geodesic_error_deg,translation_error_m,add_s_m,success,converged,seconds,failure,judge_answer_score,judge_best_score,judge_best_turn_deg,judge_replaced,align_turn_deg,align_accepted\n",
     );
     for r in results {
         let e = r.errors;
@@ -429,8 +429,8 @@ fn pairs_csv(results: &[PairResult]) -> String {
             fmt(r.judge.as_ref().and_then(|j| j.best_score), 4),
             fmt(r.judge.as_ref().and_then(|j| j.best_turn_deg), 1),
             r.judge.as_ref().map_or("-".into(), |j| j.replaced.to_string()),
-            fmt(r.polish.as_ref().map(|p| p.turn_deg), 4),
-            r.polish.as_ref().map_or("-".into(), |p| p.accepted.to_string()),
+            fmt(r.align.as_ref().map(|p| p.turn_deg), 4),
+            r.align.as_ref().map_or("-".into(), |p| p.accepted.to_string()),
         );
     }
     csv
@@ -444,7 +444,7 @@ fn overall<'s>(summary: &'s [Summary], method: &str) -> Option<&'s Summary> {
 /// Mean time per stage and method over all objects (ms).
 fn stage_table(summary: &[Summary], methods: &[String]) -> String {
     let mut t = String::from(
-        "| method | depth (per frame) | flow | correspondences | registration | judge | polish | pair total | pairs with a warning |\n| --- | --- | --- | --- | --- | --- | --- | --- | --- |\n",
+        "| method | depth (per frame) | flow | correspondences | registration | judge | align | pair total | pairs with a warning |\n| --- | --- | --- | --- | --- | --- | --- | --- | --- |\n",
     );
     for m in methods {
         if let Some(s) = overall(summary, m)
@@ -458,7 +458,7 @@ fn stage_table(summary: &[Summary], methods: &[String]) -> String {
                 st.correspondences,
                 st.registration,
                 st.judge,
-                st.polish,
+                st.align,
                 st.total,
                 s.warned
             );
@@ -498,7 +498,7 @@ fn judge_lines(results: &[PairResult], methods: &[String]) -> String {
             continue;
         }
         let replaced = tried.iter().filter(|(r, _)| r.judge.as_ref().is_some_and(|j| j.replaced)).count();
-        // The judge's choice as it left the judge (before the polish moved it).
+        // The judge's choice as it left the judge (before the alignment moved it).
         let chosen = |r: &PairResult| r.judge_chosen_error_deg.or(r.errors.map(|e| e.geodesic_error_deg));
         let nearer = tried.iter().filter(|(r, other)| chosen(r).is_some_and(|c| c <= *other)).count();
         let _ = writeln!(
@@ -589,7 +589,7 @@ mod tests {
             judge: None,
             judge_other_error_deg: None,
             judge_chosen_error_deg: None,
-            polish: None,
+            align: None,
             failure: None,
         }
     }

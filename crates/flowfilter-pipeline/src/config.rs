@@ -85,8 +85,8 @@ pub struct PipelineConfig {
     pub registration: RegistrationConfig,
     /// The photometric judge after the registration (Flow Filter methods only).
     pub judge: crate::judge::JudgeConfig,
-    /// The photometric polish after the judge (Flow Filter methods only).
-    pub polish: crate::polish::PolishConfig,
+    /// The direct alignment after the judge (Flow Filter methods only).
+    pub align: crate::align::AlignConfig,
 }
 
 impl Default for PipelineConfig {
@@ -98,7 +98,7 @@ impl Default for PipelineConfig {
             flow: FlowStageConfig::default(),
             registration: RegistrationConfig::default(),
             judge: crate::judge::JudgeConfig::default(),
-            polish: crate::polish::PolishConfig::default(),
+            align: crate::align::AlignConfig::default(),
         }
     }
 }
@@ -151,7 +151,7 @@ impl PipelineConfig {
         self.flow.dis.validate().map_err(|e| format!("table [flow.dis]: {e}"))?;
         self.flow.correspondences.validate().map_err(|e| format!("table [flow.correspondences]: {e}"))?;
         self.judge.validate().map_err(|e| e.within("judge").to_string())?;
-        self.polish.validate().map_err(|e| e.within("polish").to_string())?;
+        self.align.validate().map_err(|e| e.within("align").to_string())?;
         self.registration.validate().map_err(|e| e.within("registration").to_string())
     }
 }

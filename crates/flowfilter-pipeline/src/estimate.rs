@@ -91,9 +91,9 @@ pub struct StageTimes {
     /// The photometric judge, with any re-tracking and re-registration it ran.
     #[serde(default)]
     pub judge: f64,
-    /// The photometric polish.
+    /// The direct alignment.
     #[serde(default)]
-    pub polish: f64,
+    pub align: f64,
     /// Everything.
     pub total: f64,
 }
@@ -139,9 +139,9 @@ pub struct Estimate {
     /// What the photometric judge saw (methods that use flow correspondences).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub judge: Option<crate::judge::JudgeReport>,
-    /// What the photometric polish did (methods that use flow correspondences).
+    /// What the direct alignment did (methods that use flow correspondences).
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub polish: Option<crate::polish::PolishReport>,
+    pub align: Option<crate::align::AlignReport>,
     /// Conditions the caller should know about.
     pub warnings: Vec<PipelineWarning>,
     /// Ground truth, when known.

@@ -17,6 +17,7 @@
 
 #![warn(missing_docs)]
 
+pub mod align;
 pub mod batch;
 pub mod bop;
 mod config;
@@ -26,11 +27,11 @@ mod frame;
 pub mod frame_checks;
 pub mod judge;
 mod pipeline;
-pub mod polish;
 mod source;
 mod stages;
 mod warning;
 
+pub use align::{AlignConfig, AlignReport};
 pub use config::{CloudPrepConfig, FlowStageConfig, PipelineConfig};
 pub use error::PipelineError;
 pub use estimate::{
@@ -40,7 +41,6 @@ pub use estimate::{
 pub use frame::{ImagesError, RgbdFrame, load_bigbird_frame};
 pub use judge::{JudgeConfig, JudgeReport};
 pub use pipeline::Pipeline;
-pub use polish::{PolishConfig, PolishReport};
 pub use source::{FrameFiles, MaskSource};
 pub use stages::{CorrespondenceFinder, DepthPreparer, FlowCorrespondenceFinder, FramePreparer, PreparedFrame};
 pub use warning::PipelineWarning;

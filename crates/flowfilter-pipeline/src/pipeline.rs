@@ -1,11 +1,11 @@
 //! [`Pipeline`]: the stages composed, timed, and every degradation reported.
 
+use crate::align::AlignReport;
 use crate::config::PipelineConfig;
 use crate::error::PipelineError;
 use crate::estimate::{CorrespondenceSummary, ESTIMATE_SCHEMA, Estimate, RegistrationSummary, StageTimes, matrix_rows};
 use crate::frame::RgbdFrame;
 use crate::judge::{self, JudgeReport};
-use crate::polish::PolishReport;
 use crate::stages::{CorrespondenceFinder, DepthPreparer, FlowCorrespondenceFinder, FramePreparer, PreparedFrame};
 use crate::warning::PipelineWarning;
 use flowfilter_flow::correspondences::FlowPairs;
@@ -186,8 +186,8 @@ impl Pipeline {
         let (reg, judge) = if found.is_some() { self.judge(model, target, &problem, reg)? } else { (reg, None) };
         times.judge = tj.elapsed().as_secs_f64() * 1e3;
         let tp = Instant::now();
-        let (reg, polished) = if found.is_some() { self.polished(model, target, reg) } else { (reg, None) };
-        times.polish = tp.elapsed().as_secs_f64() * 1e3;
+        let (reg, aligned) = if found.is_some() { self.aligned(model, target, reg) } else { (reg, None) };
+        times.align = tp.elapsed().as_secs_f64() * 1e3;
         times.total = times.depth_model + times.depth_target + t0.elapsed().as_secs_f64() * 1e3;
         let summary = match judge.as_ref().and_then(|j| j.retracked) {
             Some(counts) => Some(summary(counts, true)),
@@ -198,7 +198,7 @@ impl Pipeline {
         warnings.extend(ambiguity);
         let mut estimate = self.assemble(model, target, reg, summary, times, warnings);
         estimate.judge = report;
-        estimate.polish = polished;
+        estimate.align = aligned;
         Ok(estimate)
     }
 
@@ -307,24 +307,24 @@ impl Pipeline {
         }
     }
 
-    /// The registration's pose refined by the photometric polish ([`crate::polish`]), when it
-    /// is enabled and the images can be aligned; its error bounds widened by the polish's move.
-    fn polished(
+    /// The registration's pose refined by the direct alignment ([`crate::align`]), when it
+    /// is enabled and the images can be aligned; its error bounds widened by the alignment's move.
+    fn aligned(
         &self,
         model: &PreparedFrame,
         target: &PreparedFrame,
         mut reg: Registration,
-    ) -> (Registration, Option<PolishReport>) {
-        let cfg = &self.config.polish;
+    ) -> (Registration, Option<AlignReport>) {
+        let cfg = &self.config.align;
         if !cfg.enabled {
             return (reg, None);
         }
-        let Some((pose, report)) = crate::polish::polish(model, target, &reg.transform, cfg) else {
+        let Some((pose, report)) = crate::align::align(model, target, &reg.transform, cfg) else {
             return (reg, None);
         };
         reg.transform = pose;
-        // The registration's bounds hold for its own pose: widened by the polish's move, they
-        // hold for the polished one.
+        // The registration's bounds hold for its own pose: widened by the alignment's move, they
+        // hold for the aligned one.
         if let Some(u) = reg.uncertainty.as_mut() {
             u.rotation_deg += report.turn_deg;
             u.translation_m += report.shift_m;
@@ -396,7 +396,7 @@ impl Pipeline {
             correspondences,
             stage_ms,
             judge: None,
-            polish: None,
+            align: None,
             warnings,
             ground_truth: None,
             pose: reg.transform,

@@ -3,7 +3,7 @@
 //! absent), and bad inputs that must be refused with the file named.
 
 use flowfilter_eval::PoseErrors;
-use flowfilter_pipeline::polish::{Aligner, PolishConfig};
+use flowfilter_pipeline::align::{AlignConfig, Aligner};
 use flowfilter_pipeline::{CameraFile, FrameFiles, MaskSource, Pipeline, PipelineConfig, PipelineError, Pose};
 use nalgebra::Matrix4;
 use std::path::{Path, PathBuf};
@@ -77,7 +77,7 @@ fn real_ycb_video_frames_run_through_every_method() {
 /// frame gap Flow Filter's mean geodesic error is below FilterReg's, no pair is off by a degree,
 /// and its bounds hold (rotation and translation together) on at least 90% of the pairs.
 ///
-/// And what limits the comparison with the annotation: the images themselves (the polish's
+/// And what limits the comparison with the annotation: the images themselves (the alignment's
 /// texture and depth residuals) agree better with Flow Filter's estimate than with the
 /// annotated motion on every pair, while "no motion" agrees worse than both.
 #[test]
@@ -90,7 +90,7 @@ fn real_frames_flow_filter_beats_filterreg_at_every_gap_and_its_bounds_hold_on_n
     let (flow_filter, filterreg) = (pipeline("flowfilter"), pipeline("filterreg-pt2pt"));
     // Sum of errors per gap (Flow Filter, FilterReg), pairs per gap, bounds that hold, worst.
     let (mut sums, mut counts, mut held, mut worst) = ([[0.0; 2]; 5], [0usize; 5], 0usize, 0.0f64);
-    let polish = PolishConfig::default();
+    let align = AlignConfig::default();
     let labels: Vec<u16> = frame_gt(&dir, 1)["objects"]
         .as_array()
         .unwrap()
@@ -108,7 +108,7 @@ fn real_frames_flow_filter_beats_filterreg_at_every_gap_and_its_bounds_hold_on_n
             let gap = (b - a) as usize;
             let e = flow_filter.estimate_prepared(model, target).unwrap();
             let errors = PoseErrors::new(&e.pose, &truth, None);
-            let images = Aligner::new(model, target, &polish, 0).expect("the objects have texture and depth");
+            let images = Aligner::new(model, target, &align, 0).expect("the objects have texture and depth");
             let at_truth = images.scales(&truth).expect("visible in both");
             let cost = |pose: &Pose| images.cost(pose, at_truth);
             let (estimate, annotated, still) = (cost(&e.pose), cost(&truth), cost(&Pose::identity()));

@@ -94,12 +94,12 @@ impl Estimate {
     fn judge<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
         json_object(py, &self.estimate.judge)
     }
-    /// What the photometric polish did (pixels, iterations, cost_before, cost_after, turn_deg,
+    /// What the direct alignment did (pixels, iterations, cost_before, cost_after, turn_deg,
     /// shift_m, accepted), or None for methods without flow and where the images cannot be
     /// aligned.
     #[getter]
-    fn polish<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        json_object(py, &self.estimate.polish)
+    fn align<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        json_object(py, &self.estimate.align)
     }
     /// The true transform and the errors against it, when `gt` was given; else None.
     #[getter]

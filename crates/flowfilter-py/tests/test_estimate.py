@@ -66,8 +66,8 @@ def test_estimate_fields_and_configs(bop_scene, tmp_path):
     assert e.stage_ms["total"] > 0 and isinstance(e.warnings, list)
     assert e.judge["candidates"] >= 0 and e.judge["answer_score"] == e.to_dict()["judge"]["answer_score"]
     assert len(e.judge["answer_transform"]) == 4 and "judge" in e.stage_ms
-    assert e.polish["pixels"] >= 200 and e.polish["cost_after"] <= e.polish["cost_before"]
-    assert e.polish == e.to_dict()["polish"] and "polish" in e.stage_ms
+    assert e.align["pixels"] >= 200 and e.align["cost_after"] <= e.align["cost_before"]
+    assert e.align == e.to_dict()["align"] and "align" in e.stage_ms
     assert e.ground_truth["errors"]["geodesic_error_deg"] < 1.0
     assert "Estimate(method='flowfilter'" in repr(e)
     # A configuration as a dict and as a TOML file: the same estimate.

@@ -76,7 +76,7 @@ pub struct Throughput {
     /// Fraction of pairs within the success thresholds.
     pub success: f64,
     /// Mean stage times per pair (ms): depth (both frames), flow, correspondences,
-    /// registration, the photometric judge, the photometric polish.
+    /// registration, the photometric judge, the direct alignment.
     pub stage_ms: [f64; 6],
 }
 
@@ -116,7 +116,7 @@ pub fn throughput(
             mean(&|(e, _)| e.stage_ms.correspondences),
             mean(&|(e, _)| e.stage_ms.registration),
             mean(&|(e, _)| e.stage_ms.judge),
-            mean(&|(e, _)| e.stage_ms.polish),
+            mean(&|(e, _)| e.stage_ms.align),
         ],
     })
 }

@@ -184,7 +184,7 @@ impl SpeedReport {
         if !self.pipeline.is_empty() {
             let _ = writeln!(
                 s,
-                "## pipeline (two frames in, pose out)\n\n{}\n\n| method | threads | pairs/s | mean rotation error (deg) | success | depth, both frames (ms) | flow (ms) | correspondences (ms) | registration (ms) | judge (ms) | polish (ms) |\n| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+                "## pipeline (two frames in, pose out)\n\n{}\n\n| method | threads | pairs/s | mean rotation error (deg) | success | depth, both frames (ms) | flow (ms) | correspondences (ms) | registration (ms) | judge (ms) | align (ms) |\n| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
                 self.pipeline_pairs
             );
             for r in &self.pipeline {

@@ -188,8 +188,8 @@ class Estimate:
         best_axis, retracked_score, replaced, answer_transform, retracked_transform); None for
         methods without flow and where the texture is flat."""
     @property
-    def polish(self) -> Optional[Dict[str, Any]]:
-        """What the photometric polish did (pixels, iterations, cost_before, cost_after, turn_deg,
+    def align(self) -> Optional[Dict[str, Any]]:
+        """What the direct alignment did (pixels, iterations, cost_before, cost_after, turn_deg,
         shift_m, accepted); None for methods without flow and where the images cannot be aligned."""
     @property
     def ground_truth(self) -> Optional[Dict[str, Any]]:

@@ -1,11 +1,11 @@
-//! The photometric polish: direct alignment of the two images from a pose a little off.
+//! Direct image alignment from a pose a little off.
 
 mod common;
 
 use common::{frame, truth};
 use flowfilter_eval::PoseErrors;
 use flowfilter_geometry::{Pose, Vector3};
-use flowfilter_pipeline::polish::{PolishConfig, polish};
+use flowfilter_pipeline::align::{AlignConfig, align};
 use flowfilter_pipeline::{Pipeline, PipelineConfig, PreparedFrame, RgbdFrame};
 use flowfilter_synth::{Rig, Scene, procedural};
 use nalgebra::{Translation3, UnitQuaternion};
@@ -34,13 +34,13 @@ fn off_by(pose: &Pose, model: &PreparedFrame, deg: f64, shift: Vector3) -> Pose 
 
 /// A can's turn about its own axis is what the geometry cannot see and the flow pairs fix only
 /// to about a degree. From 1.5 degrees and 4 mm off, with sensor noise on both frames, the
-/// polish lands within a tenth of a degree and 1.5 mm of the truth (at the can, 0.7 m away).
+/// alignment lands within a tenth of a degree and 1.5 mm of the truth (at the can, 0.7 m away).
 #[test]
-fn the_polish_resolves_a_turn_about_a_cans_axis() {
+fn the_alignment_resolves_a_turn_about_a_cans_axis() {
     let (a, b, t) = can_pair(15, |_| {});
     let start = off_by(&t, &a, 1.5, Vector3::new(0.003, -0.002, 0.002));
     let before = PoseErrors::new(&start, &t, None);
-    let (pose, report) = polish(&a, &b, &start, &PolishConfig::default()).expect("the can has texture");
+    let (pose, report) = align(&a, &b, &start, &AlignConfig::default()).expect("the can has texture");
     let after = PoseErrors::new(&pose, &t, None);
     println!("{before:?}\n{after:?}\n{report:?}");
     assert!(before.geodesic_error_deg > 1.4, "{before:?}");
@@ -52,7 +52,7 @@ fn the_polish_resolves_a_turn_about_a_cans_axis() {
 /// The target frame darker and with less contrast (an exposure change): the fitted gain and the
 /// high-pass leave the alignment as precise.
 #[test]
-fn an_exposure_change_does_not_move_the_polished_pose() {
+fn an_exposure_change_does_not_move_the_aligned_pose() {
     let darker = |f: &mut RgbdFrame| {
         for p in f.color.pixels_mut() {
             p.0 = p.0.map(|c| (f64::from(c) * 0.7 + 12.0).round() as u8);
@@ -60,19 +60,19 @@ fn an_exposure_change_does_not_move_the_polished_pose() {
     };
     let (a, b, t) = can_pair(15, darker);
     let start = off_by(&t, &a, -1.0, Vector3::new(-0.002, 0.0, 0.003));
-    let (pose, report) = polish(&a, &b, &start, &PolishConfig::default()).expect("the can has texture");
+    let (pose, report) = align(&a, &b, &start, &AlignConfig::default()).expect("the can has texture");
     let after = PoseErrors::new(&pose, &t, None);
     assert!(after.geodesic_error_deg < 0.1 && after.translation_error_m < 0.0015, "{after:?} {report:?}");
 }
 
-/// A start far outside the polish's reach (a 20 degree turn off): whatever the steps find, the
+/// A start far outside the alignment's reach (a 20 degree turn off): whatever the steps find, the
 /// pose returned is the start or within `max_turn_deg` of it, never a jump elsewhere.
 #[test]
-fn the_polish_stays_within_its_reach() {
+fn the_alignment_stays_within_its_reach() {
     let (a, b, t) = can_pair(15, |_| {});
     let start = off_by(&t, &a, 20.0, Vector3::zeros());
-    let cfg = PolishConfig::default();
-    let (pose, report) = polish(&a, &b, &start, &cfg).expect("the can has texture");
+    let cfg = AlignConfig::default();
+    let (pose, report) = align(&a, &b, &start, &cfg).expect("the can has texture");
     let moved = (pose * start.inverse()).rotation.angle().to_degrees();
     assert!(moved <= cfg.max_turn_deg + 1e-9, "moved {moved} deg: {report:?}");
     assert!(pose.translation.vector.iter().all(|v| v.is_finite()));
@@ -88,44 +88,42 @@ fn flat_images_are_left_alone() {
         }
     };
     let (a, b, t) = can_pair(15, flat);
-    assert!(polish(&a, &b, &t, &PolishConfig::default()).is_none());
+    assert!(align(&a, &b, &t, &AlignConfig::default()).is_none());
 }
 
-/// The pipeline polishes Flow Filter's pose, reports it, and can be told not to.
+/// The pipeline aligns Flow Filter's pose, reports it, and can be told not to.
 #[test]
-fn the_pipeline_reports_its_polish_and_can_skip_it() {
+fn the_pipeline_reports_its_alignment_and_can_skip_it() {
     let (rig, scene) = (Rig::bigbird_like(), common::box_scene());
     let (a, b) = (frame(&scene, &rig, 3, 0), frame(&scene, &rig, 3, 9));
     let t = truth(&rig, 3, 0, 9);
     let on = Pipeline::from_config(PipelineConfig::default()).unwrap().estimate(&a, &b).unwrap();
-    let off_config = PipelineConfig {
-        polish: PolishConfig { enabled: false, ..PolishConfig::default() },
-        ..PipelineConfig::default()
-    };
+    let off_config =
+        PipelineConfig { align: AlignConfig { enabled: false, ..AlignConfig::default() }, ..PipelineConfig::default() };
     let off = Pipeline::from_config(off_config).unwrap().estimate(&a, &b).unwrap();
-    let report = on.polish.as_ref().expect("the polish ran");
-    assert!(off.polish.is_none());
-    assert!(report.pixels >= 200 && on.stage_ms.polish > 0.0, "{report:?}");
+    let report = on.align.as_ref().expect("the alignment ran");
+    assert!(off.align.is_none());
+    assert!(report.pixels >= 200 && on.stage_ms.align > 0.0, "{report:?}");
     let (e_on, e_off) = (PoseErrors::new(&on.pose, &t, None), PoseErrors::new(&off.pose, &t, None));
-    assert!(e_on.geodesic_error_deg < 0.2, "{e_on:?} (without the polish {e_off:?})");
-    // The bounds still hold for the polished pose.
+    assert!(e_on.geodesic_error_deg < 0.2, "{e_on:?} (without the alignment {e_off:?})");
+    // The bounds still hold for the aligned pose.
     let u = on.registration.uncertainty.expect("Flow Filter gives bounds");
     assert!(e_on.geodesic_error_deg <= u.rotation_deg, "{e_on:?} {u:?}");
     let json = serde_json::to_value(&on).unwrap();
-    assert_eq!(json["polish"]["pixels"], report.pixels);
+    assert_eq!(json["align"]["pixels"], report.pixels);
 }
 
-/// A polish configuration out of range is refused when the pipeline is built.
+/// An alignment configuration out of range is refused when the pipeline is built.
 #[test]
-fn a_polish_configuration_out_of_range_is_refused() {
-    for polish in [
-        PolishConfig { iterations: 0, ..PolishConfig::default() },
-        PolishConfig { stride: 0, ..PolishConfig::default() },
-        PolishConfig { truncation: f64::NAN, ..PolishConfig::default() },
-        PolishConfig { max_pixels: 10, ..PolishConfig::default() },
-        PolishConfig { max_turn_deg: -1.0, ..PolishConfig::default() },
+fn an_alignment_configuration_out_of_range_is_refused() {
+    for align in [
+        AlignConfig { iterations: 0, ..AlignConfig::default() },
+        AlignConfig { stride: 0, ..AlignConfig::default() },
+        AlignConfig { truncation: f64::NAN, ..AlignConfig::default() },
+        AlignConfig { max_pixels: 10, ..AlignConfig::default() },
+        AlignConfig { max_turn_deg: -1.0, ..AlignConfig::default() },
     ] {
-        let e = Pipeline::from_config(PipelineConfig { polish, ..PipelineConfig::default() }).err().expect("refused");
-        assert!(e.to_string().contains("polish."), "{e}");
+        let e = Pipeline::from_config(PipelineConfig { align, ..PipelineConfig::default() }).err().expect("refused");
+        assert!(e.to_string().contains("align."), "{e}");
     }
 }

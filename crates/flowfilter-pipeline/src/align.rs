@@ -1,17 +1,17 @@
-//! The photometric polish: the final pose refined by direct alignment of the two images.
+//! Direct image alignment: the final pose refined on the two images themselves.
 //!
 //! Flow pairs fix the pose to what the tracker resolves (about a degree on a turntable pair);
-//! the geometry cannot fix the turn about an axis of symmetry at all. The polish moves the
+//! the geometry cannot fix the turn about an axis of symmetry at all. The alignment moves the
 //! model frame's object pixels (back-projected with their depth) by the pose, projects them into
 //! the target frame and minimises, by Gauss-Newton on the pose, two residuals per pixel (the
 //! formulation of dense RGB-D odometry, Kerl et al. 2013, and Open3D's hybrid RGB-D odometry):
-//! - the texture ([`high_pass`] grey values, a gain fitted per iteration so that a change of
+//! - the texture ([`high_pass`] grey values, a gain (the ratio of the two textures' contrasts) so that a change of
 //!   exposure does not count) of the target under the pixel less the model's;
 //! - the target's depth under the pixel less the pixel's own depth.
 //!
 //! Each residual is scaled by a robust estimate of its noise (the median absolute deviation)
 //! and truncated: pixels hidden in one frame, off the object or on a highlight stop counting.
-//! The polished pose is kept only when it lowers that truncated cost and stays within a stated
+//! The aligned pose is kept only when it lowers that truncated cost and stays within a stated
 //! distance of the pose it started from.
 
 use crate::judge::Texture;
@@ -20,11 +20,11 @@ use flowfilter_geometry::{ParamError, Point3, Pose, Vector3, params, se3};
 use nalgebra::{Matrix6, Vector6};
 use serde::{Deserialize, Serialize};
 
-/// The polish's parameters (`[polish]` in the pipeline configuration).
+/// The alignment's parameters (`[align]` in the pipeline configuration).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
-pub struct PolishConfig {
-    /// Polish the pose of methods that use flow correspondences.
+pub struct AlignConfig {
+    /// Align the pose of methods that use flow correspondences.
     pub enabled: bool,
     /// Gauss-Newton iterations at most, per level.
     pub iterations: usize,
@@ -47,14 +47,14 @@ pub struct PolishConfig {
     /// The depth residual's noise is taken as at least this (metres): keeps a smooth synthetic
     /// surface from outweighing the texture.
     pub min_depth_noise_m: f64,
-    /// The polished pose may turn at most this far from the pose it started from (degrees)...
+    /// The aligned pose may turn at most this far from the pose it started from (degrees)...
     pub max_turn_deg: f64,
     /// ... and move its model pixels at most this far (metres); beyond either, the start is
     /// kept.
     pub max_shift_m: f64,
 }
 
-impl Default for PolishConfig {
+impl Default for AlignConfig {
     fn default() -> Self {
         Self {
             enabled: true,
@@ -72,7 +72,7 @@ impl Default for PolishConfig {
     }
 }
 
-impl PolishConfig {
+impl AlignConfig {
     /// Ranges serde cannot check.
     ///
     /// # Errors
@@ -89,22 +89,22 @@ impl PolishConfig {
     }
 }
 
-/// What the polish did on one pair (reported in the estimate).
+/// What the alignment did on one pair (reported in the estimate).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct PolishReport {
+pub struct AlignReport {
     /// Model pixels aligned.
     pub pixels: usize,
     /// Gauss-Newton iterations run.
     pub iterations: usize,
-    /// The truncated cost per pixel at the start and at the polished pose.
+    /// The truncated cost per pixel at the start and at the aligned pose.
     pub cost_before: f64,
     /// See `cost_before`.
     pub cost_after: f64,
-    /// How far the polish turned the pose (degrees; 0 when the start was kept)...
+    /// How far the alignment turned the pose (degrees; 0 when the start was kept)...
     pub turn_deg: f64,
     /// ... and changed its translation (metres).
     pub shift_m: f64,
-    /// Whether the polished pose replaced the start.
+    /// Whether the aligned pose replaced the start.
     pub accepted: bool,
 }
 
@@ -142,7 +142,7 @@ pub struct Scales {
 pub struct Aligner<'a> {
     samples: Vec<Sample>,
     view: TargetView<'a>,
-    cfg: &'a PolishConfig,
+    cfg: &'a AlignConfig,
 }
 
 /// Where a descent ended.
@@ -158,7 +158,7 @@ impl<'a> Aligner<'a> {
     pub fn new(
         model: &PreparedFrame,
         target: &'a PreparedFrame,
-        cfg: &'a PolishConfig,
+        cfg: &'a AlignConfig,
         smoothing_px: usize,
     ) -> Option<Self> {
         let samples = samples(model, cfg, smoothing_px);
@@ -207,17 +207,17 @@ impl<'a> Aligner<'a> {
     }
 }
 
-/// Polish `start` (model to target, colour camera frame) by direct alignment, coarse to fine
+/// Align `start` (model to target, colour camera frame) by direct alignment, coarse to fine
 /// (the textures smoothed by each of `cfg.smoothing_px` in turn, then as they are); the
-/// polished pose (or `start` when it is not kept: a higher cost at the finest level, with the
+/// aligned pose (or `start` when it is not kept: a higher cost at the finest level, with the
 /// scales of the start, or a move beyond `max_turn_deg` / `max_shift_m`) and the report. `None`
 /// when too few pixels can be aligned or the texture is flat.
-pub fn polish(
+pub fn align(
     model: &PreparedFrame,
     target: &PreparedFrame,
     start: &Pose,
-    cfg: &PolishConfig,
-) -> Option<(Pose, PolishReport)> {
+    cfg: &AlignConfig,
+) -> Option<(Pose, AlignReport)> {
     let fine = Aligner::new(model, target, cfg, 0)?;
     let judged_by = fine.scales(start)?;
     let (mut pose, mut iterations) = (*start, 0);
@@ -234,7 +234,7 @@ pub fn polish(
     let shift = fine.samples.iter().map(|s| (pose * s.point - start * s.point).norm()).fold(0.0, f64::max);
     let accepted = cost_after < cost_before && turn_deg <= cfg.max_turn_deg && shift <= cfg.max_shift_m;
     let pose = if accepted { pose } else { *start };
-    let report = PolishReport {
+    let report = AlignReport {
         pixels: fine.pixels(),
         iterations,
         cost_before,
@@ -248,7 +248,7 @@ pub fn polish(
 
 /// The model's object pixels with depth (every `stride`-th, thinned to `max_pixels`), with
 /// their texture smoothed by a box of half-width `smoothing_px`.
-fn samples(model: &PreparedFrame, cfg: &PolishConfig, smoothing_px: usize) -> Vec<Sample> {
+fn samples(model: &PreparedFrame, cfg: &AlignConfig, smoothing_px: usize) -> Vec<Sample> {
     let texture = Texture::new(&model.gray, &model.mask, cfg.texture_radius_px).smoothed(smoothing_px);
     let ((x0, y0), (x1, y1)) = texture.bounds();
     let mut out = Vec::new();
@@ -338,7 +338,7 @@ fn point_twist_jacobian(q: &Point3) -> nalgebra::Matrix3x6<f64> {
 
 /// The residuals' robust noise scales and the texture gain at `pose`; `None` when too few
 /// pixels land on the target or its texture is flat there.
-fn scales(samples: &[Sample], view: &TargetView<'_>, pose: &Pose, cfg: &PolishConfig) -> Option<Scales> {
+fn scales(samples: &[Sample], view: &TargetView<'_>, pose: &Pose, cfg: &AlignConfig) -> Option<Scales> {
     let first: Vec<Residuals> = samples.iter().filter_map(|s| view.residuals(s, pose, 0.0)).collect();
     // Pixels visible in both: the target's depth agrees within the depth of field of a
     // turntable object (a hidden pixel lies behind the target's surface by more).
@@ -375,7 +375,7 @@ fn mad(mut v: Vec<f64>) -> f64 {
 
 /// The truncated cost of `pose`: each residual squared in units of its scale, at most
 /// `truncation^2`; a pixel that leaves the target counts the cap for both.
-fn cost(samples: &[Sample], view: &TargetView<'_>, pose: &Pose, sc: Scales, cfg: &PolishConfig) -> f64 {
+fn cost(samples: &[Sample], view: &TargetView<'_>, pose: &Pose, sc: Scales, cfg: &AlignConfig) -> f64 {
     let cap = cfg.truncation * cfg.truncation;
     samples
         .iter()
@@ -397,7 +397,7 @@ fn gauss_newton_step(
     view: &TargetView<'_>,
     pose: &Pose,
     sc: Scales,
-    cfg: &PolishConfig,
+    cfg: &AlignConfig,
     lambda: f64,
 ) -> Option<Vector6<f64>> {
     let (mut h, mut g) = (Matrix6::<f64>::zeros(), Vector6::<f64>::zeros());
