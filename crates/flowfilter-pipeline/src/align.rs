@@ -5,7 +5,7 @@
 //! model frame's object pixels (back-projected with their depth) by the pose, projects them into
 //! the target frame and minimises, by Gauss-Newton on the pose, two residuals per pixel (the
 //! formulation of dense RGB-D odometry, Kerl et al. 2013, and Open3D's hybrid RGB-D odometry):
-//! - the texture ([`high_pass`] grey values, a gain (the ratio of the two textures' contrasts) so that a change of
+//! - the texture ([`crate::judge::high_pass`] grey values, a gain (the ratio of the two textures' contrasts) so that a change of
 //!   exposure does not count) of the target under the pixel less the model's;
 //! - the target's depth under the pixel less the pixel's own depth.
 //!
@@ -39,7 +39,7 @@ pub struct AlignConfig {
     /// Fewer aligned pixels than this leave the pose as it is.
     pub min_pixels: usize,
     /// Half-width of the box whose mean is taken from the grey values (pixels; see
-    /// [`high_pass`]).
+    /// [`crate::judge::high_pass`]).
     pub texture_radius_px: usize,
     /// A residual beyond this many robust standard deviations stops counting (the pixel is
     /// taken for hidden, off the object or a highlight).
@@ -212,6 +212,30 @@ impl<'a> Aligner<'a> {
 /// aligned pose (or `start` when it is not kept: a higher cost at the finest level, with the
 /// scales of the start, or a move beyond `max_turn_deg` / `max_shift_m`) and the report. `None`
 /// when too few pixels can be aligned or the texture is flat.
+///
+/// ```
+/// use flowfilter_bigbird::SensorId;
+/// use flowfilter_pipeline::align::{AlignConfig, align};
+/// use flowfilter_pipeline::{Pipeline, PipelineConfig, Pose, RgbdFrame};
+/// use flowfilter_synth::{Rig, Scene, procedural, render_frame, world_from_table};
+///
+/// let (rig, sensor) = (Rig::bigbird_like(), SensorId::new(3).unwrap());
+/// let scene = Scene::new(procedural("box", 1)?.placed_on_table(0.01, -0.005), 1);
+/// let pipeline = Pipeline::from_config(PipelineConfig::default())?;
+/// let frame = |angle| {
+///     let f = render_frame(&scene, &rig, sensor, angle, None, 7);
+///     let frame = RgbdFrame { label: format!("{angle}"), color: f.color, depth: f.raw_depth, mask: f.mask, sensor: rig.sensors[&sensor].rgbd };
+///     pipeline.prepare(&frame)
+/// };
+/// let (model, target) = (frame(0)?, frame(6)?);
+/// let h = |angle: f64| rig.sensors[&sensor].h_color_from_world * world_from_table(angle);
+/// let truth = h(6.0) * h(0.0).inverse();
+/// // Half a degree off about the camera's x axis.
+/// let start = Pose::rotation(nalgebra::Vector3::x() * 0.5f64.to_radians()) * truth;
+/// let (pose, report) = align(&model, &target, &start, &AlignConfig::default()).expect("textured");
+/// assert!(report.accepted && (pose.inverse() * truth).rotation.angle().to_degrees() < 0.1);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
 pub fn align(
     model: &PreparedFrame,
     target: &PreparedFrame,

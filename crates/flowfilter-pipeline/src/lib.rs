@@ -8,6 +8,10 @@
 //!   pairs between the two prepared frames;
 //! - any [`flowfilter_registration::Registrar`], chosen by name, aligns the clouds.
 //!
+//! After a registration that used flow, the photometric [`judge`] weighs turned poses against
+//! the target image, and the direct image alignment ([`align`]) refines the pose on the two
+//! images themselves.
+//!
 //! Frames come from the BigBIRD layout ([`load_bigbird_frame`]) or, for any camera whose depth is
 //! registered to colour, from image files and a camera file ([`FrameFiles`]).
 //!

@@ -77,9 +77,9 @@ fn real_ycb_video_frames_run_through_every_method() {
 /// frame gap Flow Filter's mean geodesic error is below FilterReg's, no pair is off by a degree,
 /// and its bounds hold (rotation and translation together) on at least 90% of the pairs.
 ///
-/// And what limits the comparison with the annotation: the images themselves (the alignment's
-/// texture and depth residuals) agree better with Flow Filter's estimate than with the
-/// annotated motion on every pair, while "no motion" agrees worse than both.
+/// And on each object's pixels the images (the direct image alignment's texture and depth
+/// residuals) agree better with Flow Filter's estimate than with the annotated motion, on every
+/// pair, while "no motion" agrees worse than both.
 #[test]
 fn real_frames_flow_filter_beats_filterreg_at_every_gap_and_its_bounds_hold_on_nine_in_ten() {
     let Some(dir) = sample() else { return };
