@@ -274,21 +274,8 @@ pub fn align(
 /// their texture smoothed by a box of half-width `smoothing_px`.
 fn samples(model: &PreparedFrame, cfg: &AlignConfig, smoothing_px: usize) -> Vec<Sample> {
     let texture = Texture::new(&model.gray, &model.mask, cfg.texture_radius_px).smoothed(smoothing_px);
-    let ((x0, y0), (x1, y1)) = texture.bounds();
-    let mut out = Vec::new();
-    for y in (y0.next_multiple_of(cfg.stride)..y1).step_by(cfg.stride) {
-        for x in (x0.next_multiple_of(cfg.stride)..x1).step_by(cfg.stride) {
-            let z = f64::from(*model.depth.at(x, y));
-            if !*model.mask.at(x, y) || z <= 0.0 {
-                continue;
-            }
-            if let (Some(point), Some(t)) = (model.rays.backproject(x, y, z), texture.at(x, y)) {
-                out.push(Sample { point, texture: t });
-            }
-        }
-    }
-    let every = out.len().div_ceil(cfg.max_pixels.max(1)).max(1);
-    out.into_iter().step_by(every).collect()
+    let samples = crate::judge::object_samples(model, &texture, cfg.stride, cfg.max_pixels);
+    samples.into_iter().map(|(point, texture)| Sample { point, texture }).collect()
 }
 
 impl TargetView<'_> {

@@ -218,25 +218,34 @@ impl<'a> Textures<'a> {
     /// The samples of `model` and the texture of `target` ([`high_pass`] with `cfg`'s radius).
     pub fn new(model: &PreparedFrame, target: &'a PreparedFrame, cfg: &JudgeConfig) -> Self {
         let r = cfg.texture_radius_px;
-        let model_texture = Texture::new(&model.gray, &model.mask, r);
-        let ((x0, y0), (x1, y1)) = model_texture.bounds();
-        let mut samples = Vec::new();
-        for y in (y0.next_multiple_of(cfg.stride)..y1).step_by(cfg.stride) {
-            for x in (x0.next_multiple_of(cfg.stride)..x1).step_by(cfg.stride) {
-                let z = f64::from(*model.depth.at(x, y));
-                if !*model.mask.at(x, y) || z <= 0.0 {
-                    continue;
-                }
-                if let (Some(p), Some(t)) = (model.rays.backproject(x, y, z), model_texture.at(x, y)) {
-                    samples.push((p, t));
-                }
-            }
-        }
-        // A large object: every k-th sample, enough to rank candidates a degree apart.
-        let every = samples.len().div_ceil(cfg.max_pixels.max(1));
-        let samples = samples.into_iter().step_by(every.max(1)).collect();
+        let samples = object_samples(model, &Texture::new(&model.gray, &model.mask, r), cfg.stride, cfg.max_pixels);
         Self { target, samples, target_texture: Texture::new(&target.gray, &target.mask, r) }
     }
+}
+
+/// The object pixels of `model` with depth (every `stride`-th in each direction, evenly thinned
+/// to at most `max_pixels` on a large object), back-projected, with their value in `texture`.
+pub(crate) fn object_samples(
+    model: &PreparedFrame,
+    texture: &Texture,
+    stride: usize,
+    max_pixels: usize,
+) -> Vec<(Point3, f64)> {
+    let ((x0, y0), (x1, y1)) = texture.bounds();
+    let mut samples = Vec::new();
+    for y in (y0.next_multiple_of(stride)..y1).step_by(stride) {
+        for x in (x0.next_multiple_of(stride)..x1).step_by(stride) {
+            let z = f64::from(*model.depth.at(x, y));
+            if !*model.mask.at(x, y) || z <= 0.0 {
+                continue;
+            }
+            if let (Some(p), Some(t)) = (model.rays.backproject(x, y, z), texture.at(x, y)) {
+                samples.push((p, t));
+            }
+        }
+    }
+    let every = samples.len().div_ceil(max_pixels.max(1)).max(1);
+    samples.into_iter().step_by(every).collect()
 }
 
 /// One minus the normalised cross-correlation of the model's object pixels moved by `pose` and
