@@ -608,6 +608,8 @@ mod tests {
                 replaced,
                 answer_transform: [[0.0; 4]; 4],
                 retracked_transform: None,
+                aligned_answer_score: None,
+                aligned_candidate: false,
             });
             r.judge_other_error_deg = other;
             r

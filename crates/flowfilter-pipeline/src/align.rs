@@ -242,32 +242,54 @@ pub fn align(
     start: &Pose,
     cfg: &AlignConfig,
 ) -> Option<(Pose, AlignReport)> {
-    let fine = Aligner::new(model, target, cfg, 0)?;
-    let judged_by = fine.scales(start)?;
-    let (mut pose, mut iterations) = (*start, 0);
-    for &smoothing in cfg.smoothing_px.iter().filter(|s| **s > 0) {
-        let Some(coarse) = Aligner::new(model, target, cfg, smoothing) else { continue };
-        let Some(sc) = coarse.scales(&pose) else { continue };
-        let d = coarse.descend(&pose, sc);
-        (pose, iterations) = (d.pose, iterations + d.iterations);
+    Alignment::new(model, target, cfg)?.run(start)
+}
+
+/// The two frames prepared for [`align`] at every level, to align several starts.
+pub struct Alignment<'a> {
+    coarse: Vec<Aligner<'a>>,
+    fine: Aligner<'a>,
+    cfg: &'a AlignConfig,
+}
+
+impl<'a> Alignment<'a> {
+    /// The levels of `cfg`; `None` when the model has fewer than `cfg.min_pixels` object
+    /// pixels with depth.
+    pub fn new(model: &PreparedFrame, target: &'a PreparedFrame, cfg: &'a AlignConfig) -> Option<Self> {
+        let fine = Aligner::new(model, target, cfg, 0)?;
+        let coarse =
+            cfg.smoothing_px.iter().filter(|s| **s > 0).filter_map(|&s| Aligner::new(model, target, cfg, s)).collect();
+        Some(Self { coarse, fine, cfg })
     }
-    let d = fine.descend(&pose, fine.scales(&pose).unwrap_or(judged_by));
-    (pose, iterations) = (d.pose, iterations + d.iterations);
-    let (cost_before, cost_after) = (fine.cost(start, judged_by), fine.cost(&pose, judged_by));
-    let turn_deg = (pose * start.inverse()).rotation.angle().to_degrees();
-    let shift = fine.samples.iter().map(|s| (pose * s.point - start * s.point).norm()).fold(0.0, f64::max);
-    let accepted = cost_after < cost_before && turn_deg <= cfg.max_turn_deg && shift <= cfg.max_shift_m;
-    let pose = if accepted { pose } else { *start };
-    let report = AlignReport {
-        pixels: fine.pixels(),
-        iterations,
-        cost_before,
-        cost_after: if accepted { cost_after } else { cost_before },
-        turn_deg: if accepted { turn_deg } else { 0.0 },
-        shift_m: (pose.translation.vector - start.translation.vector).norm(),
-        accepted,
-    };
-    Some((pose, report))
+
+    /// [`align`] from `start`.
+    pub fn run(&self, start: &Pose) -> Option<(Pose, AlignReport)> {
+        let (fine, cfg) = (&self.fine, self.cfg);
+        let judged_by = fine.scales(start)?;
+        let (mut pose, mut iterations) = (*start, 0);
+        for coarse in &self.coarse {
+            let Some(sc) = coarse.scales(&pose) else { continue };
+            let d = coarse.descend(&pose, sc);
+            (pose, iterations) = (d.pose, iterations + d.iterations);
+        }
+        let d = fine.descend(&pose, fine.scales(&pose).unwrap_or(judged_by));
+        (pose, iterations) = (d.pose, iterations + d.iterations);
+        let (cost_before, cost_after) = (fine.cost(start, judged_by), fine.cost(&pose, judged_by));
+        let turn_deg = (pose * start.inverse()).rotation.angle().to_degrees();
+        let shift = fine.samples.iter().map(|s| (pose * s.point - start * s.point).norm()).fold(0.0, f64::max);
+        let accepted = cost_after < cost_before && turn_deg <= cfg.max_turn_deg && shift <= cfg.max_shift_m;
+        let pose = if accepted { pose } else { *start };
+        let report = AlignReport {
+            pixels: fine.pixels(),
+            iterations,
+            cost_before,
+            cost_after: if accepted { cost_after } else { cost_before },
+            turn_deg: if accepted { turn_deg } else { 0.0 },
+            shift_m: (pose.translation.vector - start.translation.vector).norm(),
+            accepted,
+        };
+        Some((pose, report))
+    }
 }
 
 /// The model's object pixels with depth (every `stride`-th, thinned to `max_pixels`), with

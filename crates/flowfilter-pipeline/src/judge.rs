@@ -54,6 +54,15 @@ pub struct JudgeConfig {
     /// Half-width of the box whose mean is taken from the grey values before comparing
     /// (pixels; see [`high_pass`]).
     pub texture_radius_px: usize,
+    /// Align every coarse candidate and the answer on the images ([`crate::align`]) before
+    /// comparing them: a candidate a few degrees off the true turn scores like any wrong pose
+    /// (the score's basin is 3-6 degrees wide), aligned it scores like the truth.
+    pub align_candidates: bool,
+    /// The candidates' alignment uses at most this many model pixels...
+    pub candidate_pixels: usize,
+    /// ... and at most this many Gauss-Newton steps per level (the rest of `[align]` as
+    /// configured).
+    pub candidate_iterations: usize,
 }
 
 impl Default for JudgeConfig {
@@ -71,6 +80,9 @@ impl Default for JudgeConfig {
             texture_radius_px: 4,
             ambiguity_tolerance: 0.05,
             ambiguity_min_turn_deg: 12.0,
+            align_candidates: true,
+            candidate_pixels: 400,
+            candidate_iterations: 5,
         }
     }
 }
@@ -90,6 +102,8 @@ impl JudgeConfig {
         params::positive("depth_agreement_m", self.depth_agreement_m)?;
         params::non_negative("ambiguity_tolerance", self.ambiguity_tolerance)?;
         params::non_negative("ambiguity_min_turn_deg", self.ambiguity_min_turn_deg)?;
+        params::count_positive("candidate_pixels", self.candidate_pixels)?;
+        params::count_positive("candidate_iterations", self.candidate_iterations)?;
         self.sweep.validate().map_err(|e| e.within("sweep"))
     }
 }
@@ -117,6 +131,14 @@ pub struct JudgeReport {
     pub replaced: bool,
     /// The registration's answer before the judge (4x4 row-major, as `transform`).
     pub answer_transform: [[f64; 4]; 4],
+    /// The answer's score after the candidates' alignment (`align_candidates`), what aligned
+    /// candidates are compared with.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub aligned_answer_score: Option<f64>,
+    /// Whether the replacement is an aligned candidate (`align_candidates`) rather than a
+    /// re-tracked result; `retracked_score` and `retracked_transform` are then its own.
+    #[serde(default)]
+    pub aligned_candidate: bool,
     /// The re-tracked result, when a candidate was tried (whether or not it replaced the
     /// answer).
     #[serde(default, skip_serializing_if = "Option::is_none")]

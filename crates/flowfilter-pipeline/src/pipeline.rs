@@ -1,6 +1,6 @@
 //! [`Pipeline`]: the stages composed, timed, and every degradation reported.
 
-use crate::align::AlignReport;
+use crate::align::{AlignConfig, AlignReport, Alignment};
 use crate::config::PipelineConfig;
 use crate::error::PipelineError;
 use crate::estimate::{CorrespondenceSummary, ESTIMATE_SCHEMA, Estimate, RegistrationSummary, StageTimes, matrix_rows};
@@ -10,7 +10,7 @@ use crate::stages::{CorrespondenceFinder, DepthPreparer, FlowCorrespondenceFinde
 use crate::warning::PipelineWarning;
 use flowfilter_flow::correspondences::FlowPairs;
 use flowfilter_geometry::Pose;
-use flowfilter_registration::judge::TurnHypotheses;
+use flowfilter_registration::judge::{TurnCandidate, TurnHypotheses};
 use flowfilter_registration::{Registrar, Registration, RegistrationProblem, registrar_by_name};
 use std::time::Instant;
 
@@ -284,52 +284,90 @@ impl Pipeline {
             replaced: false,
             answer_transform: matrix_rows(&reg.transform),
             retracked_transform: None,
+            aligned_answer_score: None,
+            aligned_candidate: false,
         };
+        // The candidates and the answer aligned on the images (`judge.align_candidates`).
+        let quick = self.candidate_alignment();
+        let alignment =
+            (cfg.align_candidates && !sweep.coarse.is_empty()).then(|| Alignment::new(model, target, &quick)).flatten();
+        let aligned_score = |pose: &Pose| {
+            let aligned = alignment.as_ref()?.run(pose).map_or(*pose, |(p, _)| p);
+            judge::photometric_score(&images, &aligned, cfg).map(|s| (s, aligned))
+        };
+        let aligned_answer = aligned_score(&reg.transform).map(|(s, _)| s);
+        report.aligned_answer_score = aligned_answer;
+        let aligned_best = aligned_answer.and_then(|answer| {
+            let scored = distinct_candidates(&sweep, 0.5 * cfg.fine_step_deg.max(1.0))
+                .into_iter()
+                .filter_map(|c| aligned_score(&c.pose).map(|(s, p)| (s, p, c)));
+            scored.min_by(|a, b| a.0.total_cmp(&b.0)).filter(|(s, _, _)| *s < cfg.ratio * answer)
+        });
+        // The flow re-tracked from the best candidate as scored without alignment.
+        let retracked = match best.filter(|(s, _)| *s < cfg.ratio * answer_score) {
+            Some((_, candidate)) => self
+                .retracked(finder, model, target, problem, &candidate.pose)?
+                .map(|(r, counts)| (r, counts, candidate)),
+            None => None,
+        };
+        if let Some((again, _, _)) = &retracked {
+            report.retracked_score = judge::photometric_score(&images, &again.transform, cfg);
+            report.retracked_transform = Some(matrix_rows(&again.transform));
+        }
         let kept = |report: JudgeReport| {
             let warning = self.ambiguity(&hypotheses, &sweep, Some(answer_score), None);
             Judged { report: Some(report), retracked: None, warning }
         };
-        let Some((_, candidate)) = best.filter(|(s, _)| *s < cfg.ratio * answer_score) else {
-            return Ok((reg, Some(kept(report))));
-        };
-        let Some((again, counts)) = self.retracked(finder, model, target, problem, &candidate.pose)? else {
-            return Ok((reg, Some(kept(report))));
-        };
-        report.retracked_score = judge::photometric_score(&images, &again.transform, cfg);
-        report.retracked_transform = Some(matrix_rows(&again.transform));
-        match report.retracked_score.filter(|s| *s < answer_score) {
-            Some(score) => {
-                report.replaced = true;
-                let warning = self.ambiguity(&hypotheses, &sweep, Some(score), Some((candidate.axis, candidate.deg)));
-                Ok((again, Some(Judged { report: Some(report), retracked: Some(counts), warning })))
-            }
-            None => Ok((reg, Some(kept(report)))),
+        // The re-tracked result is taken when it matches the image better than the answer (and,
+        // with an aligned candidate in play, when aligned alike it matches at least as well as
+        // that candidate); else a clearly better aligned candidate is taken.
+        let retracked_wins = retracked.as_ref().is_some_and(|(again, _, _)| match &aligned_best {
+            Some((s, _, _)) => aligned_score(&again.transform).is_some_and(|(r, _)| r <= *s),
+            None => report.retracked_score.is_some_and(|r| r < answer_score),
+        });
+        if let Some((again, counts, candidate)) = retracked.filter(|_| retracked_wins) {
+            report.replaced = true;
+            let score = report.retracked_score.unwrap_or(answer_score);
+            let warning = self.ambiguity(&hypotheses, &sweep, Some(score), Some((candidate.axis, candidate.deg)));
+            return Ok((again, Some(Judged { report: Some(report), retracked: Some(counts), warning })));
+        }
+        let Some((score, pose, candidate)) = aligned_best else { return Ok((reg, Some(kept(report)))) };
+        report.replaced = true;
+        report.aligned_candidate = true;
+        report.retracked_score = Some(score);
+        report.retracked_transform = Some(matrix_rows(&pose));
+        let warning = self.ambiguity(&hypotheses, &sweep, Some(score), Some((candidate.axis, candidate.deg)));
+        Ok((moved_to(reg, pose), Some(Judged { report: Some(report), retracked: None, warning })))
+    }
+
+    /// The alignment the judge runs on its candidates: `[align]` with `judge.candidate_pixels`
+    /// and `judge.candidate_iterations`.
+    fn candidate_alignment(&self) -> AlignConfig {
+        let cfg = &self.config.judge;
+        AlignConfig {
+            max_pixels: cfg.candidate_pixels,
+            min_pixels: self.config.align.min_pixels.min(cfg.candidate_pixels),
+            iterations: cfg.candidate_iterations,
+            ..self.config.align.clone()
         }
     }
 
-    /// The registration's pose refined by the direct alignment ([`crate::align`]), when it
-    /// is enabled and the images can be aligned; its error bounds widened by the alignment's move.
+    /// The registration's pose refined by the direct alignment ([`crate::align`]), when it is
+    /// enabled and the images can be aligned; its error bounds widened by the alignment's move.
     fn aligned(
         &self,
         model: &PreparedFrame,
         target: &PreparedFrame,
-        mut reg: Registration,
+        reg: Registration,
     ) -> (Registration, Option<AlignReport>) {
         let cfg = &self.config.align;
         if !cfg.enabled {
             return (reg, None);
         }
-        let Some((pose, report)) = crate::align::align(model, target, &reg.transform, cfg) else {
-            return (reg, None);
-        };
-        reg.transform = pose;
+        let Some((pose, report)) = crate::align::align(model, target, &reg.transform, cfg) else { return (reg, None) };
         // The registration's bounds hold for its own pose: widened by the alignment's move, they
         // hold for the aligned one.
-        if let Some(u) = reg.uncertainty.as_mut() {
-            u.rotation_deg += report.turn_deg;
-            u.translation_m += report.shift_m;
-        }
-        (reg, Some(report))
+        (moved_to(reg, pose), Some(report))
     }
 
     /// The registration with the flow tracked again from `guide` (where the flow follows the
@@ -415,6 +453,28 @@ struct Judged {
     retracked: Option<SearchCounts>,
     /// Other poses that the clouds and the images allow as well.
     warning: Option<PipelineWarning>,
+}
+
+/// The sweep's coarse candidates without those whose pose turns less than `within_deg` from
+/// one already kept (about a can's axis two of the three axes give nearly the same turns).
+fn distinct_candidates(sweep: &judge::Sweep, within_deg: f64) -> Vec<TurnCandidate> {
+    let mut kept: Vec<TurnCandidate> = Vec::new();
+    for (c, _) in &sweep.coarse {
+        if kept.iter().all(|k| (c.pose * k.pose.inverse()).rotation.angle().to_degrees() >= within_deg) {
+            kept.push(*c);
+        }
+    }
+    kept
+}
+
+/// `reg` moved to `pose`: its error bounds (which held for its own pose) widened by the move.
+fn moved_to(mut reg: Registration, pose: Pose) -> Registration {
+    if let Some(u) = reg.uncertainty.as_mut() {
+        u.rotation_deg += (pose * reg.transform.inverse()).rotation.angle().to_degrees();
+        u.translation_m += (pose.translation.vector - reg.transform.translation.vector).norm();
+    }
+    reg.transform = pose;
+    reg
 }
 
 /// A search's counts.

@@ -61,6 +61,9 @@ fn bad_values_are_named() {
         ("[judge]\nratio = 2.0", "judge.ratio"),
         ("[judge]\nambiguity_tolerance = -1.0", "judge.ambiguity_tolerance"),
         ("[judge.sweep]\nsweep_deg = [-6.0]", "judge.sweep"),
+        ("[judge]\ncandidate_pixels = 0", "judge.candidate_pixels"),
+        ("[align]\ntruncation = 0.0", "align.truncation"),
+        ("[align]\nmax_pixels = 10", "align.max_pixels"),
     ] {
         let msg = PipelineConfig::from_toml_str(text, origin).unwrap_err().to_string();
         assert!(msg.contains("x.toml") && msg.contains(needle), "{text}: {msg}");

@@ -88,8 +88,9 @@ impl Estimate {
         json_object(py, &self.estimate.warnings)
     }
     /// What the photometric judge saw (answer_score, candidates, best_score, best_turn_deg,
-    /// best_axis, retracked_score, replaced, answer_transform, retracked_transform), or None
-    /// for methods without flow and where the texture is flat.
+    /// best_axis, retracked_score, replaced, answer_transform, retracked_transform,
+    /// aligned_answer_score, aligned_candidate), or None for methods without flow and where the
+    /// texture is flat.
     #[getter]
     fn judge<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
         json_object(py, &self.estimate.judge)

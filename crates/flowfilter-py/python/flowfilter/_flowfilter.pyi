@@ -185,8 +185,9 @@ class Estimate:
     @property
     def judge(self) -> Optional[Dict[str, Any]]:
         """What the photometric judge saw (answer_score, candidates, best_score, best_turn_deg,
-        best_axis, retracked_score, replaced, answer_transform, retracked_transform); None for
-        methods without flow and where the texture is flat."""
+        best_axis, retracked_score, replaced, answer_transform, retracked_transform,
+        aligned_answer_score, aligned_candidate); None for methods without flow and where the
+        texture is flat."""
     @property
     def align(self) -> Optional[Dict[str, Any]]:
         """What the direct alignment did (pixels, iterations, cost_before, cost_after, turn_deg,
