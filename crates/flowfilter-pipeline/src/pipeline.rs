@@ -297,10 +297,21 @@ impl Pipeline {
         };
         let aligned_answer = aligned_score(&reg.transform).map(|(s, _)| s);
         report.aligned_answer_score = aligned_answer;
-        let aligned_best = aligned_answer.and_then(|answer| {
-            let scored = distinct_candidates(&sweep, 0.5 * cfg.fine_step_deg.max(1.0))
+        // The distinct candidates aligned and scored: what aligned candidates are judged by, and
+        // what the ambiguity is then read from.
+        let aligned: Vec<(TurnCandidate, Option<f64>, Pose)> = match aligned_answer {
+            Some(_) => distinct_candidates(&sweep, DISTINCT_TURN_DEG)
                 .into_iter()
-                .filter_map(|c| aligned_score(&c.pose).map(|(s, p)| (s, p, c)));
+                .map(|c| match aligned_score(&c.pose) {
+                    Some((s, p)) => (c, Some(s), p),
+                    None => (c, None, c.pose),
+                })
+                .collect(),
+            None => vec![],
+        };
+        let aligned_sweep = judge::Sweep { coarse: aligned.iter().map(|(c, s, _)| (*c, *s)).collect(), best: None };
+        let aligned_best = aligned_answer.and_then(|answer| {
+            let scored = aligned.iter().filter_map(|(c, s, p)| s.map(|s| (s, *p, *c)));
             scored.min_by(|a, b| a.0.total_cmp(&b.0)).filter(|(s, _, _)| *s < cfg.ratio * answer)
         });
         // The flow re-tracked from the best candidate as scored without alignment.
@@ -315,7 +326,10 @@ impl Pipeline {
             report.retracked_transform = Some(matrix_rows(&again.transform));
         }
         let kept = |report: JudgeReport| {
-            let warning = self.ambiguity(&hypotheses, &sweep, Some(answer_score), None);
+            let warning = match aligned_answer {
+                Some(a) => self.ambiguity(&hypotheses, &aligned_sweep, Some(a), None),
+                None => self.ambiguity(&hypotheses, &sweep, Some(answer_score), None),
+            };
             Judged { report: Some(report), retracked: None, warning }
         };
         // The re-tracked result is taken when it matches the image better than the answer (and,
@@ -336,7 +350,7 @@ impl Pipeline {
         report.aligned_candidate = true;
         report.retracked_score = Some(score);
         report.retracked_transform = Some(matrix_rows(&pose));
-        let warning = self.ambiguity(&hypotheses, &sweep, Some(score), Some((candidate.axis, candidate.deg)));
+        let warning = self.ambiguity(&hypotheses, &aligned_sweep, Some(score), Some((candidate.axis, candidate.deg)));
         Ok((moved_to(reg, pose), Some(Judged { report: Some(report), retracked: None, warning })))
     }
 
@@ -454,6 +468,9 @@ struct Judged {
     /// Other poses that the clouds and the images allow as well.
     warning: Option<PipelineWarning>,
 }
+
+/// Candidates whose poses turn less than this from each other (degrees) are aligned once.
+const DISTINCT_TURN_DEG: f64 = 0.5;
 
 /// The sweep's coarse candidates without those whose pose turns less than `within_deg` from
 /// one already kept (about a can's axis two of the three axes give nearly the same turns).
