@@ -5,8 +5,9 @@
 //! model frame's object pixels (back-projected with their depth) by the pose, projects them into
 //! the target frame and minimises, by Gauss-Newton on the pose, two residuals per pixel (the
 //! formulation of dense RGB-D odometry, Kerl et al. 2013, and Open3D's hybrid RGB-D odometry):
-//! - the texture ([`crate::judge::high_pass`] grey values, a gain (the ratio of the two textures' contrasts) so that a change of
-//!   exposure does not count) of the target under the pixel less the model's;
+//! - the target's texture under the pixel ([`crate::judge::high_pass`] grey values) less the
+//!   model's times a gain (the ratio of the two textures' contrasts, so that a change of exposure
+//!   does not count);
 //! - the target's depth under the pixel less the pixel's own depth.
 //!
 //! Each residual is scaled by a robust estimate of its noise (the median absolute deviation)
