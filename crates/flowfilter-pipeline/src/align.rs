@@ -125,8 +125,6 @@ struct TargetView<'a> {
 struct Residuals {
     texture: f64,
     texture_jacobian: Vector6<f64>,
-    /// The model's texture (the gain multiplies it).
-    model_texture: f64,
     depth: Option<(f64, Vector6<f64>)>,
 }
 
@@ -317,7 +315,7 @@ impl TargetView<'_> {
             let j = image.row(0) * dzx + image.row(1) * dzy - dq.row(2);
             (z - q.z, j.transpose())
         });
-        Some(Residuals { texture: b - gain * s.texture, texture_jacobian, model_texture: s.texture, depth })
+        Some(Residuals { texture: b - gain * s.texture, texture_jacobian, depth })
     }
 
     /// The residuals of [`TargetView::residuals`] without their Jacobians (what the cost reads:
@@ -382,23 +380,28 @@ fn point_twist_jacobian(q: &Point3) -> nalgebra::Matrix3x6<f64> {
 /// The residuals' robust noise scales and the texture gain at `pose`; `None` when too few
 /// pixels land on the target or its texture is flat there.
 fn scales(samples: &[Sample], view: &TargetView<'_>, pose: &Pose, cfg: &AlignConfig) -> Option<Scales> {
-    let first: Vec<Residuals> = samples.iter().filter_map(|s| view.residuals(s, pose, 0.0)).collect();
-    // Pixels visible in both: the target's depth agrees within the depth of field of a
-    // turntable object (a hidden pixel lies behind the target's surface by more).
-    let visible: Vec<&Residuals> = first.iter().filter(|r| r.depth.is_some_and(|(d, _)| d.abs() < 0.01)).collect();
+    // (target texture, model texture, depth residual) of the pixels visible in both: the
+    // target's depth agrees within the depth of field of a turntable object (a hidden pixel
+    // lies behind the target's surface by more).
+    let visible: Vec<(f64, f64, f64)> = samples
+        .iter()
+        .filter_map(|s| {
+            let (b, d) = view.values(s, pose, 0.0)?;
+            d.filter(|d| d.abs() < 0.01).map(|d| (b, s.texture, d))
+        })
+        .collect();
     if visible.len() < cfg.min_pixels {
         return None;
     }
     // The exposure's gain as the ratio of the textures' contrasts (not their regression, which
     // falls to zero when the start is a pixel or two off and the textures do not yet overlap).
-    let (sbb, saa) =
-        visible.iter().fold((0.0, 0.0), |(bb, aa), r| (bb + r.texture.powi(2), aa + r.model_texture.powi(2)));
+    let (sbb, saa) = visible.iter().fold((0.0, 0.0), |(bb, aa), (b, a, _)| (bb + b * b, aa + a * a));
     if saa <= 1e-12 || sbb <= 1e-12 {
         return None;
     }
     let gain = (sbb / saa).sqrt();
-    let texture = mad(visible.iter().map(|r| r.texture - gain * r.model_texture).collect());
-    let depth = mad(visible.iter().filter_map(|r| r.depth.map(|(d, _)| d)).collect()).max(cfg.min_depth_noise_m);
+    let texture = mad(visible.iter().map(|(b, a, _)| b - gain * a).collect());
+    let depth = mad(visible.iter().map(|(_, _, d)| *d).collect()).max(cfg.min_depth_noise_m);
     (texture > 1e-9).then_some(Scales { texture, depth, gain })
 }
 
