@@ -18,7 +18,7 @@
 use crate::judge::Texture;
 use crate::stages::PreparedFrame;
 use flowfilter_geometry::{ParamError, Point3, Pose, Vector3, params, se3};
-use nalgebra::{Matrix6, Vector6};
+use nalgebra::{SMatrix, SVector, Vector2};
 use serde::{Deserialize, Serialize};
 
 /// The alignment's parameters (`[align]` in the pipeline configuration).
@@ -48,11 +48,24 @@ pub struct AlignConfig {
     /// The depth residual's noise is taken as at least this (metres): keeps a smooth synthetic
     /// surface from outweighing the texture.
     pub min_depth_noise_m: f64,
+    /// ... and at least the depth sensor's resolution at the pixel's depth: one step of its
+    /// disparity, this many metres at 1 m, growing with the square of the depth (structured
+    /// light and stereo alike). A difference of two quantised depths can be off by a step, and
+    /// where most differences fall on the same step their spread (the robust scale) says less.
+    pub depth_step_at_1m_m: f64,
     /// The aligned pose may turn at most this far from the pose it started from (degrees)...
     pub max_turn_deg: f64,
     /// ... and move its model pixels at most this far (metres); beyond either, the start is
     /// kept.
     pub max_shift_m: f64,
+    /// The target colour image's rolling-shutter row shear (pixels of shift per pixel row, both
+    /// directions) is estimated with the pose, under a zero-mean Gaussian prior of this standard
+    /// deviation; 0 aligns a rigid motion alone. See the module documentation.
+    pub row_shear_sd: f64,
+    /// Align both ways: the model's pixels into the target and the target's pixels into the
+    /// model (from the inverse start); the pose is the two results' midpoint. Each frame's
+    /// pixels and noise then count alike.
+    pub symmetric: bool,
 }
 
 impl Default for AlignConfig {
@@ -61,14 +74,17 @@ impl Default for AlignConfig {
             enabled: true,
             iterations: 10,
             smoothing_px: vec![2],
-            stride: 2,
+            stride: 1,
             max_pixels: 3000,
             min_pixels: 200,
             texture_radius_px: 4,
             truncation: 3.0,
             min_depth_noise_m: 0.001,
+            depth_step_at_1m_m: 0.0029,
             max_turn_deg: 3.0,
             max_shift_m: 0.02,
+            row_shear_sd: 0.01,
+            symmetric: true,
         }
     }
 }
@@ -85,8 +101,10 @@ impl AlignConfig {
         params::require(self.max_pixels >= self.min_pixels, "max_pixels", "at least min_pixels", self.max_pixels)?;
         params::positive("truncation", self.truncation)?;
         params::positive("min_depth_noise_m", self.min_depth_noise_m)?;
+        params::non_negative("depth_step_at_1m_m", self.depth_step_at_1m_m)?;
         params::positive("max_turn_deg", self.max_turn_deg)?;
-        params::positive("max_shift_m", self.max_shift_m)
+        params::positive("max_shift_m", self.max_shift_m)?;
+        params::non_negative("row_shear_sd", self.row_shear_sd)
     }
 }
 
@@ -105,6 +123,9 @@ pub struct AlignReport {
     pub turn_deg: f64,
     /// ... and changed its translation (metres).
     pub shift_m: f64,
+    /// The target colour image's row shear estimated with the pose (pixels per pixel row, x
+    /// and y; 0 when the start was kept or `row_shear_sd` is 0).
+    pub row_shear_px_per_row: [f64; 2],
     /// Whether the aligned pose replaced the start.
     pub accepted: bool,
 }
@@ -119,13 +140,61 @@ struct Sample {
 struct TargetView<'a> {
     frame: &'a PreparedFrame,
     texture: Texture,
+    /// The row the shear turns about: the model object's mean row.
+    row0: f64,
+    /// How many samples share one texture box (its area over the samples' spacing squared, at
+    /// least 1): their residuals are counted once per box where independence matters (the
+    /// shear's prior and its test).
+    shared: f64,
 }
 
-/// One pixel's residuals and their Jacobians with respect to a left twist `(rho, phi)`.
+/// The 95% quantiles of a chi-square with 2 and 4 degrees of freedom: the shear's evidence from
+/// one way and from both ways.
+const CHI2_2DOF_95: f64 = 5.99;
+const CHI2_4DOF_95: f64 = 9.49;
+
+/// The unknowns' count: a left twist `(rho, phi)` of the pose, then the row shear.
+const DOF: usize = 8;
+
+/// A step or Jacobian row over the unknowns.
+type Step = SVector<f64, DOF>;
+
+/// What the alignment moves: the pose, and the target colour image's row shear (pixels of
+/// shift per pixel row, x and y, about the model object's mean row).
+#[derive(Debug, Clone, Copy)]
+struct State {
+    pose: Pose,
+    shear: Vector2<f64>,
+    /// Whether the shear is an unknown (else it stays at 0).
+    free_shear: bool,
+}
+
+impl State {
+    /// `pose` with no shear, and the shear held at 0.
+    fn rigid(pose: Pose) -> Self {
+        Self { pose, shear: Vector2::zeros(), free_shear: false }
+    }
+
+    /// `pose` with no shear yet, the shear free.
+    fn sheared(pose: Pose) -> Self {
+        Self { free_shear: true, ..Self::rigid(pose) }
+    }
+
+    /// The state moved by `step`.
+    fn stepped(&self, step: &Step) -> Self {
+        let twist = step.fixed_rows::<6>(0).into_owned();
+        Self { pose: se3::exp(&twist) * self.pose, shear: self.shear + step.fixed_rows::<2>(6), ..*self }
+    }
+}
+
+/// One pixel's residuals and their Jacobians with respect to the state (a left twist
+/// `(rho, phi)`, then the shear).
 struct Residuals {
     texture: f64,
-    texture_jacobian: Vector6<f64>,
-    depth: Option<(f64, Vector6<f64>)>,
+    texture_jacobian: Step,
+    depth: Option<(f64, Step)>,
+    /// The moved point's depth (what the depth noise grows with).
+    z: f64,
 }
 
 /// Robust noise scales of the two residuals and the texture's gain (see [`Aligner::scales`]).
@@ -146,8 +215,33 @@ pub struct Aligner<'a> {
 
 /// Where a descent ended.
 struct Descent {
-    pose: Pose,
+    state: State,
     iterations: usize,
+}
+
+/// The rigid descent and, when the shear is estimated, the sheared one after it with its
+/// evidence ([`Aligner::shear_evidence`]).
+struct Descents {
+    rigid: Descent,
+    sheared: Option<(Descent, f64)>,
+}
+
+impl Descents {
+    /// The sheared descent's evidence for its shear (0 without one).
+    fn shear_evidence(&self) -> f64 {
+        self.sheared.as_ref().map_or(0.0, |(_, z2)| *z2)
+    }
+
+    /// The sheared descent when `keep_shear` (and there is one), else the rigid one; its
+    /// iterations count both.
+    fn chosen(self, keep_shear: bool) -> Descent {
+        let spent = self.rigid.iterations + self.sheared.as_ref().map_or(0, |(d, _)| d.iterations);
+        let d = match self.sheared {
+            Some((d, _)) if keep_shear => d,
+            _ => self.rigid,
+        };
+        Descent { iterations: spent, ..d }
+    }
 }
 
 impl<'a> Aligner<'a> {
@@ -160,33 +254,46 @@ impl<'a> Aligner<'a> {
         cfg: &'a AlignConfig,
         smoothing_px: usize,
     ) -> Option<Self> {
-        let samples = samples(model, cfg, smoothing_px);
+        let (samples, spacing) = samples(model, cfg, smoothing_px);
+        let shared = ((2 * cfg.texture_radius_px + 1) as f64 / spacing).powi(2).max(1.0);
         let texture = Texture::new(&target.gray, &target.mask, cfg.texture_radius_px).smoothed(smoothing_px);
-        (samples.len() >= cfg.min_pixels).then_some(Self { samples, view: TargetView { frame: target, texture }, cfg })
+        let rows: Vec<f64> = samples.iter().filter_map(|s| model.sensor.color.project(&s.point)).map(|p| p.y).collect();
+        let row0 = rows.iter().sum::<f64>() / rows.len().max(1) as f64;
+        (samples.len() >= cfg.min_pixels).then_some(Self {
+            samples,
+            view: TargetView { frame: target, texture, row0, shared },
+            cfg,
+        })
     }
 
     /// The residuals' noise scales at `pose`; `None` when too few pixels are visible in both
     /// frames or the texture is flat there.
     pub fn scales(&self, pose: &Pose) -> Option<Scales> {
-        scales(&self.samples, &self.view, pose, self.cfg)
+        scales(&self.samples, &self.view, &State::rigid(*pose), self.cfg)
     }
 
-    /// The truncated cost per pixel of `pose` with the scales `sc`.
+    /// The truncated cost per pixel of `pose` (the target image taken as unsheared) with the
+    /// scales `sc`.
     pub fn cost(&self, pose: &Pose, sc: Scales) -> f64 {
-        cost(&self.samples, &self.view, pose, sc, self.cfg) / self.samples.len() as f64
+        self.state_cost(&State::rigid(*pose), sc)
+    }
+
+    /// The truncated cost per pixel of `state`, its shear's prior included.
+    fn state_cost(&self, state: &State, sc: Scales) -> f64 {
+        cost(&self.samples, &self.view, state, sc, self.cfg) / self.samples.len() as f64
     }
 
     /// Damped Gauss-Newton from `start` with the scales `sc`, while it lowers the cost.
-    fn descend(&self, start: &Pose, sc: Scales) -> Descent {
+    fn descend(&self, start: &State, sc: Scales) -> Descent {
         let cfg = self.cfg;
-        let (mut pose, mut current, mut lambda, mut iterations) = (*start, self.cost(start, sc), 1e-4, 0);
+        let (mut state, mut current, mut lambda, mut iterations) = (*start, self.state_cost(start, sc), 1e-4, 0);
         while iterations < cfg.iterations {
             iterations += 1;
-            let Some(step) = gauss_newton_step(&self.samples, &self.view, &pose, sc, cfg, lambda) else { break };
-            let trial = se3::exp(&step) * pose;
-            let c = self.cost(&trial, sc);
+            let Some(step) = gauss_newton_step(&self.samples, &self.view, &state, sc, cfg, lambda) else { break };
+            let trial = state.stepped(&step);
+            let c = self.state_cost(&trial, sc);
             if c < current {
-                (pose, current, lambda) = (trial, c, (lambda * 0.3).max(1e-6));
+                (state, current, lambda) = (trial, c, (lambda * 0.3).max(1e-6));
                 if step.norm() < 1e-7 {
                     break;
                 }
@@ -197,7 +304,16 @@ impl<'a> Aligner<'a> {
                 }
             }
         }
-        Descent { pose, iterations }
+        Descent { state, iterations }
+    }
+
+    /// The likelihood ratio of a sheared state against a rigid one: the drop of the truncated
+    /// cost (in units of the residuals' noise), the residuals counted once per texture box (as
+    /// in the prior). Twice the log-likelihood ratio of nested models: a chi-square with as many
+    /// degrees of freedom as the shear adds where the frames show no shear.
+    fn shear_evidence(&self, rigid: &State, sheared: &State, sc: Scales) -> f64 {
+        let drop = self.state_cost(rigid, sc) - self.state_cost(sheared, sc);
+        drop * self.samples.len() as f64 / self.view.shared
     }
 
     /// Pixels aligned.
@@ -241,7 +357,44 @@ pub fn align(
     start: &Pose,
     cfg: &AlignConfig,
 ) -> Option<(Pose, AlignReport)> {
-    Alignment::new(model, target, cfg)?.run(start)
+    let forward = Alignment::new(model, target, cfg)?;
+    if !cfg.symmetric {
+        return forward.run(start);
+    }
+    let Some(backward) = Alignment::new(target, model, cfg) else { return forward.run(start) };
+    let back_start = start.inverse();
+    let (Some(fwd_scales), Some(bwd_scales)) = (forward.fine.scales(start), backward.fine.scales(&back_start)) else {
+        return forward.run(start);
+    };
+    // The shear is kept both ways or neither, on the evidence of both.
+    let (fd, bd) = (forward.descents(start, fwd_scales), backward.descents(&back_start, bwd_scales));
+    let keep = fd.shear_evidence() + bd.shear_evidence() > CHI2_4DOF_95;
+    let (forward_pose, report) = forward.finish(start, fwd_scales, fd.chosen(keep));
+    let (back_pose, back_report) = backward.finish(&back_start, bwd_scales, bd.chosen(keep));
+    let back = back_report.accepted.then(|| back_pose.inverse());
+    let pose = match back {
+        Some(back) if report.accepted => midpoint(&forward_pose, &back),
+        Some(back) => back,
+        None => forward_pose,
+    };
+    Some((pose, summarised(report, start, &pose)))
+}
+
+/// The geodesic midpoint of two poses.
+fn midpoint(a: &Pose, b: &Pose) -> Pose {
+    se3::exp(&(se3::log(&(b * a.inverse())) * 0.5)) * a
+}
+
+/// The forward alignment's report for the pose `pose` both ways came to: its move from `start`
+/// (accepted when either way was).
+fn summarised(forward: AlignReport, start: &Pose, pose: &Pose) -> AlignReport {
+    let moved = pose != start;
+    AlignReport {
+        turn_deg: (pose * start.inverse()).rotation.angle().to_degrees(),
+        shift_m: (pose.translation.vector - start.translation.vector).norm(),
+        accepted: forward.accepted || moved,
+        ..forward
+    }
 }
 
 /// The two frames prepared for [`align`] at every level, to align several starts.
@@ -261,19 +414,51 @@ impl<'a> Alignment<'a> {
         Some(Self { coarse, fine, cfg })
     }
 
-    /// [`align`] from `start`.
-    pub fn run(&self, start: &Pose) -> Option<(Pose, AlignReport)> {
+    /// Every level's descent in turn from `start`.
+    fn descend_levels(&self, start: State, judged_by: Scales) -> Descent {
         let (fine, cfg) = (&self.fine, self.cfg);
-        let judged_by = fine.scales(start)?;
-        let (mut pose, mut iterations) = (*start, 0);
+        let (mut state, mut iterations) = (start, 0);
         for coarse in &self.coarse {
-            let Some(sc) = coarse.scales(&pose) else { continue };
-            let d = coarse.descend(&pose, sc);
-            (pose, iterations) = (d.pose, iterations + d.iterations);
+            let Some(sc) = scales(&coarse.samples, &coarse.view, &state, cfg) else { continue };
+            let d = coarse.descend(&state, sc);
+            (state, iterations) = (d.state, iterations + d.iterations);
         }
-        let d = fine.descend(&pose, fine.scales(&pose).unwrap_or(judged_by));
-        (pose, iterations) = (d.pose, iterations + d.iterations);
-        let (cost_before, cost_after) = (fine.cost(start, judged_by), fine.cost(&pose, judged_by));
+        let sc = scales(&fine.samples, &fine.view, &state, cfg).unwrap_or(judged_by);
+        let d = fine.descend(&state, sc);
+        Descent { state: d.state, iterations: iterations + d.iterations }
+    }
+
+    /// [`align`] from `start`, one way: the shear is kept when the frames show it
+    /// ([`Aligner::shear_evidence`] beyond the 95% quantile of a chi-square with 2 degrees of
+    /// freedom), else the rigid alignment is.
+    pub fn run(&self, start: &Pose) -> Option<(Pose, AlignReport)> {
+        let judged_by = self.fine.scales(start)?;
+        let d = self.descents(start, judged_by);
+        let keep = d.shear_evidence() > CHI2_2DOF_95;
+        Some(self.finish(start, judged_by, d.chosen(keep)))
+    }
+
+    /// The rigid descent through every level from `start`, then (when `row_shear_sd` is not 0)
+    /// the finest level again from its pose with the shear free. The shear is freed only once
+    /// the pose is aligned: from a pose still off, a stretch of the rows would take up part of
+    /// a tilt.
+    fn descents(&self, start: &Pose, judged_by: Scales) -> Descents {
+        let rigid = self.descend_levels(State::rigid(*start), judged_by);
+        let sheared = (self.cfg.row_shear_sd > 0.0).then(|| {
+            let d = self.descend_levels(State::sheared(rigid.state.pose), judged_by);
+            let evidence = self.fine.shear_evidence(&rigid.state, &d.state, judged_by);
+            (d, evidence)
+        });
+        Descents { rigid, sheared }
+    }
+
+    /// The aligned pose and report from `descent`: kept when it lowers the cost and stays
+    /// within the stated move.
+    fn finish(&self, start: &Pose, judged_by: Scales, descent: Descent) -> (Pose, AlignReport) {
+        let (fine, cfg) = (&self.fine, self.cfg);
+        let (state, iterations) = (descent.state, descent.iterations);
+        let pose = state.pose;
+        let (cost_before, cost_after) = (fine.cost(start, judged_by), fine.state_cost(&state, judged_by));
         let turn_deg = (pose * start.inverse()).rotation.angle().to_degrees();
         let shift = fine.samples.iter().map(|s| (pose * s.point - start * s.point).norm()).fold(0.0, f64::max);
         let accepted = cost_after < cost_before && turn_deg <= cfg.max_turn_deg && shift <= cfg.max_shift_m;
@@ -285,46 +470,61 @@ impl<'a> Alignment<'a> {
             cost_after: if accepted { cost_after } else { cost_before },
             turn_deg: if accepted { turn_deg } else { 0.0 },
             shift_m: (pose.translation.vector - start.translation.vector).norm(),
+            row_shear_px_per_row: if accepted { [state.shear.x, state.shear.y] } else { [0.0; 2] },
             accepted,
         };
-        Some((pose, report))
+        (pose, report)
     }
 }
 
 /// The model's object pixels with depth (every `stride`-th, thinned to `max_pixels`), with
 /// their texture smoothed by a box of half-width `smoothing_px`.
-fn samples(model: &PreparedFrame, cfg: &AlignConfig, smoothing_px: usize) -> Vec<Sample> {
+fn samples(model: &PreparedFrame, cfg: &AlignConfig, smoothing_px: usize) -> (Vec<Sample>, f64) {
     let texture = Texture::new(&model.gray, &model.mask, cfg.texture_radius_px).smoothed(smoothing_px);
-    let samples = crate::judge::object_samples(model, &texture, cfg.stride, cfg.max_pixels);
-    samples.into_iter().map(|(point, texture)| Sample { point, texture }).collect()
+    let all = crate::judge::object_samples(model, &texture, cfg.stride, usize::MAX);
+    let every = all.len().div_ceil(cfg.max_pixels.max(1)).max(1);
+    let spacing = cfg.stride as f64 * (every as f64).sqrt();
+    let samples = all.into_iter().step_by(every).map(|(point, texture)| Sample { point, texture }).collect();
+    (samples, spacing)
 }
 
 impl TargetView<'_> {
     /// The residuals of one model pixel moved by `pose`; `None` where it leaves the target's
     /// texture.
-    fn residuals(&self, s: &Sample, pose: &Pose, gain: f64) -> Option<Residuals> {
+    fn residuals(&self, s: &Sample, state: &State, gain: f64) -> Option<Residuals> {
         let camera = &self.frame.sensor.color;
-        let q = pose * s.point;
+        let q = state.pose * s.point;
         let px = camera.project(&q)?;
-        let (b, gx, gy) = self.texture.bilinear_gradient(px.x, px.y)?;
+        let lean = px.y - self.row0;
+        let (sx, sy) = (px.x + state.shear.x * lean, px.y + state.shear.y * lean);
+        let (b, gx, gy) = self.texture.bilinear_gradient(sx, sy)?;
         let jp = projection_jacobian(camera, &q)?;
         let dq = point_twist_jacobian(&q);
         let image = jp * dq; // 2x6: the pixel's motion per twist
-        let texture_jacobian = (image.row(0) * gx + image.row(1) * gy).transpose();
+        // The sheared pixel's motion: its row moves its shift too.
+        let (gx_pose, gy_pose) = (gx, gx * state.shear.x + gy * (1.0 + state.shear.y));
+        let mut texture_jacobian = Step::zeros();
+        texture_jacobian
+            .fixed_rows_mut::<6>(0)
+            .copy_from(&(image.row(0) * gx_pose + image.row(1) * gy_pose).transpose());
+        texture_jacobian[6] = gx * lean;
+        texture_jacobian[7] = gy * lean;
         let depth = self.depth_at(px.x, px.y).map(|(z, dzx, dzy)| {
-            let j = image.row(0) * dzx + image.row(1) * dzy - dq.row(2);
-            (z - q.z, j.transpose())
+            let mut j = Step::zeros();
+            j.fixed_rows_mut::<6>(0).copy_from(&(image.row(0) * dzx + image.row(1) * dzy - dq.row(2)).transpose());
+            (z - q.z, j)
         });
-        Some(Residuals { texture: b - gain * s.texture, texture_jacobian, depth })
+        Some(Residuals { texture: b - gain * s.texture, texture_jacobian, depth, z: q.z })
     }
 
     /// The residuals of [`TargetView::residuals`] without their Jacobians (what the cost reads:
-    /// a sixth of the projections).
-    fn values(&self, s: &Sample, pose: &Pose, gain: f64) -> Option<(f64, Option<f64>)> {
-        let q = pose * s.point;
+    /// a sixth of the projections): texture, depth, and the moved point's depth.
+    fn values(&self, s: &Sample, state: &State, gain: f64) -> Option<(f64, Option<f64>, f64)> {
+        let q = state.pose * s.point;
         let px = self.frame.sensor.color.project(&q)?;
-        let (b, _, _) = self.texture.bilinear_gradient(px.x, px.y)?;
-        Some((b - gain * s.texture, self.depth_at(px.x, px.y).map(|(z, _, _)| z - q.z)))
+        let lean = px.y - self.row0;
+        let (b, _, _) = self.texture.bilinear_gradient(px.x + state.shear.x * lean, px.y + state.shear.y * lean)?;
+        Some((b - gain * s.texture, self.depth_at(px.x, px.y).map(|(z, _, _)| z - q.z), q.z))
     }
 
     /// The target's depth at `(x, y)` (bilinear) and its gradient, where the four pixels
@@ -379,14 +579,14 @@ fn point_twist_jacobian(q: &Point3) -> nalgebra::Matrix3x6<f64> {
 
 /// The residuals' robust noise scales and the texture gain at `pose`; `None` when too few
 /// pixels land on the target or its texture is flat there.
-fn scales(samples: &[Sample], view: &TargetView<'_>, pose: &Pose, cfg: &AlignConfig) -> Option<Scales> {
+fn scales(samples: &[Sample], view: &TargetView<'_>, state: &State, cfg: &AlignConfig) -> Option<Scales> {
     // (target texture, model texture, depth residual) of the pixels visible in both: the
     // target's depth agrees within the depth of field of a turntable object (a hidden pixel
     // lies behind the target's surface by more).
     let visible: Vec<(f64, f64, f64)> = samples
         .iter()
         .filter_map(|s| {
-            let (b, d) = view.values(s, pose, 0.0)?;
+            let (b, d, _) = view.values(s, state, 0.0)?;
             d.filter(|d| d.abs() < 0.01).map(|d| (b, s.texture, d))
         })
         .collect();
@@ -419,21 +619,23 @@ fn mad(mut v: Vec<f64>) -> f64 {
     1.4826 * median(&mut dev)
 }
 
-/// The truncated cost of `pose`: each residual squared in units of its scale, at most
-/// `truncation^2`; a pixel that leaves the target counts the cap for both.
-fn cost(samples: &[Sample], view: &TargetView<'_>, pose: &Pose, sc: Scales, cfg: &AlignConfig) -> f64 {
+/// The truncated cost of `state`: each residual squared in units of its scale, at most
+/// `truncation^2` (a pixel that leaves the target counts the cap for both), and the shear's
+/// prior.
+fn cost(samples: &[Sample], view: &TargetView<'_>, state: &State, sc: Scales, cfg: &AlignConfig) -> f64 {
     let cap = cfg.truncation * cfg.truncation;
-    samples
-        .iter()
-        .map(|s| match view.values(s, pose, sc.gain) {
-            None => 2.0 * cap,
-            Some((texture, depth)) => {
-                let t = (texture / sc.texture).powi(2).min(cap);
-                let d = depth.map_or(cap, |d| (d / sc.depth).powi(2).min(cap));
-                t + d
-            }
-        })
-        .sum()
+    shear_prior(state, cfg, view.shared).0
+        + samples
+            .iter()
+            .map(|s| match view.values(s, state, sc.gain) {
+                None => 2.0 * cap,
+                Some((texture, depth, z)) => {
+                    let t = (texture / sc.texture).powi(2).min(cap);
+                    let d = depth.map_or(cap, |d| (d / depth_scale(sc, cfg, z)).powi(2).min(cap));
+                    t + d
+                }
+            })
+            .sum::<f64>()
 }
 
 /// One damped Gauss-Newton step on the residuals within the truncation; `None` when the
@@ -441,14 +643,28 @@ fn cost(samples: &[Sample], view: &TargetView<'_>, pose: &Pose, sc: Scales, cfg:
 fn gauss_newton_step(
     samples: &[Sample],
     view: &TargetView<'_>,
-    pose: &Pose,
+    state: &State,
     sc: Scales,
     cfg: &AlignConfig,
     lambda: f64,
-) -> Option<Vector6<f64>> {
-    let (mut h, mut g) = (Matrix6::<f64>::zeros(), Vector6::<f64>::zeros());
-    for r in samples.iter().filter_map(|s| view.residuals(s, pose, sc.gain)) {
-        let mut add = |res: f64, jac: &Vector6<f64>, scale: f64| {
+) -> Option<Step> {
+    let (h, g) = normal_equations(samples, view, state, sc, cfg);
+    let damped = h + SMatrix::<f64, DOF, DOF>::from_diagonal(&h.diagonal()) * lambda;
+    damped.cholesky().map(|c| -c.solve(&g))
+}
+
+/// The Gauss-Newton normal equations `(J^T W J, J^T W r)` at `state`, over the residuals within
+/// the truncation and the shear's prior.
+fn normal_equations(
+    samples: &[Sample],
+    view: &TargetView<'_>,
+    state: &State,
+    sc: Scales,
+    cfg: &AlignConfig,
+) -> (SMatrix<f64, DOF, DOF>, Step) {
+    let (mut h, mut g) = (SMatrix::<f64, DOF, DOF>::zeros(), Step::zeros());
+    for r in samples.iter().filter_map(|s| view.residuals(s, state, sc.gain)) {
+        let mut add = |res: f64, jac: &Step, scale: f64| {
             if (res / scale).abs() <= cfg.truncation {
                 let w = 1.0 / (scale * scale);
                 h += jac * jac.transpose() * w;
@@ -456,15 +672,49 @@ fn gauss_newton_step(
             }
         };
         if let Some((d, jd)) = &r.depth {
-            if (d / sc.depth).abs() > cfg.truncation {
+            let scale = depth_scale(sc, cfg, r.z);
+            if (d / scale).abs() > cfg.truncation {
                 continue; // hidden in one of the frames: its texture is another surface's
             }
-            add(*d, jd, sc.depth);
+            add(*d, jd, scale);
         } else {
             continue;
         }
         add(r.texture, &r.texture_jacobian, sc.texture);
     }
-    let damped = h + Matrix6::from_diagonal(&h.diagonal()) * lambda;
-    damped.cholesky().map(|c| -c.solve(&g))
+    match shear_prior(state, cfg, view.shared).1 {
+        Some(w) => {
+            for k in 6..DOF {
+                h[(k, k)] += w;
+                g[k] += w * state.shear[k - 6];
+            }
+        }
+        None => {
+            // A rigid alignment: the shear is not an unknown (it stays at 0).
+            h.view_mut((6, 0), (2, DOF)).fill(0.0);
+            h.view_mut((0, 6), (DOF, 2)).fill(0.0);
+            g.rows_mut(6, 2).fill(0.0);
+            h[(6, 6)] = 1.0;
+            h[(7, 7)] = 1.0;
+        }
+    }
+    (h, g)
+}
+
+/// The depth residual's noise at depth `z`: the robust scale, at least the sensor's resolution
+/// there.
+fn depth_scale(sc: Scales, cfg: &AlignConfig, z: f64) -> f64 {
+    sc.depth.max(cfg.depth_step_at_1m_m * z * z)
+}
+
+/// The shear's prior: its cost, and its weight (`None` when the shear is not estimated).
+fn shear_prior(state: &State, cfg: &AlignConfig, shared: f64) -> (f64, Option<f64>) {
+    if !state.free_shear || cfg.row_shear_sd <= 0.0 {
+        return (0.0, None);
+    }
+    // The residuals of neighbouring pixels share their texture's box mean: about one in
+    // (2r + 1)^2 / stride^2 says something of its own, and the prior weighs as much against
+    // them.
+    let w = shared / (cfg.row_shear_sd * cfg.row_shear_sd);
+    (state.shear.norm_squared() * w, Some(w))
 }

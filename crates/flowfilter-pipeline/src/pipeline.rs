@@ -362,6 +362,9 @@ impl Pipeline {
             max_pixels: cfg.candidate_pixels,
             min_pixels: self.config.align.min_pixels.min(cfg.candidate_pixels),
             iterations: cfg.candidate_iterations,
+            symmetric: false,
+            row_shear_sd: 0.0,
+            depth_step_at_1m_m: 0.0,
             ..self.config.align.clone()
         }
     }
