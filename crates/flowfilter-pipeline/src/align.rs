@@ -377,7 +377,9 @@ pub fn align(
         Some(back) => back,
         None => forward_pose,
     };
-    Some((pose, summarised(report, start, &pose)))
+    let shear = Vector2::from(report.row_shear_px_per_row);
+    let cost_after = forward.fine.state_cost(&State { pose, shear, free_shear: shear != Vector2::zeros() }, fwd_scales);
+    Some((pose, summarised(report, start, &pose, cost_after)))
 }
 
 /// The geodesic midpoint of two poses.
@@ -385,13 +387,14 @@ fn midpoint(a: &Pose, b: &Pose) -> Pose {
     se3::exp(&(se3::log(&(b * a.inverse())) * 0.5)) * a
 }
 
-/// The forward alignment's report for the pose `pose` both ways came to: its move from `start`
-/// (accepted when either way was).
-fn summarised(forward: AlignReport, start: &Pose, pose: &Pose) -> AlignReport {
+/// The forward alignment's report for the pose `pose` both ways came to: its move from `start`,
+/// the forward cost there (`cost_after`), accepted when either way was.
+fn summarised(forward: AlignReport, start: &Pose, pose: &Pose, cost_after: f64) -> AlignReport {
     let moved = pose != start;
     AlignReport {
         turn_deg: (pose * start.inverse()).rotation.angle().to_degrees(),
         shift_m: (pose.translation.vector - start.translation.vector).norm(),
+        cost_after: if moved { cost_after } else { forward.cost_before },
         accepted: forward.accepted || moved,
         ..forward
     }

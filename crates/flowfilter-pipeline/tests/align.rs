@@ -7,7 +7,7 @@ use flowfilter_eval::PoseErrors;
 use flowfilter_geometry::{Pose, Vector3};
 use flowfilter_pipeline::align::{AlignConfig, align};
 use flowfilter_pipeline::{Pipeline, PipelineConfig, PreparedFrame, RgbdFrame};
-use flowfilter_synth::{Rig, Scene, procedural};
+use flowfilter_synth::{FrameDraw, Rig, Scene, procedural};
 use nalgebra::{Translation3, UnitQuaternion};
 
 /// The procedural can (a label around a cylinder) at turntable angles 0 and `to`, camera 3,
@@ -126,4 +126,36 @@ fn an_alignment_configuration_out_of_range_is_refused() {
         let e = Pipeline::from_config(PipelineConfig { align, ..PipelineConfig::default() }).err().expect("refused");
         assert!(e.to_string().contains("align."), "{e}");
     }
+}
+
+/// A rolling shutter's row shear on the target image (every row shifted sideways by 0.008 px
+/// per row from the middle one, what the real sample's frames show): a rigid alignment takes its
+/// part that looks like a turn for one; with the shear estimated (the default) the pose comes
+/// back to the truth and the shear is found. On the same frames without the shear, none is
+/// kept.
+#[test]
+fn a_rolling_shutter_shear_is_estimated_and_kept_out_of_the_pose() {
+    let draw = FrameDraw {
+        gain: [1.0; 3],
+        mask_shift: (0, 0),
+        mask_grow: 0,
+        depth_delay_deg: 0.0,
+        row_shear_px_per_row: 0.008,
+    };
+    let (a, b, t) = can_pair(15, |f| draw.apply_row_shear(&mut f.color));
+    let start = off_by(&t, &a, 0.5, Vector3::zeros());
+    let sheared = AlignConfig::default();
+    let rigid = AlignConfig { row_shear_sd: 0.0, ..AlignConfig::default() };
+    let (pose, report) = align(&a, &b, &start, &sheared).expect("the can has texture");
+    let (rigid_pose, rigid_report) = align(&a, &b, &start, &rigid).expect("the can has texture");
+    let (with, without) = (PoseErrors::new(&pose, &t, None), PoseErrors::new(&rigid_pose, &t, None));
+    println!("sheared {with:?} {report:?}\nrigid {without:?} {rigid_report:?}");
+    assert!((report.row_shear_px_per_row[0] - 0.008).abs() < 0.002, "{report:?}");
+    assert!(with.geodesic_error_deg < 0.1, "{with:?}");
+    assert!(without.geodesic_error_deg > 2.0 * with.geodesic_error_deg, "rigid {without:?} sheared {with:?}");
+    assert_eq!(rigid_report.row_shear_px_per_row, [0.0; 2]);
+
+    let (a, b, t) = can_pair(15, |_| {});
+    let (_, report) = align(&a, &b, &off_by(&t, &a, 0.5, Vector3::zeros()), &sheared).expect("the can has texture");
+    assert_eq!(report.row_shear_px_per_row, [0.0; 2], "a shear found on frames without one: {report:?}");
 }

@@ -64,6 +64,8 @@ fn bad_values_are_named() {
         ("[judge]\ncandidate_pixels = 0", "judge.candidate_pixels"),
         ("[align]\ntruncation = 0.0", "align.truncation"),
         ("[align]\nmax_pixels = 10", "align.max_pixels"),
+        ("[align]\nrow_shear_sd = -0.001", "align.row_shear_sd"),
+        ("[align]\ndepth_step_at_1m_m = -1.0", "align.depth_step_at_1m_m"),
     ] {
         let msg = PipelineConfig::from_toml_str(text, origin).unwrap_err().to_string();
         assert!(msg.contains("x.toml") && msg.contains(needle), "{text}: {msg}");

@@ -191,7 +191,7 @@ class Estimate:
     @property
     def align(self) -> Optional[Dict[str, Any]]:
         """What the direct alignment did (pixels, iterations, cost_before, cost_after, turn_deg,
-        shift_m, accepted); None for methods without flow and where the images cannot be aligned."""
+        shift_m, row_shear_px_per_row, accepted); None for methods without flow and where the images cannot be aligned."""
     @property
     def ground_truth(self) -> Optional[Dict[str, Any]]:
         """The true transform and the errors against it, when `gt` was given."""
