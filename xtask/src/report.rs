@@ -403,13 +403,13 @@ fn write_manifest(
 
 fn pairs_csv(results: &[PairResult]) -> String {
     let mut csv = String::from(
-        "object,camera,from,to,step,motion_deg,method,angle_error_deg,geodesic_error_deg,translation_error_m,add_s_m,success,converged,seconds,failure,judge_answer_score,judge_best_score,judge_best_turn_deg,judge_replaced,align_turn_deg,align_accepted\n",
+        "object,camera,from,to,step,motion_deg,method,angle_error_deg,geodesic_error_deg,translation_error_m,add_s_m,success,converged,seconds,failure,judge_answer_score,judge_best_score,judge_best_turn_deg,judge_replaced,align_turn_deg,align_accepted,align_row_shear_x,align_row_shear_y\n",
     );
     for r in results {
         let e = r.errors;
         let _ = writeln!(
             csv,
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
             r.object,
             r.camera,
             r.from,
@@ -431,6 +431,8 @@ fn pairs_csv(results: &[PairResult]) -> String {
             r.judge.as_ref().map_or("-".into(), |j| j.replaced.to_string()),
             fmt(r.align.as_ref().map(|p| p.turn_deg), 4),
             r.align.as_ref().map_or("-".into(), |p| p.accepted.to_string()),
+            fmt(r.align.as_ref().map(|p| p.row_shear_px_per_row[0]), 5),
+            fmt(r.align.as_ref().map(|p| p.row_shear_px_per_row[1]), 5),
         );
     }
     csv

@@ -272,6 +272,12 @@ impl<'a> Aligner<'a> {
         scales(&self.samples, &self.view, &State::rigid(*pose), self.cfg)
     }
 
+    /// The residuals' robust noise at `pose`: texture (high-passed grey values, after the gain)
+    /// and depth (metres); `None` as [`Aligner::scales`].
+    pub fn noise(&self, pose: &Pose) -> Option<(f64, f64)> {
+        self.scales(pose).map(|s| (s.texture, s.depth))
+    }
+
     /// The truncated cost per pixel of `pose` (the target image taken as unsheared) with the
     /// scales `sc`.
     pub fn cost(&self, pose: &Pose, sc: Scales) -> f64 {

@@ -141,6 +141,7 @@ fn a_rolling_shutter_shear_is_estimated_and_kept_out_of_the_pose() {
         mask_grow: 0,
         depth_delay_deg: 0.0,
         row_shear_px_per_row: 0.008,
+        row_stretch_px_per_row: 0.0,
     };
     let (a, b, t) = can_pair(15, |f| draw.apply_row_shear(&mut f.color));
     let start = off_by(&t, &a, 0.5, Vector3::zeros());

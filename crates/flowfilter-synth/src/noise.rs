@@ -66,6 +66,9 @@ pub struct NoiseProfile {
 /// The built-in Carmine / Kinect v1 profile.
 pub const CARMINE_TOML: &str = include_str!("../profiles/carmine.toml");
 
+/// The profile fitted to the real YCB-Video sample (an Xtion at 640 x 480; see the file).
+pub const XTION_SAMPLE_TOML: &str = include_str!("../profiles/xtion-sample.toml");
+
 impl NoiseProfile {
     /// Parse and validate a TOML profile; `source_name` is used in error messages.
     pub fn from_toml(text: &str, source_name: &str) -> Result<Self, SynthError> {
@@ -99,15 +102,22 @@ impl NoiseProfile {
         Self::from_toml(CARMINE_TOML, "carmine (built in)").expect("built-in profile is valid")
     }
 
-    /// `none` -> no noise; `carmine` -> the built-in profile; anything else is a TOML file path.
+    /// The built-in profile fitted to the real YCB-Video sample (`profiles/xtion-sample.toml`).
+    pub fn xtion_sample() -> Self {
+        Self::from_toml(XTION_SAMPLE_TOML, "xtion-sample (built in)").expect("built-in profile is valid")
+    }
+
+    /// `none` -> no noise; `carmine` and `xtion-sample` -> the built-in profiles; anything else
+    /// is a TOML file path.
     pub fn resolve(spec: &str) -> Result<Option<Self>, SynthError> {
         match spec {
             "none" => Ok(None),
             "carmine" => Ok(Some(Self::carmine())),
+            "xtion-sample" => Ok(Some(Self::xtion_sample())),
             path => {
                 let text = std::fs::read_to_string(Path::new(path)).map_err(|e| SynthError::NoiseProfile {
                     source_name: path.into(),
-                    message: format!("cannot read ({e}); use 'none', 'carmine' or a TOML file"),
+                    message: format!("cannot read ({e}); use 'none', 'carmine', 'xtion-sample' or a TOML file"),
                 })?;
                 Self::from_toml(&text, path).map(Some)
             }

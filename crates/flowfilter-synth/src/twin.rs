@@ -44,12 +44,12 @@ pub struct TwinOptions {
 }
 
 impl Default for TwinOptions {
-    /// The Carmine noise profile, the effects measured on the real YCB-Video sample
-    /// ([`FrameEffects::XTION_SAMPLE`] and its masks' common offset of (-2, 2) px), a
-    /// PrimeSense-class depth sensor.
+    /// The noise profile and the effects fitted to the real YCB-Video sample
+    /// ([`NoiseProfile::xtion_sample`], [`FrameEffects::XTION_SAMPLE`] and its masks' common
+    /// offset of (-2, 2) px), a PrimeSense-class depth sensor.
     fn default() -> Self {
         Self {
-            noise: Some(NoiseProfile::carmine()),
+            noise: Some(NoiseProfile::xtion_sample()),
             effects: FrameEffects::XTION_SAMPLE,
             depth_focal_px: 575.0,
             projector_baseline_m: 0.075,
