@@ -153,6 +153,10 @@ struct TargetView<'a> {
 const CHI2_2DOF_95: f64 = 5.99;
 const CHI2_4DOF_95: f64 = 9.49;
 
+/// A descent ends after a step smaller than this (twist in radians and metres, shear in pixels
+/// per row): 0.0006 degrees, 10 micrometres, 0.002 px over 200 rows.
+const CONVERGED_STEP: f64 = 1e-5;
+
 /// The unknowns' count: a left twist `(rho, phi)` of the pose, then the row shear.
 const DOF: usize = 8;
 
@@ -293,19 +297,23 @@ impl<'a> Aligner<'a> {
     fn descend(&self, start: &State, sc: Scales) -> Descent {
         let cfg = self.cfg;
         let (mut state, mut current, mut lambda, mut iterations) = (*start, self.state_cost(start, sc), 1e-4, 0);
+        // The normal equations change only with the state: a refused step re-solves them with
+        // more damping.
+        let mut normal = normal_equations(&self.samples, &self.view, &state, sc, cfg);
         while iterations < cfg.iterations {
             iterations += 1;
-            let Some(step) = gauss_newton_step(&self.samples, &self.view, &state, sc, cfg, lambda) else { break };
+            let Some(step) = damped_step(&normal, lambda) else { break };
             let trial = state.stepped(&step);
             let c = self.state_cost(&trial, sc);
             if c < current {
                 (state, current, lambda) = (trial, c, (lambda * 0.3).max(1e-6));
-                if step.norm() < 1e-7 {
+                if step.norm() < CONVERGED_STEP {
                     break;
                 }
+                normal = normal_equations(&self.samples, &self.view, &state, sc, cfg);
             } else {
                 lambda *= 10.0;
-                if lambda > 1e3 {
+                if lambda > 1e3 || step.norm() < CONVERGED_STEP {
                     break;
                 }
             }
@@ -647,19 +655,11 @@ fn cost(samples: &[Sample], view: &TargetView<'_>, state: &State, sc: Scales, cf
             .sum::<f64>()
 }
 
-/// One damped Gauss-Newton step on the residuals within the truncation; `None` when the
-/// normal equations are singular.
-fn gauss_newton_step(
-    samples: &[Sample],
-    view: &TargetView<'_>,
-    state: &State,
-    sc: Scales,
-    cfg: &AlignConfig,
-    lambda: f64,
-) -> Option<Step> {
-    let (h, g) = normal_equations(samples, view, state, sc, cfg);
+/// The Levenberg-Marquardt step of the normal equations `(h, g)` with damping `lambda`; `None`
+/// when they are singular.
+fn damped_step((h, g): &(SMatrix<f64, DOF, DOF>, Step), lambda: f64) -> Option<Step> {
     let damped = h + SMatrix::<f64, DOF, DOF>::from_diagonal(&h.diagonal()) * lambda;
-    damped.cholesky().map(|c| -c.solve(&g))
+    damped.cholesky().map(|c| -c.solve(g))
 }
 
 /// The Gauss-Newton normal equations `(J^T W J, J^T W r)` at `state`, over the residuals within
