@@ -10,10 +10,18 @@
 //!   does not count);
 //! - the target's depth under the pixel less the pixel's own depth.
 //!
-//! Each residual is scaled by a robust estimate of its noise (the median absolute deviation)
-//! and truncated: pixels hidden in one frame, off the object or on a highlight stop counting.
-//! The aligned pose is kept only when it lowers that truncated cost and stays within a stated
-//! distance of the pose it started from.
+//! Each residual is scaled by a robust estimate of its noise (the median absolute deviation; the
+//! depth's at least the sensor's depth step there) and truncated: pixels hidden in one frame,
+//! off the object or on a highlight stop counting.
+//!
+//! Consumer colour cameras expose their rows one after another: when the image motion changes
+//! speed between two frames, the target image is sheared (each row shifted in proportion to its
+//! height), and a rigid fit on an object's patch takes the shear for a turn. Once the rigid
+//! alignment has converged, the shear (sideways and down, pixels per row) is estimated with the
+//! pose and kept where a likelihood-ratio test says the frames show it. With
+//! [`AlignConfig::symmetric`] the target's pixels are aligned into the model as well and the
+//! pose is the midpoint of the two results. The aligned pose is kept only when it lowers the
+//! truncated cost and stays within a stated distance of the pose it started from.
 
 use crate::judge::Texture;
 use crate::stages::PreparedFrame;

@@ -360,6 +360,8 @@ impl Pipeline {
         let cfg = &self.config.judge;
         AlignConfig {
             max_pixels: cfg.candidate_pixels,
+            // The judge's own grid: its candidates are compared on those pixels.
+            stride: cfg.stride,
             min_pixels: self.config.align.min_pixels.min(cfg.candidate_pixels),
             iterations: cfg.candidate_iterations,
             symmetric: false,
