@@ -185,6 +185,18 @@ mod tests {
         }
     }
 
+    /// The default twin of the real sample (`data`) into `out`.
+    fn sample_twin(data: &Path, out: &Path) -> TwinArgs {
+        TwinArgs {
+            data: data.to_path_buf(),
+            meshes: repo_root().join("../shared/data/ycb"),
+            noise: "xtion-sample".into(),
+            effects: "sample".into(),
+            seed: 7,
+            out: out.to_path_buf(),
+        }
+    }
+
     #[test]
     fn class_ids_that_do_not_fit_a_label_image_are_refused() {
         assert_eq!(label_value(21).unwrap(), 21);
@@ -207,14 +219,7 @@ mod tests {
     fn the_twin_of_the_real_sample_puts_each_object_where_the_real_frames_show_it() {
         let Some(data) = real_sample() else { return };
         let tmp = tempfile::tempdir().unwrap();
-        let args = TwinArgs {
-            data: data.clone(),
-            meshes: repo_root().join("../shared/data/ycb"),
-            noise: "xtion-sample".into(),
-            effects: "sample".into(),
-            seed: 7,
-            out: tmp.path().to_path_buf(),
-        };
+        let args = sample_twin(&data, tmp.path());
         let written = write_twin(&args).unwrap();
         let names: Vec<&str> = written.iter().map(|(n, _)| n.as_str()).collect();
         assert_eq!(names, ["002_master_chef_can", "003_cracker_box", "004_sugar_box", "006_mustard_bottle"]);
@@ -251,14 +256,7 @@ mod tests {
         use flowfilter_pipeline::{Pipeline, PipelineConfig};
         let Some(data) = real_sample() else { return };
         let tmp = tempfile::tempdir().unwrap();
-        let args = TwinArgs {
-            data: data.clone(),
-            meshes: repo_root().join("../shared/data/ycb"),
-            noise: "xtion-sample".into(),
-            effects: "sample".into(),
-            seed: 7,
-            out: tmp.path().to_path_buf(),
-        };
+        let args = sample_twin(&data, tmp.path());
         let (pipeline, align) = (Pipeline::from_config(PipelineConfig::default()).unwrap(), AlignConfig::default());
         let real = YcbVideoFrames::open(&data).unwrap();
         // Per residual (texture, depth): the log of the twin's noise over the real frames'.

@@ -135,14 +135,7 @@ fn an_alignment_configuration_out_of_range_is_refused() {
 /// kept.
 #[test]
 fn a_rolling_shutter_shear_is_estimated_and_kept_out_of_the_pose() {
-    let draw = FrameDraw {
-        gain: [1.0; 3],
-        mask_shift: (0, 0),
-        mask_grow: 0,
-        depth_delay_deg: 0.0,
-        row_shear_px_per_row: 0.008,
-        row_stretch_px_per_row: 0.0,
-    };
+    let draw = FrameDraw { row_shear_px_per_row: 0.008, ..FrameDraw::NONE };
     let (a, b, t) = can_pair(15, |f| draw.apply_row_shear(&mut f.color));
     let start = off_by(&t, &a, 0.5, Vector3::zeros());
     let sheared = AlignConfig::default();

@@ -115,6 +115,17 @@ impl FrameEffects {
 }
 
 impl FrameDraw {
+    /// A draw that changes nothing (unit gains, masks as they are, no delay, shear or stretch):
+    /// the start of a hand-made draw, `FrameDraw { row_shear_px_per_row: 0.008, ..FrameDraw::NONE }`.
+    pub const NONE: Self = Self {
+        gain: [1.0; 3],
+        mask_shift: (0, 0),
+        mask_grow: 0,
+        depth_delay_deg: 0.0,
+        row_shear_px_per_row: 0.0,
+        row_stretch_px_per_row: 0.0,
+    };
+
     /// Scale the colour channels by the drawn gains (saturating at 255).
     pub fn apply_gain(&self, img: &mut RgbImage) {
         for px in img.pixels_mut() {
@@ -228,15 +239,8 @@ mod tests {
         assert_eq!(d.perturb_mask(&m), m);
     }
 
-    /// A draw that changes nothing but the gains it is given.
-    const STILL: FrameDraw = FrameDraw {
-        gain: [1.0; 3],
-        mask_shift: (0, 0),
-        mask_grow: 0,
-        depth_delay_deg: 0.0,
-        row_shear_px_per_row: 0.0,
-        row_stretch_px_per_row: 0.0,
-    };
+    /// A draw that changes nothing.
+    const STILL: FrameDraw = FrameDraw::NONE;
 
     #[test]
     fn masks_shift_grow_and_shrink() {
