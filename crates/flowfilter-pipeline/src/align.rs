@@ -28,6 +28,7 @@ use crate::stages::PreparedFrame;
 use flowfilter_geometry::{ParamError, Point3, Pose, Vector3, params, se3};
 use nalgebra::{SMatrix, SVector, Vector2};
 use serde::{Deserialize, Serialize};
+use statrs::distribution::{ChiSquared, ContinuousCDF};
 
 /// The alignment's parameters (`[align]` in the pipeline configuration).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -156,10 +157,11 @@ struct TargetView<'a> {
     shared: f64,
 }
 
-/// The 95% quantiles of a chi-square with 2 and 4 degrees of freedom: the shear's evidence from
-/// one way and from both ways.
-const CHI2_2DOF_95: f64 = 5.99;
-const CHI2_4DOF_95: f64 = 9.49;
+/// The 95% quantile of a chi-square with `dof` degrees of freedom: what the shear's evidence
+/// must exceed (2 degrees of freedom one way, 4 both ways).
+fn chi_square_95(dof: f64) -> f64 {
+    ChiSquared::new(dof).map_or(f64::INFINITY, |c| c.inverse_cdf(0.95))
+}
 
 /// A descent ends after a step smaller than this (twist in radians and metres, shear in pixels
 /// per row): 0.0006 degrees, 10 micrometres, 0.002 px over 200 rows.
@@ -266,9 +268,20 @@ impl<'a> Aligner<'a> {
         cfg: &'a AlignConfig,
         smoothing_px: usize,
     ) -> Option<Self> {
-        let (samples, spacing) = samples(model, cfg, smoothing_px);
+        let texture = |frame: &PreparedFrame| frame_texture(frame, cfg).smoothed(smoothing_px);
+        Self::with_textures(model, &texture(model), target, texture(target), cfg)
+    }
+
+    /// [`Aligner::new`] with the two frames' textures at its level already computed.
+    fn with_textures(
+        model: &PreparedFrame,
+        model_texture: &Texture,
+        target: &'a PreparedFrame,
+        texture: Texture,
+        cfg: &'a AlignConfig,
+    ) -> Option<Self> {
+        let (samples, spacing) = samples(model, model_texture, cfg);
         let shared = ((2 * cfg.texture_radius_px + 1) as f64 / spacing).powi(2).max(1.0);
-        let texture = Texture::new(&target.gray, &target.mask, cfg.texture_radius_px).smoothed(smoothing_px);
         let rows: Vec<f64> = samples.iter().filter_map(|s| model.sensor.color.project(&s.point)).map(|p| p.y).collect();
         let row0 = rows.iter().sum::<f64>() / rows.len().max(1) as f64;
         (samples.len() >= cfg.min_pixels).then_some(Self {
@@ -379,18 +392,22 @@ pub fn align(
     start: &Pose,
     cfg: &AlignConfig,
 ) -> Option<(Pose, AlignReport)> {
-    let forward = Alignment::new(model, target, cfg)?;
     if !cfg.symmetric {
-        return forward.run(start);
+        return Alignment::new(model, target, cfg)?.run(start);
     }
-    let Some(backward) = Alignment::new(target, model, cfg) else { return forward.run(start) };
+    // Each frame's textures serve both ways.
+    let (model_levels, target_levels) = (LevelTextures::new(model, cfg), LevelTextures::new(target, cfg));
+    let forward = Alignment::with_textures(model, &model_levels, target, &target_levels, cfg)?;
+    let Some(backward) = Alignment::with_textures(target, &target_levels, model, &model_levels, cfg) else {
+        return forward.run(start);
+    };
     let back_start = start.inverse();
     let (Some(fwd_scales), Some(bwd_scales)) = (forward.fine.scales(start), backward.fine.scales(&back_start)) else {
         return forward.run(start);
     };
     // The shear is kept both ways or neither, on the evidence of both.
     let (fd, bd) = (forward.descents(start, fwd_scales), backward.descents(&back_start, bwd_scales));
-    let keep = fd.shear_evidence() + bd.shear_evidence() > CHI2_4DOF_95;
+    let keep = fd.shear_evidence() + bd.shear_evidence() > chi_square_95(4.0);
     let (forward_pose, report) = forward.finish(start, fwd_scales, fd.chosen(keep));
     let (back_pose, back_report) = backward.finish(&back_start, bwd_scales, bd.chosen(keep));
     let back = back_report.accepted.then(|| back_pose.inverse());
@@ -433,9 +450,21 @@ impl<'a> Alignment<'a> {
     /// The levels of `cfg`; `None` when the model has fewer than `cfg.min_pixels` object
     /// pixels with depth.
     pub fn new(model: &PreparedFrame, target: &'a PreparedFrame, cfg: &'a AlignConfig) -> Option<Self> {
-        let fine = Aligner::new(model, target, cfg, 0)?;
-        let coarse =
-            cfg.smoothing_px.iter().filter(|s| **s > 0).filter_map(|&s| Aligner::new(model, target, cfg, s)).collect();
+        let (model_levels, target_levels) = (LevelTextures::new(model, cfg), LevelTextures::new(target, cfg));
+        Self::with_textures(model, &model_levels, target, &target_levels, cfg)
+    }
+
+    /// [`Alignment::new`] with the two frames' textures at every level already computed.
+    fn with_textures(
+        model: &PreparedFrame,
+        model_levels: &LevelTextures,
+        target: &'a PreparedFrame,
+        target_levels: &LevelTextures,
+        cfg: &'a AlignConfig,
+    ) -> Option<Self> {
+        let level = |(m, t): (&Texture, &Texture)| Aligner::with_textures(model, m, target, t.clone(), cfg);
+        let fine = level((&model_levels.fine, &target_levels.fine))?;
+        let coarse = model_levels.coarse.iter().zip(&target_levels.coarse).filter_map(level).collect();
         Some(Self { coarse, fine, cfg })
     }
 
@@ -459,7 +488,7 @@ impl<'a> Alignment<'a> {
     pub fn run(&self, start: &Pose) -> Option<(Pose, AlignReport)> {
         let judged_by = self.fine.scales(start)?;
         let d = self.descents(start, judged_by);
-        let keep = d.shear_evidence() > CHI2_2DOF_95;
+        let keep = d.shear_evidence() > chi_square_95(2.0);
         Some(self.finish(start, judged_by, d.chosen(keep)))
     }
 
@@ -502,11 +531,31 @@ impl<'a> Alignment<'a> {
     }
 }
 
+/// A frame's texture as the alignment compares it: [`crate::judge::high_pass`] grey values of
+/// the object's rectangle.
+fn frame_texture(frame: &PreparedFrame, cfg: &AlignConfig) -> Texture {
+    Texture::new(&frame.gray, &frame.mask, cfg.texture_radius_px)
+}
+
+/// A frame's texture at every level of an alignment: as it is, then smoothed by each non-zero
+/// `cfg.smoothing_px` in turn.
+struct LevelTextures {
+    fine: Texture,
+    coarse: Vec<Texture>,
+}
+
+impl LevelTextures {
+    fn new(frame: &PreparedFrame, cfg: &AlignConfig) -> Self {
+        let fine = frame_texture(frame, cfg);
+        let coarse = cfg.smoothing_px.iter().filter(|s| **s > 0).map(|&s| fine.clone().smoothed(s)).collect();
+        Self { fine, coarse }
+    }
+}
+
 /// The model's object pixels with depth (every `stride`-th, thinned to `max_pixels`), with
-/// their texture smoothed by a box of half-width `smoothing_px`.
-fn samples(model: &PreparedFrame, cfg: &AlignConfig, smoothing_px: usize) -> (Vec<Sample>, f64) {
-    let texture = Texture::new(&model.gray, &model.mask, cfg.texture_radius_px).smoothed(smoothing_px);
-    let all = crate::judge::object_samples(model, &texture, cfg.stride, usize::MAX);
+/// their value in `texture`, and the samples' spacing (pixels).
+fn samples(model: &PreparedFrame, texture: &Texture, cfg: &AlignConfig) -> (Vec<Sample>, f64) {
+    let all = crate::judge::object_samples(model, texture, cfg.stride, usize::MAX);
     let every = all.len().div_ceil(cfg.max_pixels.max(1)).max(1);
     let spacing = cfg.stride as f64 * (every as f64).sqrt();
     let samples = all.into_iter().step_by(every).map(|(point, texture)| Sample { point, texture }).collect();
@@ -532,8 +581,10 @@ impl TargetView<'_> {
         texture_jacobian
             .fixed_rows_mut::<6>(0)
             .copy_from(&(image.row(0) * gx_pose + image.row(1) * gy_pose).transpose());
-        texture_jacobian[6] = gx * lean;
-        texture_jacobian[7] = gy * lean;
+        if state.free_shear {
+            texture_jacobian[6] = gx * lean;
+            texture_jacobian[7] = gy * lean;
+        }
         let depth = self.depth_at(px.x, px.y).map(|(z, dzx, dzy)| {
             let mut j = Step::zeros();
             j.fixed_rows_mut::<6>(0).copy_from(&(image.row(0) * dzx + image.row(1) * dzy - dq.row(2)).transpose());
@@ -707,10 +758,8 @@ fn normal_equations(
             }
         }
         None => {
-            // A rigid alignment: the shear is not an unknown (it stays at 0).
-            h.view_mut((6, 0), (2, DOF)).fill(0.0);
-            h.view_mut((0, 6), (DOF, 2)).fill(0.0);
-            g.rows_mut(6, 2).fill(0.0);
+            // A rigid alignment: the shear is not an unknown (its Jacobian columns are 0 and it
+            // stays at 0).
             h[(6, 6)] = 1.0;
             h[(7, 7)] = 1.0;
         }

@@ -168,6 +168,7 @@ pub fn high_pass(img: &Gray, r: usize) -> Gray {
 }
 
 /// A frame's texture ([`high_pass`]) on the rectangle where it is needed.
+#[derive(Clone)]
 pub struct Texture {
     x0: usize,
     y0: usize,
