@@ -64,7 +64,7 @@ impl Distortion {
     }
 
     /// Jacobian of [`Distortion::distort`] at `(x, y)`, row-major `[[dxd/dx, dxd/dy], [dyd/dx, dyd/dy]]`.
-    fn jacobian(&self, x: f64, y: f64) -> [[f64; 2]; 2] {
+    pub(crate) fn jacobian(&self, x: f64, y: f64) -> [[f64; 2]; 2] {
         let r2 = x * x + y * y;
         let radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3));
         let dradial_dr2 = self.k1 + r2 * (2.0 * self.k2 + 3.0 * r2 * self.k3);

@@ -69,6 +69,20 @@ impl CameraModel {
         Some(Pixel::new(k.fx * xd + k.cx, k.fy * yd + k.cy))
     }
 
+    /// [`CameraModel::project`] and its Jacobian, d(pixel)/d(point) as a 2x3 matrix (rows x and
+    /// y), analytic through the distortion. `None` where the point does not project.
+    pub fn project_with_jacobian(&self, p: &Point3) -> Option<(Pixel, nalgebra::Matrix2x3<f64>)> {
+        let pixel = self.project(p)?;
+        let (x, y) = (p.x / p.z, p.y / p.z);
+        let d = self.distortion.jacobian(x, y);
+        let k = &self.intrinsics;
+        // d(x, y)/d(point) = [[1/z, 0, -x/z], [0, 1/z, -y/z]]; then the distortion; then K.
+        let iz = 1.0 / p.z;
+        let row = |scale: f64, [a, b]: [f64; 2]| [scale * a * iz, scale * b * iz, -scale * (a * x + b * y) * iz];
+        let (rx, ry) = (row(k.fx, d[0]), row(k.fy, d[1]));
+        Some((pixel, nalgebra::Matrix2x3::new(rx[0], rx[1], rx[2], ry[0], ry[1], ry[2])))
+    }
+
     /// Project ignoring distortion (ideal pinhole).
     pub fn project_undistorted(&self, p: &Point3) -> Option<Pixel> {
         if p.z <= 0.0 || !p.z.is_finite() {
@@ -132,6 +146,26 @@ mod tests {
             let distorted = cam.project(&Point3::new(x, y, 1.0)).unwrap();
             let ideal = cam.undistort_pixel(&distorted).unwrap();
             prop_assert!((ideal - Pixel::new(u, v)).norm() < 1e-6);
+        }
+    }
+
+    proptest! {
+        #[test]
+        fn the_projection_jacobian_matches_central_differences(
+            x in -0.6f64..0.6, y in -0.5f64..0.5, z in 0.2f64..3.0,
+        ) {
+            let cam = camera();
+            let p = Point3::new(x * z, y * z, z);
+            let (pixel, j) = cam.project_with_jacobian(&p).unwrap();
+            prop_assert_eq!(pixel, cam.project(&p).unwrap());
+            let h = 1e-6;
+            for k in 0..3 {
+                let mut e = Vector3::zeros();
+                e[k] = h;
+                let d = (cam.project(&(p + e)).unwrap() - cam.project(&(p - e)).unwrap()) / (2.0 * h);
+                prop_assert!((j[(0, k)] - d.x).abs() < 1e-4 * (1.0 + d.x.abs()), "x/{}: {} vs {}", k, j[(0, k)], d.x);
+                prop_assert!((j[(1, k)] - d.y).abs() < 1e-4 * (1.0 + d.y.abs()), "y/{}: {} vs {}", k, j[(1, k)], d.y);
+            }
         }
     }
 

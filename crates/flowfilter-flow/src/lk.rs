@@ -136,8 +136,20 @@ pub fn track(from: &Gray, to: &Gray, points: &[[f32; 2]], p: &LkParams) -> Vec<O
     track_masked(from, to, points, p, None)
 }
 
+/// Bilinear samples of several images of one size at `(x, y)` with one set of weights (the
+/// same values as [`bilinear`] on each).
+///
+/// # Panics
+/// When the images differ in size.
+pub fn bilinear_many<const N: usize>(imgs: [&Gray; N], x: f32, y: f32) -> [f32; N] {
+    let Some(first) = imgs.first() else { return [0.0; N] };
+    assert!(imgs.iter().all(|img| img.dims() == first.dims()), "bilinear_many: images of different sizes");
+    let tap = BilinearTap::new(first.width(), first.height(), x, y);
+    imgs.map(|img| tap.sample(img.as_slice()))
+}
+
 /// Central differences `(I(x+1) - I(x-1)) / 2` along x and y, with clamped indices.
-fn central_gradients(img: &Gray) -> (Gray, Gray) {
+pub fn central_gradients(img: &Gray) -> (Gray, Gray) {
     let (w, h) = img.dims();
     let d = img.as_slice();
     let gx = par_image(w, h, |x, y| 0.5 * (d[y * w + (x + 1).min(w - 1)] - d[y * w + x.saturating_sub(1)]));

@@ -25,7 +25,7 @@
 
 use crate::judge::Texture;
 use crate::stages::PreparedFrame;
-use flowfilter_geometry::{ParamError, Point3, Pose, Vector3, params, se3};
+use flowfilter_geometry::{ParamError, Point3, Pose, params, se3};
 use nalgebra::{SMatrix, SVector, Vector2};
 use serde::{Deserialize, Serialize};
 use statrs::distribution::{ChiSquared, ContinuousCDF};
@@ -568,11 +568,10 @@ impl TargetView<'_> {
     fn residuals(&self, s: &Sample, state: &State, gain: f64) -> Option<Residuals> {
         let camera = &self.frame.sensor.color;
         let q = state.pose * s.point;
-        let px = camera.project(&q)?;
+        let (px, jp) = camera.project_with_jacobian(&q)?;
         let lean = px.y - self.row0;
         let (sx, sy) = (px.x + state.shear.x * lean, px.y + state.shear.y * lean);
         let (b, gx, gy) = self.texture.bilinear_gradient(sx, sy)?;
-        let jp = projection_jacobian(camera, &q)?;
         let dq = point_twist_jacobian(&q);
         let image = jp * dq; // 2x6: the pixel's motion per twist
         // The sheared pixel's motion: its row moves its shift too.
@@ -599,7 +598,7 @@ impl TargetView<'_> {
         let q = state.pose * s.point;
         let px = self.frame.sensor.color.project(&q)?;
         let lean = px.y - self.row0;
-        let (b, _, _) = self.texture.bilinear_gradient(px.x + state.shear.x * lean, px.y + state.shear.y * lean)?;
+        let b = self.texture.bilinear_with_gradient_support(px.x + state.shear.x * lean, px.y + state.shear.y * lean)?;
         Some((b - gain * s.texture, self.depth_at(px.x, px.y).map(|(z, _, _)| z - q.z), q.z))
     }
 
@@ -629,20 +628,6 @@ impl TargetView<'_> {
         let dzy = bottom - top;
         Some((value, dzx, dzy))
     }
-}
-
-/// d(pixel)/d(point) of the (distorted) projection, by central differences.
-fn projection_jacobian(camera: &flowfilter_camera::CameraModel, q: &Point3) -> Option<nalgebra::Matrix2x3<f64>> {
-    const H: f64 = 1e-5;
-    let mut j = nalgebra::Matrix2x3::zeros();
-    for k in 0..3 {
-        let mut e = Vector3::zeros();
-        e[k] = H;
-        let (a, b) = (camera.project(&(q + e))?, camera.project(&(q - e))?);
-        j[(0, k)] = (a.x - b.x) / (2.0 * H);
-        j[(1, k)] = (a.y - b.y) / (2.0 * H);
-    }
-    Some(j)
 }
 
 /// d(exp(xi) q)/d(xi) at xi = 0 for a twist `(rho, phi)`: `[I | -[q]x]`.

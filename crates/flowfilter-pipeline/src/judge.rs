@@ -167,12 +167,16 @@ pub fn high_pass(img: &Gray, r: usize) -> Gray {
     })
 }
 
-/// A frame's texture ([`high_pass`]) on the rectangle where it is needed.
+/// A frame's texture ([`high_pass`]) on the rectangle where it is needed, with its central
+/// differences (what the alignment's gradients interpolate).
 #[derive(Clone)]
 pub struct Texture {
     x0: usize,
     y0: usize,
     grid: Gray,
+    /// `(T(x+1) - T(x-1)) / 2` and `(T(y+1) - T(y-1)) / 2` on the grid (clamped at its edges,
+    /// which [`Texture::bilinear_gradient`] never weighs).
+    gradients: (Gray, Gray),
 }
 
 impl Texture {
@@ -182,11 +186,21 @@ impl Texture {
     pub fn new(img: &Gray, mask: &Mask, r: usize) -> Self {
         let (w, h) = img.dims();
         let Some((bx0, by0, bx1, by1)) = mask_bbox(mask) else {
-            return Self { x0: 0, y0: 0, grid: Gray::filled(0, 0, 0.0) };
+            return Self::on_grid(0, 0, Gray::filled(0, 0, 0.0));
         };
         let (x0, y0) = (bx0.saturating_sub(r), by0.saturating_sub(r));
         let (x1, y1) = ((bx1 + r + 1).min(w), (by1 + r + 1).min(h));
-        Self { x0, y0, grid: high_pass(&img.crop(x0, y0, x1 - x0, y1 - y0), r) }
+        Self::on_grid(x0, y0, high_pass(&img.crop(x0, y0, x1 - x0, y1 - y0), r))
+    }
+
+    /// The texture `grid` with its top-left corner at `(x0, y0)` of the image, and its gradients.
+    fn on_grid(x0: usize, y0: usize, grid: Gray) -> Self {
+        let gradients = if grid.dims().0 == 0 || grid.dims().1 == 0 {
+            (Gray::filled(0, 0, 0.0), Gray::filled(0, 0, 0.0))
+        } else {
+            flowfilter_flow::lk::central_gradients(&grid)
+        };
+        Self { x0, y0, grid, gradients }
     }
 
     /// The texture smoothed by a box of half-width `r` (unchanged for 0).
@@ -196,7 +210,7 @@ impl Texture {
         }
         let detail = high_pass(&self.grid, r);
         let grid = Gray::from_fn(self.grid.dims().0, self.grid.dims().1, |x, y| self.grid.at(x, y) - detail.at(x, y));
-        Self { grid, ..self }
+        Self::on_grid(self.x0, self.y0, grid)
     }
 
     /// The rectangle `((x0, y0), (x1, y1))` (exclusive ends) the texture covers.
@@ -219,13 +233,30 @@ impl Texture {
         inside.then(|| f64::from(flowfilter_flow::lk::bilinear(&self.grid, gx as f32, gy as f32)))
     }
 
-    /// Bilinear texture at `(x, y)` and its gradient (central differences one pixel either
-    /// side); `None` where any of them leaves the rectangle.
+    /// Bilinear texture at `(x, y)` and its gradient: the bilinear texture's central differences
+    /// one pixel either side, `(B(x+1, y) - B(x-1, y)) / 2` and alike in y, read as the bilinear
+    /// interpolation of the grid's central differences (the same values: interpolation commutes
+    /// with whole-pixel shifts) with the value's weights. `None` where any of the five samples
+    /// would leave the rectangle.
     pub(crate) fn bilinear_gradient(&self, x: f64, y: f64) -> Option<(f64, f64, f64)> {
-        let v = self.bilinear(x, y)?;
-        let gx = (self.bilinear(x + 1.0, y)? - self.bilinear(x - 1.0, y)?) / 2.0;
-        let gy = (self.bilinear(x, y + 1.0)? - self.bilinear(x, y - 1.0)?) / 2.0;
-        Some((v, gx, gy))
+        let (gx, gy) = self.gradient_support(x, y)?;
+        let [v, dx, dy] = flowfilter_flow::lk::bilinear_many([&self.grid, &self.gradients.0, &self.gradients.1], gx, gy);
+        Some((f64::from(v), f64::from(dx), f64::from(dy)))
+    }
+
+    /// The bilinear texture at `(x, y)` where [`Texture::bilinear_gradient`] has a value (the
+    /// same domain, without the gradient).
+    pub(crate) fn bilinear_with_gradient_support(&self, x: f64, y: f64) -> Option<f64> {
+        let (gx, gy) = self.gradient_support(x, y)?;
+        Some(f64::from(flowfilter_flow::lk::bilinear(&self.grid, gx, gy)))
+    }
+
+    /// `(x, y)` on the grid when it lies at least a pixel inside every edge.
+    fn gradient_support(&self, x: f64, y: f64) -> Option<(f32, f32)> {
+        let (gx, gy) = (x - self.x0 as f64, y - self.y0 as f64);
+        let (w, h) = self.grid.dims();
+        let inside = w > 2 && h > 2 && gx >= 1.0 && gy >= 1.0 && gx <= (w - 2) as f64 && gy <= (h - 2) as f64;
+        inside.then_some((gx as f32, gy as f32))
     }
 }
 
