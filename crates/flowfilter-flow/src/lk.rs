@@ -264,7 +264,10 @@ pub fn track_warped(
             // A linear map is the same at every pyramid level; the identity needs no warping.
             let warp = warps.and_then(|ws| ws.get(i)).copied().filter(|m| *m != IDENTITY_WARP);
             for level in (0..=start_level).rev() {
-                let d = pyramids.refine(level, *pt, g, warp, p)?;
+                // Below the first level the coarser one has placed the window: a correction
+                // beyond a window's width has left the basin its gradients describe.
+                let reach = if level == start_level { f32::INFINITY } else { 2.0 * p.window as f32 };
+                let d = pyramids.refine(level, *pt, g, warp, reach, p)?;
                 g = if level > 0 { [2.0 * (g[0] + d[0]), 2.0 * (g[1] + d[1])] } else { [g[0] + d[0], g[1] + d[1]] };
             }
             let (qx, qy) = (pt[0] + g[0], pt[1] + g[1]);
@@ -342,13 +345,15 @@ impl Pyramids {
     }
 
     /// The displacement `d` beyond the guess `g` that Newton's iterations find for point `pt`
-    /// at `level`; `None` where the window's gradients are too weak to track.
+    /// at `level`; `None` where the window's gradients are too weak to track, or where the
+    /// iterations carry `d` beyond `reach` (pixels of the level, in either coordinate: lost).
     fn refine(
         &self,
         level: usize,
         pt: [f32; 2],
         g: [f32; 2],
         warp: Option<WindowWarp>,
+        reach: f32,
         p: &LkParams,
     ) -> Option<[f32; 2]> {
         let s = (1u32 << level) as f32;
@@ -372,6 +377,9 @@ impl Pyramids {
             let step = warp.map_or(step, |m| [m[0] * step[0] + m[1] * step[1], m[2] * step[0] + m[3] * step[1]]);
             d[0] += step[0];
             d[1] += step[1];
+            if d[0].abs() > reach || d[1].abs() > reach {
+                return None;
+            }
             if step[0].abs() < p.epsilon && step[1].abs() < p.epsilon {
                 break;
             }
@@ -493,6 +501,18 @@ mod tests {
                 + 0.15 * ((u + 2.0 * v) * 0.093).sin()
                 + 0.1 * ((3.0 * u - v) * 0.051).cos()
         })
+    }
+
+    #[test]
+    fn a_correction_beyond_the_reach_is_lost() {
+        // Content moved by 3 px: found from no guess with room to reach it, lost with a reach of
+        // 1 px (the coarser level's guess would have been 3 px off).
+        let (a, b) = (texture(120, 100, (0.0, 0.0)), texture(120, 100, (3.0, 0.0)));
+        let p = LkParams { window: 9, ..LkParams::default() };
+        let pyramids = Pyramids::new(&a, &b, None, 0);
+        let d = pyramids.refine(0, [60.0, 50.0], [0.0, 0.0], None, f32::INFINITY, &p).expect("tracked");
+        assert!((d[0] - 3.0).abs() < 0.05 && d[1].abs() < 0.05, "{d:?}");
+        assert_eq!(pyramids.refine(0, [60.0, 50.0], [0.0, 0.0], None, 1.0, &p), None);
     }
 
     #[test]

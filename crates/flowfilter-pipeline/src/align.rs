@@ -598,7 +598,8 @@ impl TargetView<'_> {
         let q = state.pose * s.point;
         let px = self.frame.sensor.color.project(&q)?;
         let lean = px.y - self.row0;
-        let b = self.texture.bilinear_with_gradient_support(px.x + state.shear.x * lean, px.y + state.shear.y * lean)?;
+        let b =
+            self.texture.bilinear_with_gradient_support(px.x + state.shear.x * lean, px.y + state.shear.y * lean)?;
         Some((b - gain * s.texture, self.depth_at(px.x, px.y).map(|(z, _, _)| z - q.z), q.z))
     }
 

@@ -240,7 +240,8 @@ impl Texture {
     /// would leave the rectangle.
     pub(crate) fn bilinear_gradient(&self, x: f64, y: f64) -> Option<(f64, f64, f64)> {
         let (gx, gy) = self.gradient_support(x, y)?;
-        let [v, dx, dy] = flowfilter_flow::lk::bilinear_many([&self.grid, &self.gradients.0, &self.gradients.1], gx, gy);
+        let [v, dx, dy] =
+            flowfilter_flow::lk::bilinear_many([&self.grid, &self.gradients.0, &self.gradients.1], gx, gy);
         Some((f64::from(v), f64::from(dx), f64::from(dy)))
     }
 
