@@ -1,5 +1,5 @@
 //! Fixed-radius neighbour search on a uniform grid: all points within `r` of a query, for one
-//! radius chosen at construction. With cells of edge `r` a query visits at most 3 x 3 x 3 cells,
+//! radius chosen at construction. With cells of edge `r` or more a query visits at most 3 x 3 x 3 cells,
 //! nine contiguous runs of a cell-sorted copy of the points; for the dense neighbourhoods of
 //! surface scans (tens of points per query) this is several times cheaper than a k-d tree's
 //! descent and result collection.
@@ -15,13 +15,30 @@ const CELLS_PER_TASK: usize = 64;
 /// Cells per axis beyond which [`RadiusGrid::nearest_within`] hands a search back.
 const MAX_NEAREST_SPAN: usize = 4;
 
-/// Grids with more cells than this are not built (see [`RadiusGrid::new`]).
+/// Grids never have more cells than this (see [`RadiusGrid::new`]).
 const MAX_CELLS: usize = 1 << 22;
 
-/// Points bucketed in cubic cells of edge `radius`.
+/// A grid has at most this many cells per point (and at least [`MIN_CELL_BUDGET`] cells
+/// allowed): finer grids are coarsened. Zeroing, summing and copying an array of millions of
+/// cells for a few thousand points cost more than the queries it served (the pipeline's
+/// FilterReg at small sigma built grids of up to 3.6 million cells for 5000 points).
+const CELLS_PER_POINT: usize = 16;
+
+/// See [`CELLS_PER_POINT`].
+const MIN_CELL_BUDGET: usize = 1 << 12;
+
+/// The factor by which the cell edge grows until the grid fits its budget...
+const CELL_GROWTH: f64 = 1.25;
+
+/// ...up to this many radii; beyond that the points are too spread for a grid (`None`).
+const MAX_CELL_IN_RADII: f64 = 4.0;
+
+/// Points bucketed in cubic cells of edge `radius` (or somewhat more, see [`RadiusGrid::new`]).
 pub struct RadiusGrid {
     origin: Point3,
     radius: f64,
+    /// The cells' edge: the radius, or more where a grid of that edge would be mostly empty.
+    cell: f64,
     dims: [usize; 3],
     /// `starts[c]..starts[c + 1]`: the run of cell `c` in `order` and `coords`.
     starts: Vec<u32>,
@@ -33,8 +50,10 @@ pub struct RadiusGrid {
 
 impl RadiusGrid {
     /// The grid over `points` for queries of radius `radius`; `None` when the radius is not
-    /// positive and finite, there are no points, a point is not finite, or the points' box
-    /// would need more than about four million cells (use a k-d tree then).
+    /// positive and finite, there are no points, or a point is not finite. Where cells of edge
+    /// `radius` would number more than 16 per point (at least 4096, at most about four
+    /// million), the edge is widened until they do not; `None` (use a k-d tree then) when that
+    /// takes an edge of more than 4 radii (points spread far beyond the radius).
     pub fn new(points: &[Point3], radius: f64) -> Option<Self> {
         if !(radius.is_finite() && radius > 0.0) || points.is_empty() || u32::try_from(points.len()).is_err() {
             return None;
@@ -47,36 +66,44 @@ impl RadiusGrid {
             lo = lo.inf(p);
             hi = hi.sup(p);
         }
-        let mut dims = [0usize; 3];
-        for a in 0..3 {
-            let n = ((hi[a] - lo[a]) / radius).floor() + 1.0;
-            if n > MAX_CELLS as f64 {
+        // Cells of edge `radius`, widened while there would be many more cells than points (a
+        // surface fills few of a fine grid's cells, and every cell costs in the build).
+        let budget = (CELLS_PER_POINT * points.len()).clamp(MIN_CELL_BUDGET, MAX_CELLS);
+        let mut cell = radius;
+        let (dims, cells) = loop {
+            let dims = [0, 1, 2].map(|a| ((hi[a] - lo[a]) / cell).floor() + 1.0);
+            let cells = dims.iter().product::<f64>();
+            if cells <= budget as f64 {
+                break (dims.map(|n| n as usize), cells as usize);
+            }
+            cell *= CELL_GROWTH;
+            if cell > MAX_CELL_IN_RADII * radius {
                 return None;
             }
-            dims[a] = n as usize;
-        }
-        let cells = dims.iter().try_fold(1usize, |acc, &d| acc.checked_mul(d).filter(|&c| c <= MAX_CELLS))?;
+        };
         let cell_of = |p: &Point3| -> usize {
-            let c = |a: usize| (((p[a] - lo[a]) / radius) as usize).min(dims[a] - 1);
+            let c = |a: usize| (((p[a] - lo[a]) / cell) as usize).min(dims[a] - 1);
             (c(2) * dims[1] + c(1)) * dims[0] + c(0)
         };
-        // Counting sort by cell (stable: ascending point index within a cell).
-        let mut starts = vec![0u32; cells + 1];
-        let cell: Vec<usize> = points.iter().map(cell_of).collect();
-        for &c in &cell {
-            starts[c + 1] += 1;
+        // Counting sort by cell (stable: ascending point index within a cell). Counted one slot
+        // ahead, `starts[c + 1]` is cell c's first slot after the prefix sum, and its end once
+        // the cell's points are placed, which is where cell c + 1 starts.
+        let mut starts = vec![0u32; cells + 2];
+        let cell_index: Vec<usize> = points.iter().map(cell_of).collect();
+        for &c in &cell_index {
+            starts[c + 2] += 1;
         }
         for c in 0..cells {
-            starts[c + 1] += starts[c];
+            starts[c + 2] += starts[c + 1];
         }
-        let mut next = starts.clone();
         let mut order = vec![0u32; points.len()];
-        for (i, &c) in cell.iter().enumerate() {
-            order[next[c] as usize] = i as u32;
-            next[c] += 1;
+        for (i, &c) in cell_index.iter().enumerate() {
+            order[starts[c + 1] as usize] = i as u32;
+            starts[c + 1] += 1;
         }
+        starts.truncate(cells + 1);
         let coords = order.iter().map(|&i| points[i as usize].coords.into()).collect();
-        Some(Self { origin: lo, radius, dims, starts, order, coords })
+        Some(Self { origin: lo, radius, cell, dims, starts, order, coords })
     }
 
     /// For every gridded point, the other points within the radius: `(slot, starts, members)`
@@ -149,7 +176,7 @@ impl RadiusGrid {
     /// around `q` are scanned. `None` when that cube spans more than a few cells per axis (the
     /// caller searches otherwise, e.g. with [`crate::KnnIndex::nearest`]). Among points at
     /// exactly the same distance the first scanned is returned (`from` first). The cells' edge
-    /// is the grid's radius: choose it near the expected distances.
+    /// is the grid's radius (or more): choose it near the expected distances.
     pub fn nearest_within(&self, q: &Point3, from: usize, from_dist2: f64) -> Option<Neighbour> {
         let cells = self.cell_box(q, from_dist2.sqrt(), MAX_NEAREST_SPAN)?;
         let mut best = Neighbour { index: from, dist2: from_dist2 };
@@ -201,8 +228,8 @@ impl RadiusGrid {
     fn cell_box(&self, q: &Point3, half: f64, max_span: usize) -> Option<[(usize, usize); 3]> {
         let mut cells = [(0usize, 0usize); 3];
         for (a, c) in cells.iter_mut().enumerate() {
-            let lo = (q[a] - half - self.origin[a]) / self.radius;
-            let hi = (q[a] + half - self.origin[a]) / self.radius;
+            let lo = (q[a] - half - self.origin[a]) / self.cell;
+            let hi = (q[a] + half - self.origin[a]) / self.cell;
             if lo.is_nan() || hi.is_nan() {
                 return None;
             }
@@ -240,6 +267,20 @@ fn dist2(c: &[f64; 3], q: &Point3) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_sparse_grid_is_coarsened_and_a_spread_cloud_gets_none() {
+        // 2000 points on a 20 cm square: 1 mm cells would be 40 000 per point.
+        let square: Vec<Point3> =
+            (0..2000).map(|i| Point3::new((i % 50) as f64 * 0.004, (i / 50) as f64 * 0.005, 1.0)).collect();
+        let grid = RadiusGrid::new(&square, 0.001).unwrap();
+        assert!(grid.cell > 0.001 && grid.dims.iter().product::<usize>() <= 16 * 2000, "{} {:?}", grid.cell, grid.dims);
+        let mut out = vec![];
+        grid.within(&Point3::new(0.0405, 0.05, 1.0), &mut out);
+        assert_eq!(out, vec![510]); // (0.04, 0.05): column 10, row 10; its neighbours are 4 mm away
+        // Two points a kilometre apart: no cell edge within 4 radii keeps the grid small.
+        assert!(RadiusGrid::new(&[Point3::origin(), Point3::new(1000.0, 1000.0, 1000.0)], 0.01).is_none());
+    }
 
     #[test]
     fn matches_brute_force() {

@@ -721,8 +721,9 @@ fn normal_equations(
         let mut add = |res: f64, jac: &Step, scale: f64| {
             if (res / scale).abs() <= cfg.truncation {
                 let w = 1.0 / (scale * scale);
-                h += jac * jac.transpose() * w;
-                g += jac * (res * w);
+                // The lower triangle in place (the upper is filled once, below).
+                h.syger(w, jac, jac, 1.0);
+                g.axpy(res * w, jac, 1.0);
             }
         };
         if let Some((d, jd)) = &r.depth {
@@ -736,6 +737,7 @@ fn normal_equations(
         }
         add(r.texture, &r.texture_jacobian, sc.texture);
     }
+    h.fill_upper_triangle_with_lower_triangle();
     match shear_prior(state, cfg, view.shared).1 {
         Some(w) => {
             for k in 6..DOF {
