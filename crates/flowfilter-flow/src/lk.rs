@@ -312,6 +312,52 @@ impl Pyramids {
     /// The template around `(px, py)` of `level` (row-major, `window` x `window`) and its
     /// spatial gradient matrix `(gxx, gxy, gyy)`.
     fn template(&self, level: usize, px: f32, py: f32, window: usize) -> (Vec<TemplatePixel>, [f32; 3]) {
+        let r = (window / 2) as isize;
+        match Window::inside(&self.from[level], px - r as f32, py - r as f32, window) {
+            Some(win) => self.template_inside(level, &win, px, py, window),
+            None => self.template_clamped(level, px, py, window),
+        }
+    }
+
+    /// [`Pyramids::template`] where the whole window lies inside the image (`win`): every
+    /// pixel shares the fractional weights, and the mask's nearest pixel is the centre's
+    /// offset by whole pixels.
+    fn template_inside(
+        &self,
+        level: usize,
+        win: &Window,
+        px: f32,
+        py: f32,
+        window: usize,
+    ) -> (Vec<TemplatePixel>, [f32; 3]) {
+        let a = &self.from[level];
+        let (gx, gy) = (&self.grads[level].0, &self.grads[level].1);
+        let r = (window / 2) as isize;
+        let mut tmpl = Vec::with_capacity(window * window);
+        let (mut gxx, mut gxy, mut gyy) = (0.0f32, 0.0f32, 0.0f32);
+        let (cx, cy) = (px.round() as isize, py.round() as isize);
+        let mask = self.mask.get(level);
+        for j in 0..window {
+            for i in 0..window {
+                let (mx, my) = (cx + i as isize - r, cy + j as isize - r);
+                let masked_in = mask
+                    .is_none_or(|m| mx >= 0 && my >= 0 && m.get(mx as usize, my as usize).copied().unwrap_or(false));
+                if !masked_in {
+                    tmpl.push((0.0, 0.0, 0.0));
+                    continue;
+                }
+                let (ix, iy) = (win.sample(gx, i, j), win.sample(gy, i, j));
+                tmpl.push((win.sample(a, i, j), ix, iy));
+                gxx += ix * ix;
+                gxy += ix * iy;
+                gyy += iy * iy;
+            }
+        }
+        (tmpl, [gxx, gxy, gyy])
+    }
+
+    /// [`Pyramids::template`] anywhere: each pixel's own (clamped) bilinear tap.
+    fn template_clamped(&self, level: usize, px: f32, py: f32, window: usize) -> (Vec<TemplatePixel>, [f32; 3]) {
         let a = &self.from[level];
         let r = (window / 2) as isize;
         let mut tmpl = Vec::with_capacity(window * window);
@@ -513,6 +559,26 @@ mod tests {
         let d = pyramids.refine(0, [60.0, 50.0], [0.0, 0.0], None, f32::INFINITY, &p).expect("tracked");
         assert!((d[0] - 3.0).abs() < 0.05 && d[1].abs() < 0.05, "{d:?}");
         assert_eq!(pyramids.refine(0, [60.0, 50.0], [0.0, 0.0], None, 1.0, &p), None);
+    }
+
+    #[test]
+    fn an_inside_template_is_the_clamped_one() {
+        let a = texture(90, 70, (0.0, 0.0));
+        let mask = Mask::from_fn(90, 70, |x, y| (x as f32 - 40.0).hypot(y as f32 - 30.0) < 20.0);
+        let pyramids = Pyramids::new(&a, &a, Some(&mask), 1);
+        for (level, px, py) in [(0, 37.3f32, 28.5f32), (0, 52.5, 41.7), (1, 18.2, 14.9), (1, 25.5, 20.5)] {
+            let win = Window::inside(&pyramids.from[level], px - 4.0, py - 4.0, 9).expect("inside");
+            let (fast, g_fast) = pyramids.template_inside(level, &win, px, py, 9);
+            let (slow, g_slow) = pyramids.template_clamped(level, px, py, 9);
+            for (f, s) in fast.iter().zip(&slow) {
+                assert!(
+                    (f.0 - s.0).abs() < 1e-6 && (f.1 - s.1).abs() < 1e-6 && (f.2 - s.2).abs() < 1e-6,
+                    "{f:?} {s:?}"
+                );
+            }
+            assert_eq!(fast.iter().filter(|t| t.1 != 0.0).count(), slow.iter().filter(|t| t.1 != 0.0).count());
+            assert!(g_fast.iter().zip(&g_slow).all(|(f, s)| (f - s).abs() < 1e-5 * s.abs().max(1e-3)));
+        }
     }
 
     #[test]
