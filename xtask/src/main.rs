@@ -15,6 +15,10 @@
 //!   crate outside the workspace depends on `flowfilter-registration` and runs its README
 //!   example.
 
+/// mimalloc keeps freed pages for the next frame's images (the workspace manifest says more).
+#[global_allocator]
+static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 mod bench;
 mod bench_bop;
 mod dataset;

@@ -4,6 +4,10 @@
 //! package's thread pool, and converts the result. Errors become `flowfilter.InputError` or
 //! `flowfilter.ConfigError` (both `flowfilter.Error`) with the library's message.
 
+/// mimalloc keeps freed pages for the next frame's images (the workspace manifest says more).
+#[global_allocator]
+static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 mod arrays;
 mod errors;
 mod estimate;

@@ -1,5 +1,10 @@
 //! `flowfilter`: the command-line front end of the Flow Filter workspace.
 
+/// mimalloc keeps freed pages for the next frame's images, where glibc's malloc handed them
+/// back to the kernel and faulted them in again, zeroed (the workspace manifest says more).
+#[global_allocator]
+static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 mod args;
 mod estimate;
 mod estimate_batch;
