@@ -493,7 +493,8 @@ impl<'a> Alignment<'a> {
     }
 
     /// The rigid descent through every level from `start`, then (when `row_shear_sd` is not 0)
-    /// the finest level again from its pose with the shear free. The shear is freed only once
+    /// every level again from its pose with the shear free (the finest level alone lands up to
+    /// 0.015 deg further from the truth on the real sample). The shear is freed only once
     /// the pose is aligned: from a pose still off, a stretch of the rows would take up part of
     /// a tilt.
     fn descents(&self, start: &Pose, judged_by: Scales) -> Descents {
