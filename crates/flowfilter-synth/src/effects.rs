@@ -150,16 +150,13 @@ impl FrameDraw {
             return;
         }
         let (w, h) = (img.width(), img.height());
-        let (middle, last) = ((f64::from(h) - 1.0) / 2.0, f64::from(w - 1));
+        let middle = (f64::from(h) - 1.0) / 2.0;
         for y in 0..h {
             let shift = s * (f64::from(y) - middle);
             let row: Vec<[u8; 3]> = (0..w).map(|x| img.get_pixel(x, y).0).collect();
             for x in 0..w {
-                let from = (f64::from(x) - shift).clamp(0.0, last);
-                let (i, t) = (from.floor() as usize, from.fract());
-                let (a, b) = (row[i], row[(i + 1).min(row.len() - 1)]);
-                let px = [0, 1, 2].map(|c| (f64::from(a[c]) * (1.0 - t) + f64::from(b[c]) * t).round() as u8);
-                img.put_pixel(x, y, image::Rgb(px));
+                let (i, j, t) = linear_tap(f64::from(x) - shift, w);
+                img.put_pixel(x, y, image::Rgb(blend(row[i as usize], row[j as usize], t)));
             }
         }
     }
@@ -172,16 +169,12 @@ impl FrameDraw {
             return;
         }
         let (w, h) = (img.width(), img.height());
-        let (middle, last) = ((f64::from(h) - 1.0) / 2.0, f64::from(h - 1));
+        let middle = (f64::from(h) - 1.0) / 2.0;
         let source = img.clone();
         for y in 0..h {
-            let from = (f64::from(y) - s * (f64::from(y) - middle)).clamp(0.0, last);
-            let (i, t) = (from.floor() as u32, from.fract());
-            let j = (i + 1).min(h - 1);
+            let (i, j, t) = linear_tap(f64::from(y) - s * (f64::from(y) - middle), h);
             for x in 0..w {
-                let (a, b) = (source.get_pixel(x, i).0, source.get_pixel(x, j).0);
-                let px = [0, 1, 2].map(|c| (f64::from(a[c]) * (1.0 - t) + f64::from(b[c]) * t).round() as u8);
-                img.put_pixel(x, y, image::Rgb(px));
+                img.put_pixel(x, y, image::Rgb(blend(source.get_pixel(x, i).0, source.get_pixel(x, j).0, t)));
             }
         }
     }
@@ -208,6 +201,19 @@ impl FrameDraw {
             if grow { window.any(|(u, v)| s(u, v)) } else { window.all(|(u, v)| s(u, v)) }
         })
     }
+}
+
+/// The two neighbours `(i, i + 1)` (the last repeated at the end) of position `from` clamped to
+/// `[0, len - 1]`, and the weight of the second: a linear interpolation along one axis.
+fn linear_tap(from: f64, len: u32) -> (u32, u32, f64) {
+    let from = from.clamp(0.0, f64::from(len - 1));
+    let i = from.floor() as u32;
+    (i, (i + 1).min(len - 1), from.fract())
+}
+
+/// `a` and `b` mixed with weight `t` on `b`, per channel, rounded.
+fn blend(a: [u8; 3], b: [u8; 3], t: f64) -> [u8; 3] {
+    [0, 1, 2].map(|c| (f64::from(a[c]) * (1.0 - t) + f64::from(b[c]) * t).round() as u8)
 }
 
 #[cfg(test)]
