@@ -313,28 +313,22 @@ impl Pyramids {
     /// spatial gradient matrix `(gxx, gxy, gyy)`.
     fn template(&self, level: usize, px: f32, py: f32, window: usize) -> (Vec<TemplatePixel>, [f32; 3]) {
         let r = (window / 2) as isize;
-        match Window::inside(&self.from[level], px - r as f32, py - r as f32, window) {
+        let tmpl = match Window::inside(&self.from[level], px - r as f32, py - r as f32, window) {
             Some(win) => self.template_inside(level, &win, px, py, window),
             None => self.template_clamped(level, px, py, window),
-        }
+        };
+        let g = gradient_matrix(&tmpl);
+        (tmpl, g)
     }
 
     /// [`Pyramids::template`] where the whole window lies inside the image (`win`): every
     /// pixel shares the fractional weights, and the mask's nearest pixel is the centre's
     /// offset by whole pixels.
-    fn template_inside(
-        &self,
-        level: usize,
-        win: &Window,
-        px: f32,
-        py: f32,
-        window: usize,
-    ) -> (Vec<TemplatePixel>, [f32; 3]) {
+    fn template_inside(&self, level: usize, win: &Window, px: f32, py: f32, window: usize) -> Vec<TemplatePixel> {
         let a = &self.from[level];
         let (gx, gy) = (&self.grads[level].0, &self.grads[level].1);
         let r = (window / 2) as isize;
         let mut tmpl = Vec::with_capacity(window * window);
-        let (mut gxx, mut gxy, mut gyy) = (0.0f32, 0.0f32, 0.0f32);
         let (cx, cy) = (px.round() as isize, py.round() as isize);
         let mask = self.mask.get(level);
         for j in 0..window {
@@ -346,22 +340,17 @@ impl Pyramids {
                     tmpl.push((0.0, 0.0, 0.0));
                     continue;
                 }
-                let (ix, iy) = (win.sample(gx, i, j), win.sample(gy, i, j));
-                tmpl.push((win.sample(a, i, j), ix, iy));
-                gxx += ix * ix;
-                gxy += ix * iy;
-                gyy += iy * iy;
+                tmpl.push((win.sample(a, i, j), win.sample(gx, i, j), win.sample(gy, i, j)));
             }
         }
-        (tmpl, [gxx, gxy, gyy])
+        tmpl
     }
 
     /// [`Pyramids::template`] anywhere: each pixel's own (clamped) bilinear tap.
-    fn template_clamped(&self, level: usize, px: f32, py: f32, window: usize) -> (Vec<TemplatePixel>, [f32; 3]) {
+    fn template_clamped(&self, level: usize, px: f32, py: f32, window: usize) -> Vec<TemplatePixel> {
         let a = &self.from[level];
         let r = (window / 2) as isize;
         let mut tmpl = Vec::with_capacity(window * window);
-        let (mut gxx, mut gxy, mut gyy) = (0.0f32, 0.0f32, 0.0f32);
         let inside = |x: f32, y: f32| {
             self.mask.get(level).is_none_or(|m| {
                 let (ix, iy) = (x.round(), y.round());
@@ -382,12 +371,9 @@ impl Pyramids {
                 let beyond = x < 0.0 || y < 0.0 || x > (a.width() - 1) as f32 || y > (a.height() - 1) as f32;
                 let (ix, iy) = if beyond { (0.0, 0.0) } else { (tap.sample(gx.as_slice()), tap.sample(gy.as_slice())) };
                 tmpl.push((tap.sample(a.as_slice()), ix, iy));
-                gxx += ix * ix;
-                gxy += ix * iy;
-                gyy += iy * iy;
             }
         }
-        (tmpl, [gxx, gxy, gyy])
+        tmpl
     }
 
     /// The displacement `d` beyond the guess `g` that Newton's iterations find for point `pt`
@@ -432,6 +418,18 @@ impl Pyramids {
         }
         Some(d)
     }
+}
+
+/// The spatial gradient matrix `(gxx, gxy, gyy)` of a template (pixels outside the mask add
+/// nothing: their gradient is 0).
+fn gradient_matrix(tmpl: &[TemplatePixel]) -> [f32; 3] {
+    let mut g = [0.0f32; 3];
+    for &(_, ix, iy) in tmpl {
+        g[0] += ix * ix;
+        g[1] += ix * iy;
+        g[2] += iy * iy;
+    }
+    g
 }
 
 /// `sum_k (T_k - I(x_k)) grad T_k` over the window of half-size `r` whose top-left corner in
@@ -568,8 +566,9 @@ mod tests {
         let pyramids = Pyramids::new(&a, &a, Some(&mask), 1);
         for (level, px, py) in [(0, 37.3f32, 28.5f32), (0, 52.5, 41.7), (1, 18.2, 14.9), (1, 25.5, 20.5)] {
             let win = Window::inside(&pyramids.from[level], px - 4.0, py - 4.0, 9).expect("inside");
-            let (fast, g_fast) = pyramids.template_inside(level, &win, px, py, 9);
-            let (slow, g_slow) = pyramids.template_clamped(level, px, py, 9);
+            let (fast, slow) =
+                (pyramids.template_inside(level, &win, px, py, 9), pyramids.template_clamped(level, px, py, 9));
+            let (g_fast, g_slow) = (gradient_matrix(&fast), gradient_matrix(&slow));
             for (f, s) in fast.iter().zip(&slow) {
                 assert!(
                     (f.0 - s.0).abs() < 1e-6 && (f.1 - s.1).abs() < 1e-6 && (f.2 - s.2).abs() < 1e-6,
