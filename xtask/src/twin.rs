@@ -292,12 +292,9 @@ mod tests {
         let Some(data) = real_sample() else { return };
         let tmp = tempfile::tempdir().unwrap();
         let args = TwinArgs {
-            data,
             meshes: tmp.path().to_path_buf(),
-            noise: "xtion-sample".into(),
             effects: "real".into(),
-            seed: 7,
-            out: tmp.path().join("out"),
+            ..sample_twin(&data, &tmp.path().join("out"))
         };
         let e = write_twin(&args).unwrap_err().to_string();
         assert!(e.contains("none of the annotated objects has a scan"), "{e}");

@@ -23,7 +23,7 @@
 //! pose is the midpoint of the two results. The aligned pose is kept only when it lowers the
 //! truncated cost and stays within a stated distance of the pose it started from.
 
-use crate::judge::Texture;
+use crate::judge::{GradientTexture, ObjectSample, Texture};
 use crate::stages::PreparedFrame;
 use flowfilter_geometry::{ParamError, Point3, Pose, params, se3};
 use nalgebra::{SMatrix, SVector, Vector2};
@@ -139,16 +139,10 @@ pub struct AlignReport {
     pub accepted: bool,
 }
 
-/// A model pixel: its point (model camera frame) and texture.
-struct Sample {
-    point: Point3,
-    texture: f64,
-}
-
 /// The target as the residuals read it.
 struct TargetView<'a> {
     frame: &'a PreparedFrame,
-    texture: Texture,
+    texture: GradientTexture,
     /// The row the shear turns about: the model object's mean row.
     row0: f64,
     /// How many samples share one texture box (its area over the samples' spacing squared, at
@@ -222,7 +216,7 @@ pub struct Scales {
 /// The two frames prepared for direct alignment at one smoothing of their textures: the
 /// model's samples and the target's texture.
 pub struct Aligner<'a> {
-    samples: Vec<Sample>,
+    samples: Vec<ObjectSample>,
     view: TargetView<'a>,
     cfg: &'a AlignConfig,
 }
@@ -282,11 +276,10 @@ impl<'a> Aligner<'a> {
     ) -> Option<Self> {
         let (samples, spacing) = samples(model, model_texture, cfg);
         let shared = ((2 * cfg.texture_radius_px + 1) as f64 / spacing).powi(2).max(1.0);
-        let rows: Vec<f64> = samples.iter().filter_map(|s| model.sensor.color.project(&s.point)).map(|p| p.y).collect();
-        let row0 = rows.iter().sum::<f64>() / rows.len().max(1) as f64;
+        let row0 = samples.iter().map(|s| s.row as f64).sum::<f64>() / samples.len().max(1) as f64;
         (samples.len() >= cfg.min_pixels).then_some(Self {
             samples,
-            view: TargetView { frame: target, texture, row0, shared },
+            view: TargetView { frame: target, texture: GradientTexture::new(texture), row0, shared },
             cfg,
         })
     }
@@ -555,18 +548,18 @@ impl LevelTextures {
 
 /// The model's object pixels with depth (every `stride`-th, thinned to `max_pixels`), with
 /// their value in `texture`, and the samples' spacing (pixels).
-fn samples(model: &PreparedFrame, texture: &Texture, cfg: &AlignConfig) -> (Vec<Sample>, f64) {
+fn samples(model: &PreparedFrame, texture: &Texture, cfg: &AlignConfig) -> (Vec<ObjectSample>, f64) {
     let all = crate::judge::object_samples(model, texture, cfg.stride, usize::MAX);
     let every = all.len().div_ceil(cfg.max_pixels.max(1)).max(1);
     let spacing = cfg.stride as f64 * (every as f64).sqrt();
-    let samples = all.into_iter().step_by(every).map(|(point, texture)| Sample { point, texture }).collect();
+    let samples = all.into_iter().step_by(every).collect();
     (samples, spacing)
 }
 
 impl TargetView<'_> {
     /// The residuals of one model pixel moved by `pose`; `None` where it leaves the target's
     /// texture.
-    fn residuals(&self, s: &Sample, state: &State, gain: f64) -> Option<Residuals> {
+    fn residuals(&self, s: &ObjectSample, state: &State, gain: f64) -> Option<Residuals> {
         let camera = &self.frame.sensor.color;
         let q = state.pose * s.point;
         let (px, jp) = camera.project_with_jacobian(&q)?;
@@ -590,18 +583,18 @@ impl TargetView<'_> {
             j.fixed_rows_mut::<6>(0).copy_from(&(image.row(0) * dzx + image.row(1) * dzy - dq.row(2)).transpose());
             (z - q.z, j)
         });
-        Some(Residuals { texture: b - gain * s.texture, texture_jacobian, depth, z: q.z })
+        Some(Residuals { texture: b - gain * s.value, texture_jacobian, depth, z: q.z })
     }
 
     /// The residuals of [`TargetView::residuals`] without their Jacobians (what the cost reads:
     /// a sixth of the projections): texture, depth, and the moved point's depth.
-    fn values(&self, s: &Sample, state: &State, gain: f64) -> Option<(f64, Option<f64>, f64)> {
+    fn values(&self, s: &ObjectSample, state: &State, gain: f64) -> Option<(f64, Option<f64>, f64)> {
         let q = state.pose * s.point;
         let px = self.frame.sensor.color.project(&q)?;
         let lean = px.y - self.row0;
         let b =
             self.texture.bilinear_with_gradient_support(px.x + state.shear.x * lean, px.y + state.shear.y * lean)?;
-        Some((b - gain * s.texture, self.depth_at(px.x, px.y).map(|(z, _, _)| z - q.z), q.z))
+        Some((b - gain * s.value, self.depth_at(px.x, px.y).map(|(z, _, _)| z - q.z), q.z))
     }
 
     /// The target's depth at `(x, y)` (bilinear) and its gradient, where the four pixels
@@ -642,7 +635,7 @@ fn point_twist_jacobian(q: &Point3) -> nalgebra::Matrix3x6<f64> {
 
 /// The residuals' robust noise scales and the texture gain at `pose`; `None` when too few
 /// pixels land on the target or its texture is flat there.
-fn scales(samples: &[Sample], view: &TargetView<'_>, state: &State, cfg: &AlignConfig) -> Option<Scales> {
+fn scales(samples: &[ObjectSample], view: &TargetView<'_>, state: &State, cfg: &AlignConfig) -> Option<Scales> {
     // (target texture, model texture, depth residual) of the pixels visible in both: the
     // target's depth agrees within the depth of field of a turntable object (a hidden pixel
     // lies behind the target's surface by more).
@@ -650,7 +643,7 @@ fn scales(samples: &[Sample], view: &TargetView<'_>, state: &State, cfg: &AlignC
         .iter()
         .filter_map(|s| {
             let (b, d, _) = view.values(s, state, 0.0)?;
-            d.filter(|d| d.abs() < 0.01).map(|d| (b, s.texture, d))
+            d.filter(|d| d.abs() < 0.01).map(|d| (b, s.value, d))
         })
         .collect();
     if visible.len() < cfg.min_pixels {
@@ -685,7 +678,7 @@ fn mad(mut v: Vec<f64>) -> f64 {
 /// The truncated cost of `state`: each residual squared in units of its scale, at most
 /// `truncation^2` (a pixel that leaves the target counts the cap for both), and the shear's
 /// prior.
-fn cost(samples: &[Sample], view: &TargetView<'_>, state: &State, sc: Scales, cfg: &AlignConfig) -> f64 {
+fn cost(samples: &[ObjectSample], view: &TargetView<'_>, state: &State, sc: Scales, cfg: &AlignConfig) -> f64 {
     let cap = cfg.truncation * cfg.truncation;
     shear_prior(state, cfg, view.shared).0
         + samples
@@ -711,7 +704,7 @@ fn damped_step((h, g): &(SMatrix<f64, DOF, DOF>, Step), lambda: f64) -> Option<S
 /// The Gauss-Newton normal equations `(J^T W J, J^T W r)` at `state`, over the residuals within
 /// the truncation and the shear's prior.
 fn normal_equations(
-    samples: &[Sample],
+    samples: &[ObjectSample],
     view: &TargetView<'_>,
     state: &State,
     sc: Scales,
@@ -727,15 +720,13 @@ fn normal_equations(
                 g.axpy(res * w, jac, 1.0);
             }
         };
-        if let Some((d, jd)) = &r.depth {
-            let scale = depth_scale(sc, cfg, r.z);
-            if (d / scale).abs() > cfg.truncation {
-                continue; // hidden in one of the frames: its texture is another surface's
-            }
-            add(*d, jd, scale);
-        } else {
-            continue;
+        // Without depth under it the pixel is off the target's surface.
+        let Some((d, jd)) = &r.depth else { continue };
+        let scale = depth_scale(sc, cfg, r.z);
+        if (d / scale).abs() > cfg.truncation {
+            continue; // hidden in one of the frames: its texture is another surface's
         }
+        add(*d, jd, scale);
         add(r.texture, &r.texture_jacobian, sc.texture);
     }
     h.fill_upper_triangle_with_lower_triangle();

@@ -167,16 +167,12 @@ pub fn high_pass(img: &Gray, r: usize) -> Gray {
     })
 }
 
-/// A frame's texture ([`high_pass`]) on the rectangle where it is needed, with its central
-/// differences (what the alignment's gradients interpolate).
+/// A frame's texture ([`high_pass`]) on the rectangle where it is needed.
 #[derive(Clone)]
 pub struct Texture {
     x0: usize,
     y0: usize,
     grid: Gray,
-    /// `(T(x+1) - T(x-1)) / 2` and `(T(y+1) - T(y-1)) / 2` on the grid (clamped at its edges,
-    /// which [`Texture::bilinear_gradient`] never weighs).
-    gradients: (Gray, Gray),
 }
 
 impl Texture {
@@ -186,21 +182,11 @@ impl Texture {
     pub fn new(img: &Gray, mask: &Mask, r: usize) -> Self {
         let (w, h) = img.dims();
         let Some((bx0, by0, bx1, by1)) = mask_bbox(mask) else {
-            return Self::on_grid(0, 0, Gray::filled(0, 0, 0.0));
+            return Self { x0: 0, y0: 0, grid: Gray::filled(0, 0, 0.0) };
         };
         let (x0, y0) = (bx0.saturating_sub(r), by0.saturating_sub(r));
         let (x1, y1) = ((bx1 + r + 1).min(w), (by1 + r + 1).min(h));
-        Self::on_grid(x0, y0, high_pass(&img.crop(x0, y0, x1 - x0, y1 - y0), r))
-    }
-
-    /// The texture `grid` with its top-left corner at `(x0, y0)` of the image, and its gradients.
-    fn on_grid(x0: usize, y0: usize, grid: Gray) -> Self {
-        let gradients = if grid.dims().0 == 0 || grid.dims().1 == 0 {
-            (Gray::filled(0, 0, 0.0), Gray::filled(0, 0, 0.0))
-        } else {
-            flowfilter_flow::lk::central_gradients(&grid)
-        };
-        Self { x0, y0, grid, gradients }
+        Self { x0, y0, grid: high_pass(&img.crop(x0, y0, x1 - x0, y1 - y0), r) }
     }
 
     /// The texture smoothed by a box of half-width `r` (unchanged for 0).
@@ -210,7 +196,7 @@ impl Texture {
         }
         let detail = high_pass(&self.grid, r);
         let grid = Gray::from_fn(self.grid.dims().0, self.grid.dims().1, |x, y| self.grid.at(x, y) - detail.at(x, y));
-        Self::on_grid(self.x0, self.y0, grid)
+        Self { grid, ..self }
     }
 
     /// The rectangle `((x0, y0), (x1, y1))` (exclusive ends) the texture covers.
@@ -232,6 +218,28 @@ impl Texture {
         let inside = w > 0 && h > 0 && gx >= 0.0 && gy >= 0.0 && gx <= (w - 1) as f64 && gy <= (h - 1) as f64;
         inside.then(|| f64::from(flowfilter_flow::lk::bilinear(&self.grid, gx as f32, gy as f32)))
     }
+}
+
+/// A [`Texture`] with its central differences, `(T(x+1) - T(x-1)) / 2` and alike in y (clamped at
+/// the grid's edges, which [`GradientTexture::bilinear_gradient`] never weighs): what the
+/// alignment reads in the frame it aligns into.
+#[derive(Clone)]
+pub(crate) struct GradientTexture {
+    texture: Texture,
+    gradients: (Gray, Gray),
+}
+
+impl GradientTexture {
+    /// `texture` and its central differences.
+    pub(crate) fn new(texture: Texture) -> Self {
+        let (w, h) = texture.grid.dims();
+        let gradients = if w == 0 || h == 0 {
+            (Gray::filled(0, 0, 0.0), Gray::filled(0, 0, 0.0))
+        } else {
+            flowfilter_flow::lk::central_gradients(&texture.grid)
+        };
+        Self { texture, gradients }
+    }
 
     /// Bilinear texture at `(x, y)` and its gradient: the bilinear texture's central differences
     /// one pixel either side, `(B(x+1, y) - B(x-1, y)) / 2` and alike in y, read as the bilinear
@@ -241,21 +249,21 @@ impl Texture {
     pub(crate) fn bilinear_gradient(&self, x: f64, y: f64) -> Option<(f64, f64, f64)> {
         let (gx, gy) = self.gradient_support(x, y)?;
         let [v, dx, dy] =
-            flowfilter_flow::lk::bilinear_many([&self.grid, &self.gradients.0, &self.gradients.1], gx, gy);
+            flowfilter_flow::lk::bilinear_many([&self.texture.grid, &self.gradients.0, &self.gradients.1], gx, gy);
         Some((f64::from(v), f64::from(dx), f64::from(dy)))
     }
 
-    /// The bilinear texture at `(x, y)` where [`Texture::bilinear_gradient`] has a value (the
+    /// The bilinear texture at `(x, y)` where [`GradientTexture::bilinear_gradient`] has a value (the
     /// same domain, without the gradient).
     pub(crate) fn bilinear_with_gradient_support(&self, x: f64, y: f64) -> Option<f64> {
         let (gx, gy) = self.gradient_support(x, y)?;
-        Some(f64::from(flowfilter_flow::lk::bilinear(&self.grid, gx, gy)))
+        Some(f64::from(flowfilter_flow::lk::bilinear(&self.texture.grid, gx, gy)))
     }
 
     /// `(x, y)` on the grid when it lies at least a pixel inside every edge.
     fn gradient_support(&self, x: f64, y: f64) -> Option<(f32, f32)> {
-        let (gx, gy) = (x - self.x0 as f64, y - self.y0 as f64);
-        let (w, h) = self.grid.dims();
+        let (gx, gy) = (x - self.texture.x0 as f64, y - self.texture.y0 as f64);
+        let (w, h) = self.texture.grid.dims();
         let inside = w > 2 && h > 2 && gx >= 1.0 && gy >= 1.0 && gx <= (w - 2) as f64 && gy <= (h - 2) as f64;
         inside.then_some((gx as f32, gy as f32))
     }
@@ -265,7 +273,7 @@ impl Texture {
 /// `stride`-th, with depth) back-projected with their texture, and the target's texture.
 pub struct Textures<'a> {
     target: &'a PreparedFrame,
-    samples: Vec<(Point3, f64)>,
+    samples: Vec<ObjectSample>,
     target_texture: Texture,
 }
 
@@ -278,6 +286,15 @@ impl<'a> Textures<'a> {
     }
 }
 
+/// An object pixel of a frame with depth: back-projected, with its value in a texture and its
+/// image row.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct ObjectSample {
+    pub(crate) point: Point3,
+    pub(crate) value: f64,
+    pub(crate) row: usize,
+}
+
 /// The object pixels of `model` with depth (every `stride`-th in each direction, evenly thinned
 /// to at most `max_pixels` on a large object), back-projected, with their value in `texture`.
 pub(crate) fn object_samples(
@@ -285,7 +302,7 @@ pub(crate) fn object_samples(
     texture: &Texture,
     stride: usize,
     max_pixels: usize,
-) -> Vec<(Point3, f64)> {
+) -> Vec<ObjectSample> {
     let ((x0, y0), (x1, y1)) = texture.bounds();
     let mut samples = Vec::new();
     for y in (y0.next_multiple_of(stride)..y1).step_by(stride) {
@@ -294,8 +311,8 @@ pub(crate) fn object_samples(
             if !*model.mask.at(x, y) || z <= 0.0 {
                 continue;
             }
-            if let (Some(p), Some(t)) = (model.rays.backproject(x, y, z), texture.at(x, y)) {
-                samples.push((p, t));
+            if let (Some(point), Some(value)) = (model.rays.backproject(x, y, z), texture.at(x, y)) {
+                samples.push(ObjectSample { point, value, row: y });
             }
         }
     }
@@ -312,8 +329,8 @@ pub fn photometric_score(images: &Textures<'_>, pose: &Pose, cfg: &JudgeConfig) 
     let (w, h) = target.depth.dims();
     let camera = &target.sensor.color;
     let (mut n, mut sa, mut sb, mut saa, mut sbb, mut sab) = (0usize, 0.0, 0.0, 0.0, 0.0, 0.0);
-    for (p, a) in &images.samples {
-        let q = pose * p;
+    for &ObjectSample { point, value: a, .. } in &images.samples {
+        let q = pose * point;
         let Some(px) = camera.project(&q) else { continue };
         let (u, v) = (px.x.round(), px.y.round());
         if u < 0.0 || v < 0.0 || u >= w as f64 || v >= h as f64 {
