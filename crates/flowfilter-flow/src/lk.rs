@@ -70,6 +70,12 @@ impl BilinearTap {
     /// The tap at `(x, y)` in a `width x height` image.
     #[inline]
     pub(crate) fn new(width: usize, height: usize, x: f32, y: f32) -> Self {
+        if x >= 0.0 && y >= 0.0 && x < (width - 1) as f32 && y < (height - 1) as f32 {
+            // Inside: no clamp is needed, the truncation is the floor (the same taps and weights).
+            let (ix, iy) = (x as usize, y as usize);
+            let k = iy * width + ix;
+            return Self { k: [k, k + 1, k + width, k + width + 1], fx: x - ix as f32, fy: y - iy as f32 };
+        }
         let x = x.clamp(0.0, width as f32 - 1.0);
         let y = y.clamp(0.0, height as f32 - 1.0);
         let (x0, y0) = (floor_f32(x), floor_f32(y));
@@ -538,7 +544,20 @@ mod tests {
         }
     }
 
-    /// Inside the image the unclamped taps give `bilinear`'s bits.
+    /// The clamped bilinear sample written out with libm's floor: what every tap must equal.
+    fn reference_bilinear(img: &Gray, x: f32, y: f32) -> f32 {
+        let (w, h) = img.dims();
+        let (x, y) = (x.clamp(0.0, (w - 1) as f32), y.clamp(0.0, (h - 1) as f32));
+        let (x0, y0) = (x.floor(), y.floor());
+        let (fx, fy) = (x - x0, y - y0);
+        let (ix, iy) = (x0 as usize, y0 as usize);
+        let (ix1, iy1) = ((ix + 1).min(w - 1), (iy + 1).min(h - 1));
+        let (a, b, c, d) = (*img.at(ix, iy), *img.at(ix1, iy), *img.at(ix, iy1), *img.at(ix1, iy1));
+        (a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + d * fx) * fy
+    }
+
+    /// Inside the image, on its edges and beyond them, the taps (the interior shortcut of
+    /// [`BilinearTap::new`], [`BilinearTap::interior_sample`]) give the clamped sample's bits.
     #[test]
     fn interior_samples_are_the_bilinear_samples() {
         let img = Gray::from_fn(37, 29, |x, y| ((x * 7 + y * 13) % 17) as f32 / 17.0 + 0.001 * x as f32);
@@ -547,8 +566,13 @@ mod tests {
             s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
             let x = (s >> 40) as f32 / (1u64 << 24) as f32 * 35.999;
             let y = (s & 0xff_ffff) as f32 / (1u64 << 24) as f32 * 27.999;
+            let reference = reference_bilinear(&img, x, y).to_bits();
             let interior = BilinearTap::interior_sample(img.as_slice(), img.width(), x, y);
-            assert_eq!(interior.to_bits(), bilinear(&img, x, y).to_bits(), "({x}, {y})");
+            assert_eq!(interior.to_bits(), reference, "({x}, {y})");
+            assert_eq!(bilinear(&img, x, y).to_bits(), reference, "({x}, {y})");
+        }
+        for (x, y) in [(36.0, 3.5), (2.5, 28.0), (36.0, 28.0), (-1.5, 4.25), (40.0, -3.0), (0.0, 0.0)] {
+            assert_eq!(bilinear(&img, x, y).to_bits(), reference_bilinear(&img, x, y).to_bits(), "({x}, {y})");
         }
     }
 
