@@ -191,8 +191,8 @@ impl Window {
         })
     }
 
-    /// The sample at window pixel `(i, j)`.
-    #[inline]
+    /// The sample at window pixel `(i, j)` (what [`Window::for_row`] reads a row of).
+    #[cfg(test)]
     fn sample(&self, img: &Gray, i: usize, j: usize) -> f32 {
         let d = img.as_slice();
         let k = self.base + j * self.w + i;
@@ -351,19 +351,20 @@ impl Pyramids {
         let a = &self.from[level];
         let (gx, gy) = (&self.grads[level].0, &self.grads[level].1);
         let r = (window / 2) as isize;
-        let mut tmpl = Vec::with_capacity(window * window);
-        let (cx, cy) = (px.round() as isize, py.round() as isize);
-        let mask = self.mask.get(level);
-        for j in 0..window {
-            for i in 0..window {
-                let (mx, my) = (cx + i as isize - r, cy + j as isize - r);
-                let masked_in = mask
-                    .is_none_or(|m| mx >= 0 && my >= 0 && m.get(mx as usize, my as usize).copied().unwrap_or(false));
-                if !masked_in {
-                    tmpl.push((0.0, 0.0, 0.0));
-                    continue;
+        let mut tmpl = vec![(0.0, 0.0, 0.0); window * window];
+        for (j, row) in tmpl.chunks_exact_mut(window).enumerate() {
+            win.for_row(a, j, window, |i, v| row[i].0 = v);
+            win.for_row(gx, j, window, |i, v| row[i].1 = v);
+            win.for_row(gy, j, window, |i, v| row[i].2 = v);
+        }
+        // Outside the mask: no gradient, no residual.
+        if let Some(m) = self.mask.get(level) {
+            let (cx, cy) = (px.round() as isize, py.round() as isize);
+            for (k, pixel) in tmpl.iter_mut().enumerate() {
+                let (mx, my) = (cx + (k % window) as isize - r, cy + (k / window) as isize - r);
+                if !(mx >= 0 && my >= 0 && m.get(mx as usize, my as usize).copied().unwrap_or(false)) {
+                    *pixel = (0.0, 0.0, 0.0);
                 }
-                tmpl.push((win.sample(a, i, j), win.sample(gx, i, j), win.sample(gy, i, j)));
             }
         }
         tmpl
