@@ -5,7 +5,7 @@ use crate::error::RegistrationError;
 use crate::evaluate::{RobustKernel, point_to_plane_step_by};
 use crate::problem::{IterationRecord, Registrar, Registration, RegistrationProblem, in_pool, validate_problem};
 use crate::warning::RegistrationWarning;
-use flowfilter_geometry::{KnnIndex, Neighbourhoods, Point3, Pose, RadiusGrid, spatial_order, weighted_kabsch_by};
+use flowfilter_geometry::{KnnIndex, Neighbour, Neighbourhoods, Point3, Pose, RadiusGrid, spatial_order, weighted_kabsch_by};
 use flowfilter_geometry::{ParamError, params};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -196,6 +196,10 @@ impl Icp {
     }
 }
 
+/// Source points searched in turn, each from the answer of the one before (see
+/// [`Matcher::pairs`]); runs are searched in parallel.
+const SEEDED_RUN: usize = 256;
+
 /// Target points sampled to estimate the cloud's spacing.
 const SPACING_SAMPLES: usize = 64;
 
@@ -242,26 +246,42 @@ impl<'a> Matcher<'a> {
 
     /// The pairs of `t * source` (moved source point, target index, distance), in source order,
     /// for the points with a target point within the gate; `partner` holds each point's last
-    /// partner (`u32::MAX`: none) and is updated.
+    /// partner (`u32::MAX`: none) and is updated. A point without one (every point of the first
+    /// pass) is searched from the nearest target point of the point before it: the source is in
+    /// spatial order, so that point is about as near as its own nearest, and the grid cells
+    /// within that distance hold the answer (the k-d tree answers the first point of each run
+    /// of [`SEEDED_RUN`] and where the cells would be too many).
     fn pairs(&self, source: &[Point3], partner: &mut [u32], t: &Pose) -> Vec<(Point3, usize, f64)> {
         source
-            .par_iter()
-            .zip(partner.par_iter_mut())
-            .filter_map(|(s, last)| {
-                let x = t * s;
-                let listed = match *last {
-                    u32::MAX => None,
-                    j => {
-                        let d2 = (x - self.target[j as usize]).norm_squared();
-                        let lists = self.lists.as_ref().and_then(|l| l.nearest_from(self.target, &x, j as usize, d2));
-                        lists.or_else(|| self.grid.as_ref()?.nearest_within(&x, j as usize, d2))
-                    }
-                };
-                let n = listed.or_else(|| self.index.nearest(&x)).filter(|n| n.dist2 <= self.max_d2);
-                *last = n.map_or(u32::MAX, |n| n.index as u32);
-                n.map(|n| (x, n.index, n.dist2.sqrt()))
+            .par_chunks(SEEDED_RUN)
+            .zip(partner.par_chunks_mut(SEEDED_RUN))
+            .flat_map_iter(|(source, partner)| {
+                let mut seed = u32::MAX;
+                source.iter().zip(partner).filter_map(move |(s, last)| {
+                    let x = t * s;
+                    let n = self.nearest(&x, if *last == u32::MAX { seed } else { *last });
+                    seed = n.map_or(u32::MAX, |n| n.index as u32);
+                    let n = n.filter(|n| n.dist2 <= self.max_d2);
+                    *last = n.map_or(u32::MAX, |n| n.index as u32);
+                    n.map(|n| (x, n.index, n.dist2.sqrt()))
+                })
             })
             .collect()
+    }
+
+    /// The target point nearest to `x`, searched from target point `from` when there is one
+    /// (`u32::MAX`: none): the neighbour lists, then the grid, then the k-d tree. Every path
+    /// gives the nearest point.
+    fn nearest(&self, x: &Point3, from: u32) -> Option<Neighbour> {
+        let listed = match from {
+            u32::MAX => None,
+            j => {
+                let d2 = (x - self.target[j as usize]).norm_squared();
+                let lists = self.lists.as_ref().and_then(|l| l.nearest_from(self.target, x, j as usize, d2));
+                lists.or_else(|| self.grid.as_ref()?.nearest_within(x, j as usize, d2))
+            }
+        };
+        listed.or_else(|| self.index.nearest(x))
     }
 
     /// Builds the neighbourhoods once the pairs `corr` are close enough, in target spacings, for
