@@ -5,7 +5,9 @@ use crate::error::RegistrationError;
 use crate::evaluate::{RobustKernel, point_to_plane_step_by};
 use crate::problem::{IterationRecord, Registrar, Registration, RegistrationProblem, in_pool, validate_problem};
 use crate::warning::RegistrationWarning;
-use flowfilter_geometry::{KnnIndex, Neighbour, Neighbourhoods, Point3, Pose, RadiusGrid, spatial_order, weighted_kabsch_by};
+use flowfilter_geometry::{
+    KnnIndex, Neighbour, Neighbourhoods, Point3, Pose, RadiusGrid, spatial_order, weighted_kabsch_by,
+};
 use flowfilter_geometry::{ParamError, params};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
