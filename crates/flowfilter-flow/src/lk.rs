@@ -71,10 +71,7 @@ impl BilinearTap {
     #[inline]
     pub(crate) fn new(width: usize, height: usize, x: f32, y: f32) -> Self {
         if x >= 0.0 && y >= 0.0 && x < (width - 1) as f32 && y < (height - 1) as f32 {
-            // Inside: no clamp is needed, the truncation is the floor (the same taps and weights).
-            let (ix, iy) = (x as usize, y as usize);
-            let k = iy * width + ix;
-            return Self { k: [k, k + 1, k + width, k + width + 1], fx: x - ix as f32, fy: y - iy as f32 };
+            return Self::interior(width, x, y);
         }
         let x = x.clamp(0.0, width as f32 - 1.0);
         let y = y.clamp(0.0, height as f32 - 1.0);
@@ -85,16 +82,14 @@ impl BilinearTap {
         Self { k: [iy * width + ix, iy * width + ix1, iy1 * width + ix, iy1 * width + ix1], fx, fy }
     }
 
-    /// The sample of `img` (row-major, `width` wide) at `(x, y)` with `0 <= x < width - 1` and
-    /// `0 <= y < height - 1`: [`Self::new`]'s sample without the clamps it does not need there
-    /// (the same bits), its two pairs of neighbouring taps read as two slices.
+    /// The tap at `(x, y)` with `0 <= x < width - 1` and `0 <= y < height - 1`: no clamp is
+    /// needed there and the truncation is the floor (the same indices and weights as the
+    /// clamped tap).
     #[inline]
-    pub(crate) fn interior_sample(img: &[f32], width: usize, x: f32, y: f32) -> f32 {
+    fn interior(width: usize, x: f32, y: f32) -> Self {
         let (ix, iy) = (x as usize, y as usize);
         let k = iy * width + ix;
-        let (fx, fy) = (x - ix as f32, y - iy as f32);
-        let (top, bottom) = (&img[k..k + 2], &img[k + width..k + width + 2]);
-        (top[0] * (1.0 - fx) + top[1] * fx) * (1.0 - fy) + (bottom[0] * (1.0 - fx) + bottom[1] * fx) * fy
+        Self { k: [k, k + 1, k + width, k + width + 1], fx: x - ix as f32, fy: y - iy as f32 }
     }
 
     /// For a one-row image: the two columns and the weight of the second.
@@ -468,27 +463,17 @@ fn mismatch(b: &Gray, tmpl: &[TemplatePixel], (cx, cy): (f32, f32), r: isize, wa
         by += diff * iy;
     };
     match (warp, Window::inside(b, cx, cy, side)) {
-        // A warped window: every sample has its own bilinear weights. Where the whole window
-        // lies inside the image (its corners do: the map is linear) no sample is clamped, and
-        // the taps are read directly (the same arithmetic as `bilinear`, without its clamps).
+        // A warped window: every sample has its own bilinear weights (unclamped inside the
+        // image, see `BilinearTap::new`).
         (Some(m), _) => {
             let (ox, oy) = (cx + r as f32, cy + r as f32);
             let at = |u: f32, v: f32| (ox + m[0] * u + m[1] * v, oy + m[2] * u + m[3] * v);
             let rf = r as f32;
-            let inside = [(-rf, -rf), (rf, -rf), (-rf, rf), (rf, rf)].iter().all(|&(u, v)| {
-                let (x, y) = at(u, v);
-                x >= 0.0 && y >= 0.0 && x < (b.width() - 1) as f32 && y < (b.height() - 1) as f32
-            });
             for j in 0..side {
                 let v = j as f32 - rf;
                 for i in 0..side {
                     let (x, y) = at(i as f32 - rf, v);
-                    let sample = if inside {
-                        BilinearTap::interior_sample(b.as_slice(), b.width(), x, y)
-                    } else {
-                        BilinearTap::new(b.width(), b.height(), x, y).sample(b.as_slice())
-                    };
-                    add(j * side + i, sample);
+                    add(j * side + i, BilinearTap::new(b.width(), b.height(), x, y).sample(b.as_slice()));
                 }
             }
         }
@@ -557,8 +542,8 @@ mod tests {
         (a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + d * fx) * fy
     }
 
-    /// Inside the image, on its edges and beyond them, the taps (the interior shortcut of
-    /// [`BilinearTap::new`], [`BilinearTap::interior_sample`]) give the clamped sample's bits.
+    /// Inside the image, on its edges and beyond them, the taps (with [`BilinearTap::new`]'s
+    /// interior shortcut, [`BilinearTap::interior`]) give the clamped sample's bits.
     #[test]
     fn interior_samples_are_the_bilinear_samples() {
         let img = Gray::from_fn(37, 29, |x, y| ((x * 7 + y * 13) % 17) as f32 / 17.0 + 0.001 * x as f32);
@@ -568,7 +553,7 @@ mod tests {
             let x = (s >> 40) as f32 / (1u64 << 24) as f32 * 35.999;
             let y = (s & 0xff_ffff) as f32 / (1u64 << 24) as f32 * 27.999;
             let reference = reference_bilinear(&img, x, y).to_bits();
-            let interior = BilinearTap::interior_sample(img.as_slice(), img.width(), x, y);
+            let interior = BilinearTap::interior(img.width(), x, y).sample(img.as_slice());
             assert_eq!(interior.to_bits(), reference, "({x}, {y})");
             assert_eq!(bilinear(&img, x, y).to_bits(), reference, "({x}, {y})");
         }
