@@ -38,6 +38,10 @@ pub struct SpeedArgs {
     /// Runs of each registration and flow timing; the fastest is kept (both sides).
     #[arg(long)]
     pub repeat: Option<usize>,
+    /// After those runs, repeat a timing (both sides) while its runs took less than this many
+    /// seconds in all, up to 50 runs: short runs' minima then settle [default: 1, 0 with --quick].
+    #[arg(long)]
+    pub min_seconds: Option<f64>,
     /// Pipeline methods timed on the default benchmark's frames.
     #[arg(long, value_delimiter = ',', default_value = "flowfilter,filterreg-pt2pt,icp-pt2pl,cpd")]
     pub methods: Vec<String>,
@@ -67,6 +71,8 @@ pub fn run(args: &SpeedArgs) -> anyhow::Result<()> {
     let dir = args.out.join(crate::report::timestamp());
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
     let repeat = args.repeat.unwrap_or(if args.quick { 1 } else { 3 });
+    let repeats =
+        ours::Repeats { min: repeat, budget_s: args.min_seconds.unwrap_or(if args.quick { 0.0 } else { 1.0 }) };
     let sizes =
         args.sizes.clone().unwrap_or_else(|| if args.quick { vec![5000] } else { vec![20_000, 40_000, 60_000] });
     let wants = |s: &str| args.sections.iter().any(|x| x == s);
@@ -76,8 +82,8 @@ pub fn run(args: &SpeedArgs) -> anyhow::Result<()> {
         vec![]
     };
     let sintel = if wants("flow") { sintel_cases(args.quick) } else { vec![] };
-    let manifest = peers::write_manifest(&dir, &pairs, &sintel, repeat)?;
-    let mut report = SpeedReport::new(args, &sizes, repeat);
+    let manifest = peers::write_manifest(&dir, &pairs, &sintel, repeats)?;
+    let mut report = SpeedReport::new(args, &sizes, repeats);
     if wants("flow") && sintel.is_empty() {
         report.notes.push("flow: skipped, ../shared/data/sintel is absent".into());
     }
@@ -87,14 +93,14 @@ pub fn run(args: &SpeedArgs) -> anyhow::Result<()> {
         let bar = progress((pairs.len() + sintel.len()) as u64, &format!("bench-speed: ours, {threads} thread(s)"));
         let config = ours::registration_config()?;
         for pair in &pairs {
-            for (method, t) in ours::registration(pair, &config, &pool, repeat)? {
+            for (method, t) in ours::registration(pair, &config, &pool, repeats)? {
                 let peer = peer_rows.iter().find(|r| r.pair.as_deref() == Some(&pair.name) && r.method == method);
                 report.rows.push(Row::registration(&pair.name, &method, threads, t, peer, &pair.truth));
             }
             bar.inc(1);
         }
         for (case, _) in &sintel {
-            let t = ours::flow(&sintel_root(), case, &pool, repeat)?;
+            let t = ours::flow(&sintel_root(), case, &pool, repeats)?;
             let peer = peer_rows.iter().find(|r| r.case.as_deref() == Some(case));
             report.rows.push(Row::flow(case, threads, t, peer));
             bar.inc(1);
@@ -126,6 +132,9 @@ fn validate(args: &SpeedArgs) -> anyhow::Result<()> {
     }
     if args.repeat == Some(0) {
         anyhow::bail!("--repeat: at least 1 run expected, found 0");
+    }
+    if let Some(s) = args.min_seconds.filter(|s| !(s.is_finite() && *s >= 0.0)) {
+        anyhow::bail!("--min-seconds: a finite number of seconds, 0 or more, expected, found {s}");
     }
     for m in &args.methods {
         flowfilter_pipeline::registration::registrar_by_name(m, &Default::default())
@@ -210,6 +219,7 @@ mod tests {
             sizes: Some(vec![1500]),
             threads: vec![1, 2],
             repeat: Some(1),
+            min_seconds: None,
             methods: vec!["flowfilter".into()],
             python: "python3".into(),
             no_peers: false,
@@ -248,6 +258,8 @@ mod tests {
             (SpeedArgs { threads: vec![0], ..args(tmp.path()) }, "--threads"),
             (SpeedArgs { sizes: Some(vec![10]), ..args(tmp.path()) }, "--sizes"),
             (SpeedArgs { repeat: Some(0), ..args(tmp.path()) }, "--repeat"),
+            (SpeedArgs { min_seconds: Some(-1.0), ..args(tmp.path()) }, "--min-seconds"),
+            (SpeedArgs { min_seconds: Some(f64::NAN), ..args(tmp.path()) }, "--min-seconds"),
             (SpeedArgs { methods: vec!["gicp".into()], ..args(tmp.path()) }, "--methods"),
         ] {
             let e = run(&a).unwrap_err().to_string();
@@ -256,10 +268,39 @@ mod tests {
         assert!(std::fs::read_dir(tmp.path()).unwrap().next().is_none(), "nothing written");
     }
 
+    /// At least the asked runs; more only while under the budget, never past the cap.
+    #[test]
+    fn repeats_follow_the_minimum_the_budget_and_the_cap() {
+        let exact = ours::Repeats { min: 3, budget_s: 0.0 };
+        assert!(exact.again(2, 100.0) && !exact.again(3, 0.0));
+        assert!(ours::Repeats { min: 0, budget_s: 0.0 }.again(0, 0.0), "one run at least");
+        let budget = ours::Repeats { min: 3, budget_s: 1.0 };
+        assert!(budget.again(3, 0.5) && !budget.again(3, 1.0) && !budget.again(3, 2.0));
+        assert!(budget.again(ours::Repeats::MAX_RUNS - 1, 0.9) && !budget.again(ours::Repeats::MAX_RUNS, 0.0));
+        // Runs are counted by `fastest` itself: a 1 ms run under a 20 ms budget runs about 20 times.
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+        let mut calls = 0;
+        let (secs, ()) = ours::fastest(&pool, ours::Repeats { min: 2, budget_s: 0.02 }, || {
+            calls += 1;
+            std::thread::sleep(std::time::Duration::from_millis(1));
+            Ok(())
+        })
+        .unwrap();
+        assert!((2..=20).contains(&calls), "{calls}");
+        assert!(secs >= 0.001, "{secs}");
+        let mut calls = 0;
+        ours::fastest(&pool, exact, || {
+            calls += 1;
+            Ok(())
+        })
+        .unwrap();
+        assert_eq!(calls, 3);
+    }
+
     /// A check fails on a registration that ends far from the truth.
     #[test]
     fn the_check_refuses_a_wrong_pose() {
-        let mut report = SpeedReport::new(&args(Path::new("x")), &[1500], 1);
+        let mut report = SpeedReport::new(&args(Path::new("x")), &[1500], ours::Repeats { min: 1, budget_s: 0.0 });
         let t = ours::Timed { seconds: 0.1, error: 0.01, translation_m: Some(0.0), iterations: Some(3) };
         report.rows.push(Row::registration(
             "wavy-1500",

@@ -48,11 +48,13 @@ pub fn write_manifest(
     dir: &Path,
     pairs: &[CloudPair],
     sintel: &[(String, PathBuf)],
-    repeat: usize,
+    repeats: super::ours::Repeats,
 ) -> anyhow::Result<PathBuf> {
     let c = registration_config()?;
     let manifest = serde_json::json!({
-        "repeat": repeat,
+        "repeat": repeats.min,
+        "min_seconds": repeats.budget_s,
+        "max_runs": super::ours::Repeats::MAX_RUNS,
         "pairs": pairs.iter().map(|p| serde_json::json!({
             "name": p.name, "source": p.source, "target": p.target,
         })).collect::<Vec<_>>(),

@@ -116,8 +116,9 @@ pub struct SpeedReport {
     pub command: String,
     /// Source points of the registration pairs.
     pub sizes: Vec<usize>,
-    /// Runs per timing (fastest kept).
-    pub repeat: usize,
+    /// Runs per timing (fastest kept): at least `repeats.min`, then more while under
+    /// `repeats.budget_s` seconds in all.
+    pub repeats: super::ours::Repeats,
     /// Registration and flow rows.
     pub rows: Vec<Row>,
     /// The pipeline's pairs.
@@ -130,11 +131,11 @@ pub struct SpeedReport {
 
 impl SpeedReport {
     /// An empty report for these options.
-    pub fn new(args: &SpeedArgs, sizes: &[usize], repeat: usize) -> Self {
+    pub fn new(args: &SpeedArgs, sizes: &[usize], repeats: super::ours::Repeats) -> Self {
         Self {
             command: format!("cargo xtask bench-speed {}", std::env::args().skip(2).collect::<Vec<_>>().join(" ")),
             sizes: sizes.to_vec(),
-            repeat,
+            repeats,
             rows: vec![],
             pipeline_pairs: String::new(),
             pipeline: vec![],
@@ -153,8 +154,15 @@ impl SpeedReport {
 
     /// The tables.
     pub fn markdown(&self) -> String {
-        let mut s =
-            format!("# bench-speed\n\n`{}` (fastest of {} runs per timing)\n\n", self.command.trim(), self.repeat);
+        let runs = match self.repeats {
+            super::ours::Repeats { min, budget_s } if budget_s > 0.0 => format!(
+                "fastest of at least {min} run{} per timing, repeated while under {budget_s} s in all, at most {}",
+                if min == 1 { "" } else { "s" },
+                super::ours::Repeats::MAX_RUNS
+            ),
+            r => format!("fastest of {} run{} per timing", r.min, if r.min == 1 { "" } else { "s" }),
+        };
+        let mut s = format!("# bench-speed\n\n`{}` ({runs})\n\n", self.command.trim());
         for (section, unit) in [("registration", "deg"), ("flow", "EPE px")] {
             let rows: Vec<&Row> = self.rows.iter().filter(|r| r.section == section).collect();
             if rows.is_empty() {
