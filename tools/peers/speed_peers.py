@@ -41,7 +41,7 @@ from flow_opencv import read_flo  # noqa: E402  (the harness's .flo reader)
 LONG_RUN_S = 5.0
 
 
-def fastest(fn, repeat, min_seconds=0.0, max_runs=50):
+def fastest(fn, repeat, min_seconds, max_runs):
     """The last result and the fastest of the runs of `fn`: `repeat` runs (fewer when one takes
     over LONG_RUN_S), then more while the runs so far took under `min_seconds` in all, up to
     `max_runs`; the xtask times its own side by the same rule."""
@@ -133,8 +133,7 @@ def main():
     threads = int(os.environ.get("OMP_NUM_THREADS", "0")) or None
     if threads:
         cv2.setNumThreads(threads)
-    runs = {"repeat": manifest["repeat"], "min_seconds": manifest.get("min_seconds", 0.0),
-            "max_runs": manifest.get("max_runs", 50)}
+    runs = {k: manifest[k] for k in ("repeat", "min_seconds", "max_runs")}
     rows = []
     for pair in manifest["pairs"]:
         for row in registration_rows(pair, manifest["params"], runs):

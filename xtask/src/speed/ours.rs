@@ -73,6 +73,24 @@ impl Repeats {
     }
 }
 
+/// The rule in words, for the report's heading.
+impl std::fmt::Display for Repeats {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let runs = if self.min == 1 { "run" } else { "runs" };
+        if self.budget_s > 0.0 {
+            write!(
+                f,
+                "fastest of at least {} {runs} per timing, repeated while under {} s in all, at most {}",
+                self.min,
+                self.budget_s,
+                Self::MAX_RUNS
+            )
+        } else {
+            write!(f, "fastest of {} {runs} per timing", self.min)
+        }
+    }
+}
+
 /// Run `f` in `pool` as `repeats` says and keep the fastest run's seconds and result.
 pub fn fastest<T: Send>(
     pool: &rayon::ThreadPool,

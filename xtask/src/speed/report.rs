@@ -154,15 +154,7 @@ impl SpeedReport {
 
     /// The tables.
     pub fn markdown(&self) -> String {
-        let runs = match self.repeats {
-            super::ours::Repeats { min, budget_s } if budget_s > 0.0 => format!(
-                "fastest of at least {min} run{} per timing, repeated while under {budget_s} s in all, at most {}",
-                if min == 1 { "" } else { "s" },
-                super::ours::Repeats::MAX_RUNS
-            ),
-            r => format!("fastest of {} run{} per timing", r.min, if r.min == 1 { "" } else { "s" }),
-        };
-        let mut s = format!("# bench-speed\n\n`{}` ({runs})\n\n", self.command.trim());
+        let mut s = format!("# bench-speed\n\n`{}` ({})\n\n", self.command.trim(), self.repeats);
         for (section, unit) in [("registration", "deg"), ("flow", "EPE px")] {
             let rows: Vec<&Row> = self.rows.iter().filter(|r| r.section == section).collect();
             if rows.is_empty() {
