@@ -24,6 +24,7 @@ fn every_shipped_config_parses_and_builds_a_pipeline() {
         ("cpd-full-cloud", "cpd"),
         ("filterreg", "filterreg-pt2pt"),
         ("flowfilter", "flowfilter"),
+        ("flowfilter-fast", "flowfilter"),
         ("icp", "icp-pt2pl"),
     ]
     .map(|(f, m)| (f.to_string(), m.to_string()));

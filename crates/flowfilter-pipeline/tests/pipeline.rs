@@ -107,3 +107,21 @@ fn the_prepared_path_equals_the_direct_one() {
     let prepared = p.estimate_prepared(&p.prepare(&a).unwrap(), &p.prepare(&b).unwrap()).unwrap();
     assert_eq!(direct.transform, prepared.transform);
 }
+
+/// `configs/flowfilter-fast.toml` (one flow pass, coarser clouds, a one-way alignment) still
+/// recovers turntable steps of 15 and 30 degrees to within a degree.
+#[test]
+fn the_fast_preset_recovers_turntable_steps() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/flowfilter-fast.toml");
+    let config = PipelineConfig::from_file(&path).unwrap();
+    assert!(!config.flow.guided && !config.align.symmetric, "the preset's own settings");
+    let fast = Pipeline::from_config(config).unwrap();
+    let (rig, scene) = (Rig::bigbird_like(), box_scene());
+    for step in [15, 30] {
+        let (a, b) = (frame(&scene, &rig, 3, 0), frame(&scene, &rig, 3, step));
+        let e = fast.estimate(&a, &b).unwrap();
+        let errors = PoseErrors::new(&e.pose, &truth(&rig, 3, 0, step), None);
+        assert!(errors.angle_error_deg < 1.0 && errors.translation_error_m < 0.005, "step {step}: {errors:?}");
+        assert!(!e.correspondences.expect("flow ran").guided, "one flow pass");
+    }
+}

@@ -45,6 +45,11 @@ pub struct SpeedArgs {
     /// Pipeline methods timed on the default benchmark's frames.
     #[arg(long, value_delimiter = ',', default_value = "flowfilter,filterreg-pt2pt,icp-pt2pl,cpd")]
     pub methods: Vec<String>,
+    /// The pipeline configuration of the pipeline section (TOML, as `flowfilter estimate
+    /// --config` reads it; each of `--methods` replaces its `method`) [default: the protocol's,
+    /// configs/flowfilter.toml].
+    #[arg(long)]
+    pub pipeline: Option<PathBuf>,
     /// The Python with the peers installed (`pip install -r tools/peers/requirements.txt`).
     #[arg(long, default_value = "python3")]
     pub python: String,
@@ -140,6 +145,9 @@ fn validate(args: &SpeedArgs) -> anyhow::Result<()> {
         flowfilter_pipeline::registration::registrar_by_name(m, &Default::default())
             .map_err(|e| anyhow::anyhow!("--methods: {e}"))?;
     }
+    if let Some(p) = &args.pipeline {
+        flowfilter_pipeline::PipelineConfig::from_file(p).map_err(|e| anyhow::anyhow!("--pipeline: {e}"))?;
+    }
     Ok(())
 }
 
@@ -189,9 +197,12 @@ fn pipeline_rows(args: &SpeedArgs) -> anyhow::Result<(String, Vec<PipelineRow>)>
     if args.quick {
         protocol.base_angles.truncate(1);
     }
-    let base = match &protocol.pipeline {
-        Some(p) => flowfilter_pipeline::PipelineConfig::from_file(&crate::repo_root().join(p))?,
-        None => Default::default(),
+    let (base, origin) = match (&args.pipeline, &protocol.pipeline) {
+        (Some(p), _) => (flowfilter_pipeline::PipelineConfig::from_file(p)?, p.display().to_string()),
+        (None, Some(p)) => {
+            (flowfilter_pipeline::PipelineConfig::from_file(&crate::repo_root().join(p))?, p.display().to_string())
+        }
+        (None, None) => (Default::default(), "the defaults".to_string()),
     };
     let pairs = pipeline::load(&protocol, &angles, args.quick)?;
     let mut rows = vec![];
@@ -206,7 +217,7 @@ fn pipeline_rows(args: &SpeedArgs) -> anyhow::Result<(String, Vec<PipelineRow>)>
         }
     }
     bar.finish();
-    Ok((pairs.description, rows))
+    Ok((format!("{}; pipeline configuration: {origin}", pairs.description), rows))
 }
 
 #[cfg(test)]
@@ -221,6 +232,7 @@ mod tests {
             repeat: Some(1),
             min_seconds: None,
             methods: vec!["flowfilter".into()],
+            pipeline: None,
             python: "python3".into(),
             no_peers: false,
             sections: vec!["registration".into()],
@@ -261,6 +273,7 @@ mod tests {
             (SpeedArgs { min_seconds: Some(-1.0), ..args(tmp.path()) }, "--min-seconds"),
             (SpeedArgs { min_seconds: Some(f64::NAN), ..args(tmp.path()) }, "--min-seconds"),
             (SpeedArgs { methods: vec!["gicp".into()], ..args(tmp.path()) }, "--methods"),
+            (SpeedArgs { pipeline: Some(tmp.path().join("absent.toml")), ..args(tmp.path()) }, "absent.toml"),
         ] {
             let e = run(&a).unwrap_err().to_string();
             assert!(e.contains(want), "{e}");
@@ -295,6 +308,35 @@ mod tests {
         })
         .unwrap();
         assert_eq!(calls, 3);
+    }
+
+    /// `--pipeline` replaces the protocol's configuration: with the judge and the alignment
+    /// off, neither stage takes any time, and the report names the file.
+    #[test]
+    fn the_pipeline_section_runs_the_given_configuration() {
+        let tmp = tempfile::tempdir().unwrap();
+        let config = tmp.path().join("no-judge-no-align.toml");
+        std::fs::write(&config, "[judge]\nenabled = false\n[align]\nenabled = false\n").unwrap();
+        let out = tmp.path().join("out");
+        let a = SpeedArgs {
+            sections: vec!["pipeline".into()],
+            threads: vec![1],
+            no_peers: true,
+            pipeline: Some(config.clone()),
+            ..args(&out)
+        };
+        run(&a).unwrap();
+        let dir = std::fs::read_dir(&out).unwrap().next().unwrap().unwrap().path();
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("speed.json")).unwrap()).unwrap();
+        let rows = v["pipeline"].as_array().unwrap();
+        assert_eq!(rows.len(), 1, "{rows:?}");
+        let stage_ms = rows[0]["stage_ms"].as_array().unwrap();
+        let ms: Vec<f64> = stage_ms.iter().map(|x| x.as_f64().unwrap()).collect();
+        assert!(ms[1] > 0.0 && ms[3] > 0.0, "flow and registration ran: {ms:?}");
+        // Off, the judge and the alignment only read a clock (microseconds).
+        assert!(ms[4] + ms[5] < 0.01 * ms[3], "judge and alignment off: {ms:?}");
+        assert!(v["pipeline_pairs"].as_str().unwrap().contains("no-judge-no-align.toml"), "{v}");
     }
 
     /// A check fails on a registration that ends far from the truth.
