@@ -6,7 +6,7 @@ use crate::dataset::{embedded_objects, ensure_default_object};
 use crate::pairs::{Methods, PairJob, PairResult, RunArgs, progress};
 use crate::report::{ReportSpec, ShardRun, write_outputs};
 use crate::shard::Shard;
-use crate::{dir_name, repo_root};
+use crate::{dir_name, in_repo};
 use anyhow::{Context, bail};
 use clap::Args;
 use flowfilter_bigbird::{BigBirdObject, FrameId, SensorId};
@@ -81,10 +81,7 @@ impl Protocol {
 
     /// The pipeline configuration of each method.
     fn method_configs(&self, voxel: Option<f64>) -> anyhow::Result<Vec<PipelineConfig>> {
-        let load = |p: &Path| -> anyhow::Result<PipelineConfig> {
-            let path = if p.is_absolute() { p.to_path_buf() } else { repo_root().join(p) };
-            Ok(PipelineConfig::from_file(&path)?)
-        };
+        let load = |p: &Path| -> anyhow::Result<PipelineConfig> { Ok(PipelineConfig::from_file(&in_repo(p))?) };
         let base = self.pipeline.as_deref().map(load).transpose()?.unwrap_or_default();
         self.methods
             .iter()
@@ -301,7 +298,7 @@ mod tests {
         let data = tmp.path().join("data");
         std::fs::create_dir_all(data.join("broken_object")).unwrap();
         std::fs::write(data.join("broken_object/calibration.h5"), b"not hdf5").unwrap();
-        let fixture = repo_root().join("fixtures/bigbird/latest/tiny_spheres");
+        let fixture = crate::repo_root().join("fixtures/bigbird/latest/tiny_spheres");
         let good = data.join("tiny_spheres");
         std::fs::create_dir_all(&good).unwrap();
         for entry in walk(&fixture) {

@@ -13,7 +13,7 @@ use crate::pairs::{Methods, PairJob, PairResult, RunArgs, progress};
 use crate::report::{ReportSpec, ShardRun, write_outputs};
 use crate::sequence::{Sequence, is_sequence, open_sequence};
 use crate::shard::Shard;
-use crate::{dir_name, repo_root};
+use crate::{dir_name, in_repo};
 use anyhow::{Context, bail};
 use clap::Args;
 use flowfilter_bigbird::SensorId;
@@ -149,8 +149,7 @@ pub fn run(args: &BopBenchArgs) -> anyhow::Result<()> {
 
 /// One pipeline configuration per method.
 fn method_configs(args: &BopBenchArgs) -> anyhow::Result<Vec<PipelineConfig>> {
-    let path = if args.pipeline.is_absolute() { args.pipeline.clone() } else { repo_root().join(&args.pipeline) };
-    let base = PipelineConfig::from_file(&path)?;
+    let base = PipelineConfig::from_file(&in_repo(&args.pipeline))?;
     args.methods
         .iter()
         .map(|m| {
@@ -216,7 +215,7 @@ fn scene_jobs(
 
 /// Where the embedded dataset is cached.
 fn default_root(quick: bool) -> PathBuf {
-    Path::new("target").join(if quick { "bop-quick" } else { "bop-default" }).join("test")
+    in_repo(&Path::new("target").join(if quick { "bop-quick" } else { "bop-default" }).join("test"))
 }
 
 /// The run's scenes: every scene (labels, in order), this shard's folders, and the object names
@@ -344,8 +343,8 @@ mod tests {
     fn bop_scenes_run_pair_by_pair_and_broken_scenes_are_skipped() {
         let tmp = tempfile::tempdir().unwrap();
         let data = tmp.path().join("test");
-        copy_dir(&repo_root().join("fixtures/bop/000001"), &data.join("000001"));
-        copy_dir(&repo_root().join("fixtures/bop/000001"), &data.join("000002"));
+        copy_dir(&crate::repo_root().join("fixtures/bop/000001"), &data.join("000001"));
+        copy_dir(&crate::repo_root().join("fixtures/bop/000001"), &data.join("000002"));
         std::fs::remove_file(data.join("000002/scene_camera.json")).unwrap();
         let out = tmp.path().join("results");
         run(&args(data.clone(), out.clone())).unwrap();
@@ -390,7 +389,7 @@ mod real_frames {
     /// label masks, the frames' own `-gt.json` as camera and ground truth, object names from it.
     #[test]
     fn ycb_video_frames_run_as_a_sequence() {
-        let data = repo_root().join("../shared/data/ycb-video/0001");
+        let data = crate::repo_root().join("../shared/data/ycb-video/0001");
         if !data.is_dir() {
             eprintln!("skipping: {} is absent (the shared data sits beside the repository)", data.display());
             return;

@@ -94,7 +94,7 @@ pub const DEFAULT_DATASET_SEED: u64 = 7;
 /// [`ensure_object`] in the default dataset's cache, with its seed: one cache serves every
 /// benchmark that asks for the same cameras and angles.
 pub fn ensure_default_object(object: &DefaultObject, sensors: &[SensorId], angles: &[u32]) -> anyhow::Result<PathBuf> {
-    ensure_object(Path::new(DEFAULT_DATASET_ROOT), object, sensors, angles, DEFAULT_DATASET_SEED)
+    ensure_object(&crate::in_repo(Path::new(DEFAULT_DATASET_ROOT)), object, sensors, angles, DEFAULT_DATASET_SEED)
 }
 
 /// Make sure `root/<object>` holds a capture with at least `sensors` x `angles`; synthesise it

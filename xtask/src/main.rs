@@ -75,6 +75,13 @@ pub(crate) fn repo_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
+/// `path` as given when absolute, else under the repository root: what a protocol or a
+/// `--pipeline` option names, and where the embedded datasets are cached, whatever the working
+/// directory (`cargo test -p xtask` runs in `xtask/`).
+pub(crate) fn in_repo(path: &Path) -> PathBuf {
+    if path.is_absolute() { path.to_path_buf() } else { repo_root().join(path) }
+}
+
 /// A directory's last component (an object's or a scene's name in the results).
 pub(crate) fn dir_name(dir: &Path) -> String {
     dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default()

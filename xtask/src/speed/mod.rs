@@ -46,7 +46,8 @@ pub struct SpeedArgs {
     #[arg(long, value_delimiter = ',', default_value = "flowfilter,filterreg-pt2pt,icp-pt2pl,cpd")]
     pub methods: Vec<String>,
     /// The pipeline configuration of the pipeline section (TOML, as `flowfilter estimate
-    /// --config` reads it; each of `--methods` replaces its `method`) [default: the protocol's,
+    /// --config` reads it; a relative path is taken from the repository root, as `bench-bop`'s;
+    /// each of `--methods` replaces its `method`) [default: the protocol's,
     /// configs/flowfilter.toml].
     #[arg(long)]
     pub pipeline: Option<PathBuf>,
@@ -146,7 +147,8 @@ fn validate(args: &SpeedArgs) -> anyhow::Result<()> {
             .map_err(|e| anyhow::anyhow!("--methods: {e}"))?;
     }
     if let Some(p) = &args.pipeline {
-        flowfilter_pipeline::PipelineConfig::from_file(p).map_err(|e| anyhow::anyhow!("--pipeline: {e}"))?;
+        flowfilter_pipeline::PipelineConfig::from_file(&crate::in_repo(p))
+            .map_err(|e| anyhow::anyhow!("--pipeline: {e}"))?;
     }
     Ok(())
 }
@@ -197,12 +199,9 @@ fn pipeline_rows(args: &SpeedArgs) -> anyhow::Result<(String, Vec<PipelineRow>)>
     if args.quick {
         protocol.base_angles.truncate(1);
     }
-    let (base, origin) = match (&args.pipeline, &protocol.pipeline) {
-        (Some(p), _) => (flowfilter_pipeline::PipelineConfig::from_file(p)?, p.display().to_string()),
-        (None, Some(p)) => {
-            (flowfilter_pipeline::PipelineConfig::from_file(&crate::repo_root().join(p))?, p.display().to_string())
-        }
-        (None, None) => (Default::default(), "the defaults".to_string()),
+    let (base, origin) = match args.pipeline.as_ref().or(protocol.pipeline.as_ref()) {
+        Some(p) => (flowfilter_pipeline::PipelineConfig::from_file(&crate::in_repo(p))?, p.display().to_string()),
+        None => (Default::default(), "the defaults".to_string()),
     };
     let pairs = pipeline::load(&protocol, &angles, args.quick)?;
     let mut rows = vec![];
