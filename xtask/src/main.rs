@@ -21,6 +21,7 @@ static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
 mod bench;
 mod bench_bop;
+mod bench_real;
 mod dataset;
 mod deps;
 mod merge;
@@ -28,6 +29,7 @@ mod mutate;
 mod pairs;
 mod plots;
 mod publish_check;
+mod realsense;
 mod report;
 mod sequence;
 mod shard;
@@ -52,6 +54,10 @@ enum Command {
     /// Run the relative-pose benchmark on BOP scenes (a BOP dataset, or the embedded synthetic
     /// scenes) and write results/<timestamp>/.
     BenchBop(bench_bop::BopBenchArgs),
+    /// Run the relative-pose benchmark on real RGB-D sequences with calibrated camera poses
+    /// (default: ../shared/data/realsense-shelf): whole frames and region objects with a
+    /// segmentation network's masks, and write results/<timestamp>/.
+    BenchReal(bench_real::RealBenchArgs),
     /// Merge the shards of a sharded benchmark run (`--shard K/N`) into the outputs one
     /// process would have written.
     BenchMerge(merge::MergeArgs),
@@ -95,6 +101,7 @@ fn main() -> ExitCode {
     let result = match Cli::parse().command {
         Command::BenchBigbird(args) => bench::run(&args),
         Command::BenchBop(args) => bench_bop::run(&args),
+        Command::BenchReal(args) => bench_real::run(&args),
         Command::BenchMerge(args) => merge::run(&args),
         Command::BenchSpeed(args) => speed::run(&args),
         Command::PublishCheck(args) => publish_check::run(&args),

@@ -10,6 +10,7 @@
 #![warn(missing_docs)]
 
 mod buffers;
+pub mod coarse_search;
 pub mod correspondences;
 pub mod dis;
 pub mod estimator;

@@ -3,6 +3,7 @@
 
 use crate::error::PipelineError;
 use flowfilter_depth::DepthConfig;
+use flowfilter_flow::coarse_search::CoarseSearchParams;
 use flowfilter_flow::correspondences::CorrespondenceParams;
 use flowfilter_flow::dis::{DisParams, SearchGradients};
 use flowfilter_flow::{FlowError, FlowEstimator, LucasKanade, flow_estimator_by_name};
@@ -51,6 +52,53 @@ pub struct FlowStageConfig {
     pub dis: DisParams,
     /// Correspondence search and rejection.
     pub correspondences: CorrespondenceParams,
+    /// The wide-baseline guide: where the region went when it moved beyond the pyramid's reach.
+    pub wide: WideBaselineConfig,
+}
+
+/// The wide-baseline guide (`[flow.wide]`): a coarse search for where the model's region went
+/// in the target image ([`flowfilter_flow::coarse_search`]); when it moved further than
+/// `min_motion_px`, the region is tracked again from there (one more candidate set of pairs
+/// for the registration's RANSAC).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct WideBaselineConfig {
+    /// Run the search.
+    pub enabled: bool,
+    /// Track again from the search's answer only when it moves the region's pixels this far
+    /// on average (pixels): nearer motions are within the pyramid's reach.
+    pub min_motion_px: f64,
+    /// The search's parameters.
+    pub search: CoarseSearchParams,
+}
+
+impl Default for WideBaselineConfig {
+    fn default() -> Self {
+        Self { enabled: true, min_motion_px: 24.0, search: CoarseSearchParams::default() }
+    }
+}
+
+impl WideBaselineConfig {
+    /// Check ranges.
+    fn validate(&self) -> Result<(), String> {
+        let s = &self.search;
+        let ok = self.min_motion_px >= 0.0
+            && (1..=6).contains(&s.level)
+            && s.max_pixels >= 16
+            && s.turn_step_deg >= 0.0
+            && s.max_turn_deg >= 0.0
+            && s.max_turn_deg <= 180.0
+            && (0.0..=1.0).contains(&s.min_overlap)
+            && (-1.0..=1.0).contains(&s.min_score);
+        if ok {
+            Ok(())
+        } else {
+            Err(format!(
+                "min_motion_px >= 0, search.level in 1..=6, search.max_pixels >= 16, turns >= 0 (at most 180 deg), \
+                 min_overlap in [0, 1] and min_score in [-1, 1] required, found {self:?}"
+            ))
+        }
+    }
 }
 
 impl Default for FlowStageConfig {
@@ -65,6 +113,7 @@ impl Default for FlowStageConfig {
             // on turntable pairs (mean EPE 1.46 against 1.62).
             dis: DisParams { search_gradients: SearchGradients::Central, ..DisParams::default() },
             correspondences: CorrespondenceParams::default(),
+            wide: WideBaselineConfig::default(),
         }
     }
 }
@@ -150,6 +199,7 @@ impl PipelineConfig {
         self.flow.lk.validate().map_err(|e| format!("table [flow.lk]: {e}"))?;
         self.flow.dis.validate().map_err(|e| format!("table [flow.dis]: {e}"))?;
         self.flow.correspondences.validate().map_err(|e| format!("table [flow.correspondences]: {e}"))?;
+        self.flow.wide.validate().map_err(|e| format!("table [flow.wide]: {e}"))?;
         self.judge.validate().map_err(|e| e.within("judge").to_string())?;
         self.align.validate().map_err(|e| e.within("align").to_string())?;
         self.registration.validate().map_err(|e| e.within("registration").to_string())

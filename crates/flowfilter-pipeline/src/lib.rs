@@ -34,9 +34,10 @@ mod pipeline;
 mod source;
 mod stages;
 mod warning;
+mod wide;
 
 pub use align::{AlignConfig, AlignReport};
-pub use config::{CloudPrepConfig, FlowStageConfig, PipelineConfig};
+pub use config::{CloudPrepConfig, FlowStageConfig, PipelineConfig, WideBaselineConfig};
 pub use error::PipelineError;
 pub use estimate::{
     CorrespondenceSummary, ESTIMATE_SCHEMA, Estimate, GroundTruth, REGISTER_SCHEMA, RegisterReport, RegisterTimes,

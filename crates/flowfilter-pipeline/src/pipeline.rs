@@ -236,6 +236,11 @@ impl Pipeline {
         problem: &mut RegistrationProblem,
     ) -> Result<FoundSets, PipelineError> {
         let mut sets = vec![finder.find(model, target)?];
+        // The region tracked again from where a coarse search finds it, when it moved beyond
+        // the pyramid's reach: one more candidate set for the registration's RANSAC.
+        if let Some(guide) = crate::wide::wide_guide(model, target, &self.config.flow.wide) {
+            sets.push(finder.find_guided(model, target, &guide)?);
+        }
         if self.config.flow.guided
             && let Some(prior) = self.registrar.prior(problem)?
         {

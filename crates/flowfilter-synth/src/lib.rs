@@ -18,6 +18,7 @@ mod capture;
 mod effects;
 mod error;
 mod mesh;
+mod network_mask;
 mod noise;
 mod procedural;
 mod rig;
@@ -33,6 +34,7 @@ pub use capture::{
 pub use effects::{FrameDraw, FrameEffects};
 pub use error::SynthError;
 pub use mesh::TexturedMesh;
+pub use network_mask::{MaskDefects, NetworkMaskModel, grown};
 pub use noise::{CARMINE_TOML, ColorNoise, DepthNoise, DepthNoiseTruth, NoiseProfile};
 pub use procedural::{PROCEDURAL_NAMES, procedural};
 pub use rig::{Rig, RigSensor, look_at, world_from_table};

@@ -1,0 +1,256 @@
+//! Where a masked region of one image went in another when it moved further than the flow's
+//! pyramid reaches (100-250 px between frames of a moving camera): an exhaustive search over
+//! image shifts and turns about the optical axis on a coarse pyramid level, scored by the
+//! zero-mean normalised cross-correlation of the region's grey values (so an exposure or
+//! white-balance change does not count), then refined one level finer.
+//!
+//! The answer is a guide for tracking, not a result: the pipeline turns it into a predicted
+//! motion and tracks the region's pixels again from there, and the registration's RANSAC
+//! decides between that set of pairs and the others.
+
+use crate::lk::{Gray, downsample};
+use flowfilter_geometry::Mask;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// Parameters of the coarse search.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CoarseSearchParams {
+    /// Pyramid level of the exhaustive search (3: 1/8 resolution).
+    pub level: usize,
+    /// At most this many region pixels are compared (evenly thinned): the search's cost is
+    /// bounded by this budget, not by the region's area.
+    pub max_pixels: usize,
+    /// Turns about the optical axis tried on either side of none, degrees (each step).
+    pub turn_step_deg: f64,
+    /// ...up to this turn, degrees.
+    pub max_turn_deg: f64,
+    /// A placement counts when at least this fraction of the region's pixels lands inside the
+    /// target image.
+    pub min_overlap: f64,
+    /// The best placement is trusted when its correlation is at least this.
+    pub min_score: f64,
+}
+
+impl Default for CoarseSearchParams {
+    fn default() -> Self {
+        Self { level: 3, max_pixels: 700, turn_step_deg: 10.0, max_turn_deg: 30.0, min_overlap: 0.5, min_score: 0.5 }
+    }
+}
+
+/// Where the region went: a turn by `turn_rad` about `centre` (model image, full resolution),
+/// then a shift by `shift` (pixels): `x' = centre + shift + R(turn) (x - centre)`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CoarseMatch {
+    /// The region's centre in the model image (pixels).
+    pub centre: [f64; 2],
+    /// Where the centre went, less the centre (pixels).
+    pub shift: [f64; 2],
+    /// Turn of the image about the centre (radians, image x towards y).
+    pub turn_rad: f64,
+    /// Zero-mean normalised cross-correlation of the placement, in [-1, 1].
+    pub score: f64,
+}
+
+impl CoarseMatch {
+    /// Where model pixel `(x, y)` goes.
+    pub fn apply(&self, x: f64, y: f64) -> [f64; 2] {
+        let (s, c) = self.turn_rad.sin_cos();
+        let (dx, dy) = (x - self.centre[0], y - self.centre[1]);
+        [self.centre[0] + self.shift[0] + c * dx - s * dy, self.centre[1] + self.shift[1] + s * dx + c * dy]
+    }
+}
+
+/// The region's pixels at one level: offsets from their centre and grey values.
+struct Template {
+    centre: [f64; 2],
+    offsets: Vec<[f32; 2]>,
+    values: Vec<f32>,
+}
+
+impl Template {
+    /// The masked pixels of level `level`'s image (a pixel is in the region when the full
+    /// resolution pixel it samples is: level `l`'s pixel `x` is pixel `x * 2^l`), evenly thinned to `max_pixels`.
+    fn new(image: &Gray, mask: &Mask, level: usize, max_pixels: usize) -> Option<Self> {
+        let s = 1usize << level;
+        let (w, h) = image.dims();
+        let (mw, mh) = mask.dims();
+        let mut pixels = vec![];
+        for y in 0..h {
+            for x in 0..w {
+                let (fx, fy) = ((x * s).min(mw - 1), (y * s).min(mh - 1));
+                if *mask.at(fx, fy) {
+                    pixels.push((x, y));
+                }
+            }
+        }
+        if pixels.len() < 16 {
+            return None;
+        }
+        let keep = pixels.len().div_ceil(max_pixels.max(16));
+        let kept: Vec<(usize, usize)> = pixels.into_iter().step_by(keep).collect();
+        let n = kept.len() as f64;
+        let cx = kept.iter().map(|p| p.0 as f64).sum::<f64>() / n;
+        let cy = kept.iter().map(|p| p.1 as f64).sum::<f64>() / n;
+        Some(Self {
+            centre: [cx, cy],
+            offsets: kept.iter().map(|&(x, y)| [(x as f64 - cx) as f32, (y as f64 - cy) as f32]).collect(),
+            values: kept.iter().map(|&(x, y)| *image.at(x, y)).collect(),
+        })
+    }
+
+    /// Correlation of the template turned by `turn` and centred at `(u, v)` in `target`
+    /// (nearest samples), when enough of it lands inside.
+    fn score(&self, target: &Gray, (u, v): (f64, f64), (sin, cos): (f32, f32), min_overlap: f64) -> Option<f64> {
+        let (w, h) = target.dims();
+        let data = target.as_slice();
+        let (mut n, mut sm, mut st, mut smm, mut stt, mut smt) = (0usize, 0.0f64, 0.0f64, 0.0f64, 0.0f64, 0.0f64);
+        let (u, v) = (u as f32, v as f32);
+        for (o, &m) in self.offsets.iter().zip(&self.values) {
+            let x = u + cos * o[0] - sin * o[1];
+            let y = v + sin * o[0] + cos * o[1];
+            let (xi, yi) = ((x + 0.5).floor(), (y + 0.5).floor());
+            if xi < 0.0 || yi < 0.0 || xi >= w as f32 || yi >= h as f32 {
+                continue;
+            }
+            let t = data[yi as usize * w + xi as usize];
+            let (m, t) = (f64::from(m), f64::from(t));
+            n += 1;
+            sm += m;
+            st += t;
+            smm += m * m;
+            stt += t * t;
+            smt += m * t;
+        }
+        if (n as f64) < min_overlap * self.offsets.len() as f64 || n < 16 {
+            return None;
+        }
+        let nf = n as f64;
+        let (vm, vt) = (smm - sm * sm / nf, stt - st * st / nf);
+        if vm <= 1e-9 || vt <= 1e-9 {
+            return None;
+        }
+        Some((smt - sm * st / nf) / (vm * vt).sqrt())
+    }
+}
+
+/// The image at pyramid level `level` (0: itself).
+fn level_of(image: &Gray, level: usize) -> Gray {
+    (0..level).fold(image.clone(), |img, _| downsample(&img))
+}
+
+/// The best placement of `template` in `target` over `centres` and `turns` (radians): score,
+/// centre, turn. Ties go to the first in order (the same answer with any thread count).
+fn best_placement(
+    template: &Template,
+    target: &Gray,
+    centres: &[(f64, f64)],
+    turns: &[f64],
+    min_overlap: f64,
+) -> Option<(f64, (f64, f64), f64)> {
+    let work: Vec<(usize, usize)> = (0..turns.len()).flat_map(|t| (0..centres.len()).map(move |c| (t, c))).collect();
+    work.par_iter()
+        .with_min_len(64)
+        .filter_map(|&(t, c)| {
+            let (s, co) = turns[t].sin_cos();
+            template.score(target, centres[c], (s as f32, co as f32), min_overlap).map(|sc| (sc, t, c))
+        })
+        .reduce_with(|a, b| if b.0 > a.0 || (b.0 == a.0 && (b.1, b.2) < (a.1, a.2)) { b } else { a })
+        .map(|(sc, t, c)| (sc, centres[c], turns[t]))
+}
+
+/// Where the `mask`ed region of `model` went in `target` (see the module documentation);
+/// `None` when the region is too small at the search's level or no placement correlates at
+/// least [`CoarseSearchParams::min_score`].
+pub fn coarse_search(model: &Gray, mask: &Mask, target: &Gray, p: &CoarseSearchParams) -> Option<CoarseMatch> {
+    let level = p.level.max(1);
+    let (coarse_model, coarse_target) = (level_of(model, level), level_of(target, level));
+    let template = Template::new(&coarse_model, mask, level, p.max_pixels)?;
+    let steps = if p.turn_step_deg > 0.0 { (p.max_turn_deg / p.turn_step_deg).floor() as i64 } else { 0 };
+    let turns: Vec<f64> = (-steps..=steps).map(|k| (k as f64 * p.turn_step_deg).to_radians()).collect();
+    let (w, h) = coarse_target.dims();
+    let centres: Vec<(f64, f64)> = (0..h).flat_map(|y| (0..w).map(move |x| (x as f64, y as f64))).collect();
+    let (_, (u, v), turn) = best_placement(&template, &coarse_target, &centres, &turns, p.min_overlap)?;
+    // One level finer: +-3 px around the coarse placement, the turn within half a step.
+    let finer = level - 1;
+    let (fine_model, fine_target) = (level_of(model, finer), level_of(target, finer));
+    let fine = Template::new(&fine_model, mask, finer, p.max_pixels * 2)?;
+    // Level `finer`'s coordinates of the coarse placement's centre: the fine template's centre
+    // goes where the coarse match sends it.
+    let s = 2.0;
+    let to_fine = |c: [f64; 2]| [c[0] * s, c[1] * s];
+    let coarse_centre = to_fine(template.centre);
+    let (sin, cos) = turn.sin_cos();
+    let d = [fine.centre[0] - coarse_centre[0], fine.centre[1] - coarse_centre[1]];
+    let guess = [u * s + cos * d[0] - sin * d[1], v * s + sin * d[0] + cos * d[1]];
+    let near: Vec<(f64, f64)> =
+        (-3..=3).flat_map(|j| (-3..=3).map(move |i| (guess[0] + f64::from(i), guess[1] + f64::from(j)))).collect();
+    let half = p.turn_step_deg.to_radians() / 2.0;
+    let fine_turns = [turn - half / 2.0, turn, turn + half / 2.0];
+    let (score, (fu, fv), fturn) = best_placement(&fine, &fine_target, &near, &fine_turns, p.min_overlap)?;
+    if score < p.min_score {
+        return None;
+    }
+    let scale = f64::from(1u32 << finer);
+    let full = |c: f64| c * scale;
+    let centre = [full(fine.centre[0]), full(fine.centre[1])];
+    Some(CoarseMatch { centre, shift: [full(fu) - centre[0], full(fv) - centre[1]], turn_rad: fturn, score })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A smooth random-looking texture.
+    fn texture(w: usize, h: usize, phase: f64) -> impl Fn(f64, f64) -> f32 {
+        move |x: f64, y: f64| {
+            let _ = (w, h);
+            let v = (x * 0.071 + phase).sin() * (y * 0.053).cos()
+                + 0.6 * (x * 0.023 - y * 0.041).sin()
+                + 0.4 * ((x + y) * 0.11).cos() * (x * 0.017).sin();
+            (0.5 + 0.2 * v) as f32
+        }
+    }
+
+    #[test]
+    fn finds_a_region_moved_far_and_turned_under_an_exposure_change() {
+        let (w, h) = (320, 240);
+        let tex = texture(w, h, 0.3);
+        let model = Gray::from_fn(w, h, |x, y| tex(x as f64, y as f64));
+        let mask = Mask::from_fn(w, h, |x, y| (x as f64 - 110.0).powi(2) + (y as f64 - 100.0).powi(2) < 45.0 * 45.0);
+        for (shift, turn_deg) in [([120.0, 60.0], 0.0), ([150.0, -40.0], 12.0), ([-90.0, 70.0], -20.0)] {
+            let truth = CoarseMatch { centre: [110.0, 100.0], shift, turn_rad: f64::to_radians(turn_deg), score: 1.0 };
+            // Target: the model warped by the inverse of the motion, 30% brighter.
+            let inv = |x: f64, y: f64| {
+                let (s, c) = truth.turn_rad.sin_cos();
+                let (dx, dy) = (x - 110.0 - shift[0], y - 100.0 - shift[1]);
+                (110.0 + c * dx + s * dy, 100.0 - s * dx + c * dy)
+            };
+            let target = Gray::from_fn(w, h, |x, y| {
+                let (u, v) = inv(x as f64, y as f64);
+                1.3 * tex(u, v) - 0.1
+            });
+            let found = coarse_search(&model, &mask, &target, &CoarseSearchParams::default()).expect("found");
+            for (x, y) in [(110.0, 100.0), (140.0, 120.0), (80.0, 80.0)] {
+                let (a, b) = (found.apply(x, y), truth.apply(x, y));
+                let e = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt();
+                assert!(e < 6.0, "{shift:?} {turn_deg}: ({x}, {y}) -> {a:?}, truth {b:?}");
+            }
+            assert!(found.score > 0.8, "{}", found.score);
+        }
+    }
+
+    #[test]
+    fn a_flat_region_or_an_unrelated_image_gives_no_match() {
+        let (w, h) = (320, 240);
+        let tex = texture(w, h, 0.0);
+        let mask = Mask::from_fn(w, h, |x, y| (60..140).contains(&x) && (60..140).contains(&y));
+        let flat = Gray::filled(w, h, 0.5);
+        assert!(coarse_search(&flat, &mask, &flat, &CoarseSearchParams::default()).is_none());
+        let model = Gray::from_fn(w, h, |x, y| tex(x as f64, y as f64));
+        let noise = Gray::from_fn(w, h, |x, y| ((x * 7919 + y * 104_729) % 97) as f32 / 97.0);
+        let m = coarse_search(&model, &mask, &noise, &CoarseSearchParams::default());
+        assert!(m.is_none(), "{m:?}");
+    }
+}

@@ -1,0 +1,445 @@
+//! `cargo xtask bench-real`: real RGB-D sequences with calibrated camera poses (a folder of
+//! frames with `poses.json` and `camera.json`, or a folder of such folders: by default
+//! `../shared/data/realsense-shelf`), frame `i` against frame `i + gap`, as a whole frame and as
+//! region "objects" with the masks a segmentation network gives, every method beside the
+//! "no motion" answer.
+//!
+//! The scene is static, so the truth of every region is the camera's motion
+//! ([`crate::realsense`]). Per pair, `--regions` balls of the scene seen in both frames are
+//! drawn from a seed; each frame's mask of a region is its true mask with the defects of
+//! [`NetworkMaskModel::SHELF_NETWORK`] drawn from a seed per frame and region (eroded or
+//! dilated, shifted, cut, bleeding onto the background).
+
+use crate::pairs::{Methods, PairJob, PairResult, RunArgs};
+use crate::realsense::{PosedFrames, Region, is_posed_folder, network_mask};
+use crate::report::{ReportSpec, ShardRun, write_outputs};
+use crate::shard::Shard;
+use crate::{dir_name, in_repo};
+use anyhow::{Context, bail};
+use clap::Args;
+use flowfilter_pipeline::{PipelineConfig, RgbdFrame};
+use flowfilter_synth::NetworkMaskModel;
+use rayon::prelude::*;
+use std::collections::BTreeMap;
+use std::fmt;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Arguments of `bench-real`.
+#[derive(Args)]
+pub struct RealBenchArgs {
+    /// A folder of posed frames (`frame-NNNNNN.color.png`, `.depth.png`, `camera.json`,
+    /// `poses.json`) or a folder of such folders.
+    #[arg(long, default_value = "../shared/data/realsense-shelf")]
+    pub data: PathBuf,
+    /// Sequences to run (folder names), comma separated; default: all.
+    #[arg(long, value_delimiter = ',')]
+    pub sequences: Option<Vec<String>>,
+    /// Frame gaps: pairs are frames `i` and `i + gap`.
+    #[arg(long, value_delimiter = ',', default_value = "1,2")]
+    pub gaps: Vec<u32>,
+    /// Region objects drawn per pair (0: whole frames only).
+    #[arg(long, default_value_t = 2)]
+    pub regions: u32,
+    /// Leave the whole-frame pairs out.
+    #[arg(long)]
+    pub no_whole: bool,
+    /// Masks as they are (no network defects): the regions' true masks.
+    #[arg(long)]
+    pub exact_masks: bool,
+    /// Seed of the regions and of the masks' defects.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Methods, comma separated.
+    #[arg(long, value_delimiter = ',', default_value = "icp-pt2pl,filterreg-pt2pl,flowfilter")]
+    pub methods: Vec<String>,
+    /// Pipeline configuration shared by the methods (its `method` key is replaced by each name).
+    #[arg(long, default_value = "configs/flowfilter.toml")]
+    pub pipeline: PathBuf,
+    /// Also write every region mask the pairs use, as binary PNGs
+    /// (`DIR/SEQUENCE/frame-NNNNNN.region-K.png`, the model frame's and the target frame's),
+    /// to run a pair again with `flowfilter estimate --model-mask ... --target-mask ...`.
+    #[arg(long)]
+    pub save_masks: Option<PathBuf>,
+    /// CI-sized: the first 4 frames of each sequence, gap 1, one region per pair.
+    #[arg(long)]
+    pub quick: bool,
+    /// Outputs, voxel size, check, shard.
+    #[command(flatten)]
+    pub run: RunArgs,
+}
+
+/// The object name of whole-frame pairs.
+pub const WHOLE_FRAME: &str = "whole-frame";
+/// The object name of region pairs.
+pub const REGION: &str = "region";
+
+/// A frame of a pair: the image, the region whose mask it carries (0: whole frame) and whether
+/// it is the pair's model frame (whose mask is never missing).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub struct RealKey {
+    im: u32,
+    region: u32,
+    model: bool,
+}
+
+impl fmt::Display for RealKey {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "frame-{:06}/region-{}", self.im, self.region)
+    }
+}
+
+/// Run the benchmark sequence by sequence.
+pub fn run(args: &RealBenchArgs) -> anyhow::Result<()> {
+    let gaps = if args.quick { vec![1] } else { args.gaps.clone() };
+    if gaps.is_empty() || gaps.contains(&0) {
+        bail!("--gaps: give one or more gaps of at least 1 frame");
+    }
+    if args.regions == 0 && args.no_whole {
+        bail!("--regions 0 with --no-whole leaves no pair to run");
+    }
+    let regions = if args.quick { args.regions.min(1) } else { args.regions };
+    let mask_model = if args.exact_masks { NetworkMaskModel::EXACT } else { NetworkMaskModel::SHELF_NETWORK };
+    let configs = method_configs(args)?;
+    let methods = Methods::new(&args.methods, &configs)?;
+    let started = Instant::now();
+    let (all, dirs) = sequence_dirs(args)?;
+    let mut results: Vec<PairResult> = vec![];
+    let mut skipped: Vec<(String, String)> = vec![];
+    for dir in &dirs {
+        let label = dir_name(dir);
+        let seq = match PosedFrames::open(dir) {
+            Ok(s) => s,
+            Err(e) => {
+                tracing::warn!(sequence = %label, error = %e, "skipping sequence");
+                skipped.push((label, e));
+                continue;
+            }
+        };
+        let ids: Vec<u32> = seq.ids().into_iter().take(if args.quick { 4 } else { usize::MAX }).collect();
+        let whole: BTreeMap<u32, RgbdFrame> = ids
+            .par_iter()
+            .filter_map(|&im| match seq.frame(im) {
+                Ok(f) => Some((im, f)),
+                Err(e) => {
+                    tracing::warn!(sequence = %label, frame = im, error = %e, "skipping frame");
+                    None
+                }
+            })
+            .collect();
+        let save_masks = args.save_masks.as_ref().map(|d| d.join(&label));
+        let plan = Plan {
+            seq: &seq,
+            whole: &whole,
+            label: &label,
+            seed: args.seed,
+            regions,
+            mask_model,
+            save_masks: save_masks.as_deref(),
+        };
+        let (jobs, regions_of) = plan.jobs(&gaps, !args.no_whole);
+        if jobs.is_empty() {
+            skipped.push((label, format!("no pair of frames {gaps:?} apart")));
+            continue;
+        }
+        let mut frames: Vec<RealKey> = jobs.iter().flat_map(|j| [j.model, j.target]).collect();
+        frames.sort();
+        frames.dedup();
+        let load = |k: RealKey| plan.frame(k, &regions_of);
+        let prepared = methods.prepare(&frames, &load, &format!("sequence {label}"));
+        results.append(&mut methods.run(&jobs, &prepared, &format!("sequence {label}")));
+    }
+    if results.is_empty() && args.run.shard.is_none() {
+        bail!("no pair to run: {}", skipped.iter().map(|(g, e)| format!("{g}: {e}")).collect::<Vec<_>>().join("; "));
+    }
+    let spec = ReportSpec {
+        bench: "bench-real",
+        dataset: args.data.display().to_string(),
+        protocol: serde_json::json!({
+            "sequences": all,
+            "gaps": gaps,
+            "regions": regions,
+            "whole_frames": !args.no_whole,
+            "mask_model": mask_model,
+            "seed": args.seed,
+            "quick": args.quick,
+            "methods": args.methods,
+            "pipeline": args.pipeline,
+            "voxel": args.run.voxel,
+        }),
+        protocol_line: format!(
+            "{} sequence(s), gaps {:?}, {} region(s) per pair{}, masks {}, seed {}, pipeline {}",
+            all.len(),
+            gaps,
+            regions,
+            if args.no_whole { "" } else { " and the whole frame" },
+            if args.exact_masks { "exact" } else { "with a segmentation network's defects" },
+            args.seed,
+            args.pipeline.display()
+        ),
+        step_label: "frame gap",
+        methods: &args.methods,
+        appendix: String::new(),
+        out: &args.run.out,
+        check: args.run.check,
+        shard: args.run.shard.map(|shard| ShardRun { shard, group_field: "camera", all_groups: all.clone() }),
+    };
+    write_outputs(&spec, &results, &skipped, started.elapsed().as_secs_f64())?;
+    Ok(())
+}
+
+/// One pipeline configuration per method.
+fn method_configs(args: &RealBenchArgs) -> anyhow::Result<Vec<PipelineConfig>> {
+    let base = PipelineConfig::from_file(&in_repo(&args.pipeline))?;
+    args.methods
+        .iter()
+        .map(|m| {
+            let mut c = base.clone();
+            c.method = m.clone();
+            if let Some(v) = args.run.voxel {
+                c.cloud.voxel_m = v;
+            }
+            c.validate().map_err(|e| anyhow::anyhow!("method '{m}': {e}"))?;
+            Ok(c)
+        })
+        .collect()
+}
+
+/// Every sequence (names, in order) and this shard's folders.
+fn sequence_dirs(args: &RealBenchArgs) -> anyhow::Result<(Vec<String>, Vec<PathBuf>)> {
+    let root = in_repo(&args.data);
+    if !root.is_dir() {
+        bail!(
+            "--data {}: not a folder (the shared data sits beside the repository: ../shared/data/realsense-shelf)",
+            root.display()
+        );
+    }
+    let mut dirs: Vec<PathBuf> = if is_posed_folder(&root) {
+        vec![root.clone()]
+    } else {
+        let mut d: Vec<PathBuf> = std::fs::read_dir(&root)
+            .with_context(|| format!("reading {}", root.display()))?
+            .filter_map(Result::ok)
+            .map(|e| e.path())
+            .filter(|p| is_posed_folder(p))
+            .collect();
+        d.sort();
+        d
+    };
+    if dirs.is_empty() {
+        bail!("{}: no sequence folders (frames with poses.json and camera.json)", root.display());
+    }
+    if let Some(wanted) = &args.sequences {
+        dirs.retain(|d| wanted.contains(&dir_name(d)));
+        if dirs.is_empty() {
+            bail!("--sequences {wanted:?}: none of these is in {}", root.display());
+        }
+    }
+    let all = dirs.iter().map(|d| dir_name(d)).collect();
+    Ok((all, args.run.shard.unwrap_or(Shard::ALL).select(&dirs)))
+}
+
+/// What a sequence's pairs are made from.
+struct Plan<'a> {
+    seq: &'a PosedFrames,
+    whole: &'a BTreeMap<u32, RgbdFrame>,
+    label: &'a str,
+    seed: u64,
+    regions: u32,
+    mask_model: NetworkMaskModel,
+    save_masks: Option<&'a Path>,
+}
+
+impl Plan<'_> {
+    /// A seed from the run's seed, the sequence's name and `parts`.
+    fn seed_of(&self, parts: &[u64]) -> u64 {
+        // FNV-1a: stable across platforms and releases, unlike the standard library's hasher.
+        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+        let bytes = self
+            .label
+            .bytes()
+            .chain(std::iter::once(0))
+            .chain(std::iter::once(self.seed).chain(parts.iter().copied()).flat_map(u64::to_le_bytes));
+        for b in bytes {
+            h = (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3);
+        }
+        h
+    }
+
+    /// The pairs (whole frames and regions) and the regions by id.
+    fn jobs(&self, gaps: &[u32], whole_frames: bool) -> (Vec<PairJob<RealKey>>, BTreeMap<u32, Region>) {
+        let mut pairs: Vec<(u32, u32, u32)> = vec![];
+        for &gap in gaps {
+            for &a in self.whole.keys() {
+                if self.whole.contains_key(&(a + gap)) {
+                    pairs.push((a, a + gap, gap));
+                }
+            }
+        }
+        // Region ids: 1 + index over (pair, k), so each pair's regions are its own.
+        let drawn: Vec<Vec<(u32, Region)>> = pairs
+            .par_iter()
+            .enumerate()
+            .map(|(p, &(a, b, _))| {
+                (0..self.regions)
+                    .filter_map(|k| {
+                        let id = 1 + p as u32 * self.regions + k;
+                        let seed = self.seed_of(&[u64::from(a), u64::from(b), u64::from(k)]);
+                        self.seq.draw_region((&self.whole[&a], &self.whole[&b]), (a, b), seed).map(|r| (id, r))
+                    })
+                    .collect()
+            })
+            .collect();
+        let mut jobs = vec![];
+        let mut regions = BTreeMap::new();
+        for (&(a, b, gap), drawn) in pairs.iter().zip(drawn) {
+            let job = |object: &str, region: u32| PairJob {
+                object: object.to_string(),
+                camera: self.label.to_string(),
+                from: a,
+                to: b,
+                step: gap,
+                model: RealKey { im: a, region, model: true },
+                target: RealKey { im: b, region, model: false },
+                truth: self.seq.relative_motion(a, b),
+            };
+            if whole_frames {
+                jobs.push(job(WHOLE_FRAME, 0));
+            }
+            for (id, region) in drawn {
+                jobs.push(job(REGION, id));
+                regions.insert(id, region);
+            }
+        }
+        (jobs, regions)
+    }
+
+    /// A frame with the mask its key asks for: none for the whole frame, else the network's
+    /// mask of the region (a target mask the model drops: every pixel, as `estimate` takes a frame without a mask).
+    fn frame(&self, key: RealKey, regions: &BTreeMap<u32, Region>) -> Result<RgbdFrame, String> {
+        let whole = self.whole.get(&key.im).ok_or_else(|| format!("frame {} could not be read", key.im))?;
+        if key.region == 0 {
+            return Ok(whole.clone());
+        }
+        let region = regions.get(&key.region).ok_or_else(|| format!("no region {}", key.region))?;
+        let truth = self.seq.true_mask(whole, key.im, region);
+        let seed = self.seed_of(&[u64::from(key.im), u64::from(key.region), 1]);
+        let mut frame = whole.clone();
+        frame.label = format!("{}/{key}", self.label);
+        match network_mask(&truth, &self.mask_model, seed, key.model) {
+            Some(mask) => frame.mask = mask,
+            None => frame.mask = flowfilter_pipeline::Mask::filled(whole.mask.width(), whole.mask.height(), true),
+        }
+        if let Some(dir) = self.save_masks {
+            let role = if key.model { "model" } else { "target" };
+            save_mask(&frame.mask, &dir.join(format!("frame-{:06}.region-{}.{role}.png", key.im, key.region)))?;
+        }
+        Ok(frame)
+    }
+}
+
+/// A mask as a binary 8-bit PNG (255: the object).
+fn save_mask(mask: &flowfilter_pipeline::Mask, path: &Path) -> Result<(), String> {
+    let (w, h) = mask.dims();
+    let img = image::GrayImage::from_fn(w as u32, h as u32, |x, y| {
+        image::Luma([if *mask.at(x as usize, y as usize) { 255 } else { 0 }])
+    });
+    if let Some(parent) = path.parent() {
+        std::fs::create_dir_all(parent).map_err(|e| format!("{}: {e}", parent.display()))?;
+    }
+    img.save(path).map_err(|e| format!("{}: {e}", path.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::realsense::PosedFrames;
+
+    /// The shared RealSense shelf sequence, or `None` (with a message) when the shared data is
+    /// absent.
+    fn shelf(name: &str) -> Option<PathBuf> {
+        let dir = crate::repo_root().join("../shared/data/realsense-shelf").join(name);
+        if dir.is_dir() {
+            Some(dir)
+        } else {
+            eprintln!("skipping: {} is absent (the shared data sits beside the repository)", dir.display());
+            None
+        }
+    }
+
+    fn args(data: PathBuf, out: PathBuf) -> RealBenchArgs {
+        RealBenchArgs {
+            data,
+            sequences: None,
+            gaps: vec![1],
+            regions: 1,
+            no_whole: false,
+            exact_masks: false,
+            seed: 0,
+            methods: vec!["flowfilter".into()],
+            pipeline: PathBuf::from("configs/flowfilter.toml"),
+            save_masks: None,
+            quick: true,
+            run: RunArgs { out, voxel: None, check: true, shard: None },
+        }
+    }
+
+    /// One real sequence, quick: whole frames and a region per pair, each scored against the
+    /// calibrated camera motion beside "no motion"; the region masks written when asked; Flow
+    /// Filter within 2 degrees on the whole frames (12-13 degrees apart).
+    #[test]
+    fn a_real_sequence_runs_as_whole_frames_and_regions() {
+        let Some(data) = shelf("shelf-G") else { return };
+        let tmp = tempfile::tempdir().unwrap();
+        let mut a = args(data, tmp.path().join("results"));
+        a.save_masks = Some(tmp.path().join("masks"));
+        run(&a).unwrap();
+        let run_dir = std::fs::read_dir(tmp.path().join("results")).unwrap().next().unwrap().unwrap().path();
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(run_dir.join("results.json")).unwrap()).unwrap();
+        assert_eq!(v["schema"], "flowfilter bench-real results v3");
+        let pairs = v["pairs"].as_array().unwrap();
+        let of = |object: &str, method: &str| -> Vec<&serde_json::Value> {
+            pairs.iter().filter(|p| p["object"] == object && p["method"] == method).collect()
+        };
+        // Frames 0-3 at gap 1: three whole-frame pairs, and a region in each that is seen in both.
+        assert_eq!(of(WHOLE_FRAME, "flowfilter").len(), 3);
+        assert!(!of(REGION, "flowfilter").is_empty());
+        for p in of(WHOLE_FRAME, "no-motion").into_iter().chain(of(REGION, "no-motion")) {
+            let (e, m) = (p["errors"]["geodesic_error_deg"].as_f64().unwrap(), p["motion_deg"].as_f64().unwrap());
+            assert!((e - m).abs() < 1e-9 && (10.0..16.0).contains(&m), "{p}");
+        }
+        for p in of(WHOLE_FRAME, "flowfilter") {
+            let e = p["errors"]["geodesic_error_deg"].as_f64().unwrap();
+            assert!(e < 2.0, "{p}");
+        }
+        let masks = std::fs::read_dir(tmp.path().join("masks/shelf-G")).unwrap().count();
+        assert_eq!(masks, 2 * of(REGION, "flowfilter").len());
+    }
+
+    /// A region's true mask covers the ball's visible surface in both frames of a pair, and its
+    /// network mask differs from it by the drawn defects only (the same seed, the same mask).
+    #[test]
+    fn region_masks_follow_the_scene_and_the_seed() {
+        let Some(data) = shelf("shelf-A") else { return };
+        let seq = PosedFrames::open(&data).unwrap();
+        let (a, b) = (seq.frame(0).unwrap(), seq.frame(1).unwrap());
+        let region = seq.draw_region((&a, &b), (0, 1), 11).expect("a textured region seen in both frames");
+        let (ma, mb) = (seq.true_mask(&a, 0, &region), seq.true_mask(&b, 1, &region));
+        assert!(ma.count() >= crate::realsense::MIN_REGION_PX && mb.count() >= crate::realsense::MIN_REGION_PX);
+        // The camera panned about 12 degrees: the region moved across the image.
+        let centre = |m: &flowfilter_pipeline::Mask| {
+            let (w, _) = m.dims();
+            let idx: Vec<usize> = (0..m.as_slice().len()).filter(|&i| m.as_slice()[i]).collect();
+            let n = idx.len() as f64;
+            (idx.iter().map(|i| (i % w) as f64).sum::<f64>() / n, idx.iter().map(|i| (i / w) as f64).sum::<f64>() / n)
+        };
+        let (ca, cb) = (centre(&ma), centre(&mb));
+        assert!((ca.0 - cb.0).hypot(ca.1 - cb.1) > 40.0, "{ca:?} {cb:?}");
+        let model = NetworkMaskModel::SHELF_NETWORK;
+        let n1 = network_mask(&ma, &model, 5, true).unwrap();
+        assert_eq!(n1, network_mask(&ma, &model, 5, true).unwrap());
+        let differing = n1.as_slice().iter().zip(ma.as_slice()).filter(|(x, y)| x != y).count();
+        assert!(differing > 0 && differing < ma.count(), "{differing}");
+    }
+}
