@@ -62,6 +62,15 @@ impl CoarseMatch {
     }
 }
 
+impl CoarseMatch {
+    /// Where target pixel `(x, y)` came from (the inverse of [`CoarseMatch::apply`]).
+    pub fn apply_inverse(&self, x: f64, y: f64) -> [f64; 2] {
+        let (s, c) = self.turn_rad.sin_cos();
+        let (dx, dy) = (x - self.centre[0] - self.shift[0], y - self.centre[1] - self.shift[1]);
+        [self.centre[0] + c * dx + s * dy, self.centre[1] - s * dx + c * dy]
+    }
+}
+
 /// The region's pixels at one level: offsets from their centre and grey values.
 struct Template {
     centre: [f64; 2],
@@ -198,6 +207,136 @@ pub fn coarse_search(model: &Gray, mask: &Mask, target: &Gray, p: &CoarseSearchP
     Some(CoarseMatch { centre, shift: [full(fu) - centre[0], full(fv) - centre[1]], turn_rad: fturn, score })
 }
 
+/// A placement of a hypothesis's predicted template (see [`search_hypotheses`]): which
+/// hypothesis, the shift of its predicted pixels (full resolution) and the correlation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HypothesisMatch {
+    /// Index of the hypothesis.
+    pub index: usize,
+    /// Shift added to every predicted position (pixels).
+    pub shift: [f64; 2],
+    /// Zero-mean normalised cross-correlation of the placement.
+    pub score: f64,
+}
+
+/// Where the masked region went under each of `count` hypotheses of its motion:
+/// `predict(h, x, y)` is where hypothesis `h` moves model pixel `(x, y)` (full resolution;
+/// `None` when it cannot say, e.g. without depth), and `near` shifts every prediction first.
+/// Each hypothesis's predicted template (the model's grey values at their predicted
+/// positions) is placed at every shift of the search's level, as [`coarse_search`] places the
+/// region, then refined one level finer; the best placement of all is returned. Hypotheses stand for motions that
+/// are not a shift and a turn in the image (a camera circling the object).
+pub fn search_hypotheses(
+    model: &Gray,
+    mask: &Mask,
+    target: &Gray,
+    p: &CoarseSearchParams,
+    near: &CoarseMatch,
+    count: usize,
+    predict: &(dyn Fn(usize, f64, f64) -> Option<[f64; 2]> + Sync),
+) -> Option<HypothesisMatch> {
+    let level = p.level.max(1);
+    let (coarse_model, coarse_target) = (level_of(model, level), level_of(target, level));
+    let (fine_model, fine_target) = (level_of(model, level - 1), level_of(target, level - 1));
+    let searched: Vec<Option<(f64, [f64; 2])>> = (0..count)
+        .into_par_iter()
+        .map(|h| {
+            let moved = |x: f64, y: f64| predict(h, x, y).map(|q| [q[0] + near.shift[0], q[1] + near.shift[1]]);
+            let coarse = Predicted::new(&coarse_model, mask, level, p.max_pixels, &moved)?;
+            let s = f64::from(1u32 << level);
+            let (w, h) = coarse_target.dims();
+            let centres: Vec<(f64, f64)> = (0..h).flat_map(|y| (0..w).map(move |x| (x as f64, y as f64))).collect();
+            let (_, (u, v), _) = best_placement_serial(&coarse.template, &coarse_target, &centres, p.min_overlap)?;
+            let coarse_shift = [(u - coarse.template.centre[0]) * s, (v - coarse.template.centre[1]) * s];
+            let fine = Predicted::new(&fine_model, mask, level - 1, p.max_pixels * 2, &|x, y| {
+                moved(x, y).map(|q| [q[0] + coarse_shift[0], q[1] + coarse_shift[1]])
+            })?;
+            let fs = s / 2.0;
+            let near_fine: Vec<(f64, f64)> = (-3..=3)
+                .flat_map(|j| (-3..=3).map(move |i| (f64::from(i), f64::from(j))))
+                .map(|(i, j)| (fine.template.centre[0] + i, fine.template.centre[1] + j))
+                .collect();
+            let (score, (fu, fv), _) = best_placement_serial(&fine.template, &fine_target, &near_fine, p.min_overlap)?;
+            let shift = [
+                near.shift[0] + coarse_shift[0] + (fu - fine.template.centre[0]) * fs,
+                near.shift[1] + coarse_shift[1] + (fv - fine.template.centre[1]) * fs,
+            ];
+            Some((score, shift))
+        })
+        .collect();
+    let (index, (score, shift)) = searched
+        .into_iter()
+        .enumerate()
+        .filter_map(|(h, r)| r.map(|r| (h, r)))
+        .fold(None, |best: Option<(usize, (f64, [f64; 2]))>, c| match best {
+            Some(b) if b.1.0 >= c.1.0 => Some(b),
+            _ => Some(c),
+        })?;
+    (score >= p.min_score).then_some(HypothesisMatch { index, shift, score })
+}
+
+/// A hypothesis's template at one level: the model's grey values at the positions the
+/// hypothesis predicts (scaled to the level), as offsets from their centre.
+struct Predicted {
+    template: Template,
+}
+
+impl Predicted {
+    fn new(
+        image: &Gray,
+        mask: &Mask,
+        level: usize,
+        max_pixels: usize,
+        moved: &dyn Fn(f64, f64) -> Option<[f64; 2]>,
+    ) -> Option<Self> {
+        let s = 1usize << level;
+        let (w, h) = image.dims();
+        let (mw, mh) = mask.dims();
+        let mut kept = vec![];
+        for y in 0..h {
+            for x in 0..w {
+                let (fx, fy) = ((x * s).min(mw - 1), (y * s).min(mh - 1));
+                if *mask.at(fx, fy)
+                    && let Some(q) = moved(fx as f64, fy as f64)
+                {
+                    kept.push(([q[0] / s as f64, q[1] / s as f64], *image.at(x, y)));
+                }
+            }
+        }
+        if kept.len() < 16 {
+            return None;
+        }
+        let step = kept.len().div_ceil(max_pixels.max(16));
+        let kept: Vec<([f64; 2], f32)> = kept.into_iter().step_by(step).collect();
+        let n = kept.len() as f64;
+        let centre = [kept.iter().map(|k| k.0[0]).sum::<f64>() / n, kept.iter().map(|k| k.0[1]).sum::<f64>() / n];
+        Some(Self {
+            template: Template {
+                centre,
+                offsets: kept.iter().map(|k| [(k.0[0] - centre[0]) as f32, (k.0[1] - centre[1]) as f32]).collect(),
+                values: kept.iter().map(|k| k.1).collect(),
+            },
+        })
+    }
+}
+
+/// [`best_placement`] without a turn, in order on one thread (each hypothesis is one task).
+fn best_placement_serial(
+    template: &Template,
+    target: &Gray,
+    centres: &[(f64, f64)],
+    min_overlap: f64,
+) -> Option<(f64, (f64, f64), f64)> {
+    centres
+        .iter()
+        .filter_map(|&c| template.score(target, c, (0.0, 1.0), min_overlap).map(|s| (s, c)))
+        .fold(None, |best: Option<(f64, (f64, f64))>, c| match best {
+            Some(b) if b.0 >= c.0 => Some(b),
+            _ => Some(c),
+        })
+        .map(|(s, c)| (s, c, 0.0))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -238,6 +377,8 @@ mod tests {
                 assert!(e < 6.0, "{shift:?} {turn_deg}: ({x}, {y}) -> {a:?}, truth {b:?}");
             }
             assert!(found.score > 0.8, "{}", found.score);
+            let back = found.apply_inverse(found.apply(90.0, 130.0)[0], found.apply(90.0, 130.0)[1]);
+            assert!((back[0] - 90.0).abs() < 1e-9 && (back[1] - 130.0).abs() < 1e-9, "{back:?}");
         }
     }
 

@@ -68,13 +68,15 @@ pub struct WideBaselineConfig {
     /// Track again from the search's answer only when it moves the region's pixels this far
     /// on average (pixels): nearer motions are within the pyramid's reach.
     pub min_motion_px: f64,
+    /// Also weigh turns of the region about its own centre (a camera circling the object).
+    pub orbit: bool,
     /// The search's parameters.
     pub search: CoarseSearchParams,
 }
 
 impl Default for WideBaselineConfig {
     fn default() -> Self {
-        Self { enabled: true, min_motion_px: 24.0, search: CoarseSearchParams::default() }
+        Self { enabled: true, min_motion_px: 24.0, orbit: true, search: CoarseSearchParams::default() }
     }
 }
 

@@ -108,6 +108,17 @@ pub fn check_cloud(frame: &RgbdFrame, prepared: &PreparedFrame) -> Result<(), Pi
     ))
 }
 
+/// Whether a frame came without an object mask: its mask covers (nearly) the whole image, or
+/// is exactly its pixels with depth (what a frame of registered depth gets without a mask).
+pub fn is_unmasked(frame: &RgbdFrame) -> bool {
+    let mask = frame.mask.as_slice();
+    let covered = mask.iter().filter(|&&m| m).count() as f64 / mask.len().max(1) as f64;
+    covered >= FULL_MASK_FRACTION
+        || (frame.sensor.is_registered()
+            && frame.depth.dims() == frame.mask.dims()
+            && mask.iter().zip(frame.depth.as_slice()).all(|(m, d)| *m == (*d > 0)))
+}
+
 /// A warning when the frame's mask covers (nearly) the whole image.
 pub fn mask_coverage(frame: &PreparedFrame) -> Option<PipelineWarning> {
     let total = frame.mask.as_slice().len().max(1);

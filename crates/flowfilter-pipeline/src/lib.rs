@@ -31,6 +31,7 @@ mod frame;
 pub mod frame_checks;
 pub mod judge;
 mod pipeline;
+mod propagate;
 mod source;
 mod stages;
 mod warning;

@@ -167,8 +167,15 @@ impl Pipeline {
         let t0 = Instant::now();
         let mut times =
             StageTimes { depth_model: model.seconds * 1e3, depth_target: target.seconds * 1e3, ..Default::default() };
-        let mut warnings: Vec<PipelineWarning> =
-            [model, target].into_iter().filter_map(crate::frame_checks::mask_coverage).collect();
+        let mut warnings: Vec<PipelineWarning> = vec![];
+        // A target without a mask, for a model with one: the model's mask is propagated.
+        let propagated = (target.unmasked && !model.unmasked).then(|| {
+            let (frame, placed) = crate::propagate::with_propagated_mask(model, target, &self.config.flow.wide);
+            warnings.push(PipelineWarning::MaskPropagated { frame: target.label.clone(), placed });
+            frame
+        });
+        let target = propagated.as_ref().unwrap_or(target);
+        warnings.extend([model, target].into_iter().filter_map(crate::frame_checks::mask_coverage));
         let mut problem = RegistrationProblem::new(model.cloud.clone(), target.cloud.clone());
         let found = self.finder().and_then(|finder| {
             let tf = Instant::now();
@@ -196,7 +203,10 @@ impl Pipeline {
         warnings.extend(reg.warnings.iter().cloned().map(PipelineWarning::from));
         let (report, ambiguity) = judge.map_or((None, None), |j| (j.report, j.warning));
         warnings.extend(ambiguity);
+        let doubtful = warnings.iter().any(PipelineWarning::is_doubtful);
         let mut estimate = self.assemble(model, target, reg, summary, times, warnings);
+        // Never confidently wrong: an estimate the evidence does not single out is not converged.
+        estimate.registration.converged &= !doubtful;
         estimate.judge = report;
         estimate.align = aligned;
         Ok(estimate)

@@ -37,6 +37,10 @@ pub struct PreparedFrame {
     pub rays: Arc<RayTable>,
     /// Seconds spent preparing the frame.
     pub seconds: f64,
+    /// The frame came without an object mask: its mask covers the image (or every pixel with
+    /// depth). A target frame without one gets the model's mask propagated
+    /// ([`crate::Pipeline::estimate_prepared`]).
+    pub unmasked: bool,
 }
 
 impl PreparedFrame {
@@ -94,6 +98,7 @@ impl FramePreparer for DepthPreparer {
             sensor: frame.sensor,
             rays: self.stage.rays(&frame.sensor.color),
             seconds: t0.elapsed().as_secs_f64(),
+            unmasked: crate::frame_checks::is_unmasked(frame),
         };
         crate::frame_checks::check_cloud(frame, &prepared)?;
         Ok(prepared)

@@ -4,31 +4,91 @@
 use crate::config::WideBaselineConfig;
 use crate::stages::PreparedFrame;
 use flowfilter_camera::{CameraModel, Pixel};
-use flowfilter_flow::coarse_search::{CoarseMatch, coarse_search};
+use flowfilter_flow::coarse_search::{CoarseMatch, coarse_search, search_hypotheses};
 use flowfilter_geometry::Pose;
 use nalgebra::{Rotation3, Translation3, Unit, UnitQuaternion, Vector3};
 
 /// The motion the coarse search predicts for the model's region, when the search finds the
-/// region and it moved at least `min_motion_px` on average.
+/// region and the motion moves its pixels at least `min_motion_px` on average.
+///
+/// Two kinds of motion are weighed: a shift and turn of the region in the image (a camera
+/// that pans or rolls), and turns of the region about its own centre by up to
+/// [`ORBIT_MAX_DEG`] about the camera's x or y axis, each placed by its own shift search (a
+/// camera circling the object: its sides turn away while it shifts less than a pan would move
+/// it). The second is taken when it correlates clearly better.
 pub(crate) fn wide_guide(model: &PreparedFrame, target: &PreparedFrame, cfg: &WideBaselineConfig) -> Option<Pose> {
     if !cfg.enabled {
         return None;
     }
     let found = coarse_search(&model.gray, &model.mask, &target.gray, &cfg.search)?;
-    (mean_motion_px(&found, model) >= cfg.min_motion_px).then_some(())?;
-    camera_turn(&model.sensor.color, &found)
+    let camera = &model.sensor.color;
+    let flat = camera_turn(camera, &found)?;
+    let orbit = cfg.orbit.then(|| orbit_guide(model, target, cfg, &found)).flatten();
+    let guide = orbit.unwrap_or(flat);
+    (mean_motion_px(&guide, model) >= cfg.min_motion_px).then_some(guide)
 }
 
-/// The mean displacement of the model's mask pixels (every 8th row and column) under the match.
-fn mean_motion_px(found: &CoarseMatch, model: &PreparedFrame) -> f64 {
+/// Largest turn of the orbit hypotheses about either axis, degrees.
+pub const ORBIT_MAX_DEG: f64 = 30.0;
+/// Step of the orbit hypotheses, degrees.
+const ORBIT_STEP_DEG: f64 = 10.0;
+/// An orbit hypothesis replaces the image-plane match when it correlates better by this much.
+const ORBIT_MARGIN: f64 = 0.05;
+
+/// The best orbit hypothesis (see [`wide_guide`]) as a motion, when it beats the image-plane
+/// match `found` by [`ORBIT_MARGIN`] (the hypotheses' shifts are searched from no shift).
+fn orbit_guide(
+    model: &PreparedFrame,
+    target: &PreparedFrame,
+    cfg: &WideBaselineConfig,
+    found: &CoarseMatch,
+) -> Option<Pose> {
+    let centre = model.cloud.centroid()?;
+    let steps = (ORBIT_MAX_DEG / ORBIT_STEP_DEG).round() as i32;
+    // Turns about one axis at a time: a circling camera turns the region about the vertical or
+    // the horizontal, and the shift search places each.
+    let turns: Vec<Pose> = (-steps..=steps)
+        .filter(|&k| k != 0)
+        .flat_map(|k| [(k, 0), (0, k)])
+        .map(|(i, j)| {
+            let step = ORBIT_STEP_DEG.to_radians();
+            let r = UnitQuaternion::from_euler_angles(f64::from(i) * step, f64::from(j) * step, 0.0);
+            // About the region's centre: P -> R (P - c) + c.
+            Pose::from_parts(Translation3::from(centre.coords - r * centre.coords), r)
+        })
+        .collect();
+    let camera = &model.sensor.color;
+    let predict = |h: usize, x: f64, y: f64| {
+        let (xi, yi) = (x as usize, y as usize);
+        let z = f64::from(*model.depth.get(xi, yi)?);
+        let p = model.rays.backproject(xi, yi, z).filter(|_| z > 0.0)?;
+        let q = camera.project(&(turns[h] * p))?;
+        Some([q.x, q.y])
+    };
+    let from_still = CoarseMatch { shift: [0.0; 2], turn_rad: 0.0, ..*found };
+    let best = search_hypotheses(&model.gray, &model.mask, &target.gray, &cfg.search, &from_still, turns.len(), &predict)?;
+    if best.score < found.score + ORBIT_MARGIN {
+        return None;
+    }
+    // The hypothesis, then a turn of the camera that shifts its image of the centre as found.
+    let seen = camera.project(&(turns[best.index] * centre))?;
+    let shift = CoarseMatch { centre: [seen.x, seen.y], shift: best.shift, turn_rad: 0.0, score: best.score };
+    Some(camera_turn(camera, &shift)? * turns[best.index])
+}
+
+/// The mean displacement of the model's mask pixels with depth (every 8th row and column)
+/// under `guide`.
+fn mean_motion_px(guide: &Pose, model: &PreparedFrame) -> f64 {
     let (w, h) = model.mask.dims();
+    let camera = &model.sensor.color;
     let moved: Vec<f64> = (0..h)
         .step_by(8)
         .flat_map(|y| (0..w).step_by(8).map(move |x| (x, y)))
-        .filter(|&(x, y)| *model.mask.at(x, y))
-        .map(|(x, y)| {
-            let to = found.apply(x as f64, y as f64);
-            (to[0] - x as f64).hypot(to[1] - y as f64)
+        .filter(|&(x, y)| *model.mask.at(x, y) && *model.depth.at(x, y) > 0.0)
+        .filter_map(|(x, y)| {
+            let p = model.rays.backproject(x, y, f64::from(*model.depth.at(x, y)))?;
+            let q = camera.project(&(guide * p))?;
+            Some((q.x - x as f64).hypot(q.y - y as f64))
         })
         .collect();
     if moved.is_empty() { 0.0 } else { moved.iter().sum::<f64>() / moved.len() as f64 }

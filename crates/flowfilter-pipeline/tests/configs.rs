@@ -67,6 +67,9 @@ fn bad_values_are_named() {
         ("[align]\nmax_pixels = 10", "align.max_pixels"),
         ("[align]\nrow_shear_sd = -0.001", "align.row_shear_sd"),
         ("[align]\ndepth_step_at_1m_m = -1.0", "align.depth_step_at_1m_m"),
+        ("[flow.wide]\nmin_motion_px = -1.0", "flow.wide"),
+        ("[flow.wide.search]\nlevel = 0", "flow.wide"),
+        ("[flow.wide.search]\nmin_overlap = 1.5", "flow.wide"),
     ] {
         let msg = PipelineConfig::from_toml_str(text, origin).unwrap_err().to_string();
         assert!(msg.contains("x.toml") && msg.contains(needle), "{text}: {msg}");

@@ -32,8 +32,7 @@ impl NetworkMaskModel {
     /// What a segmentation network trained on the objects gives on a cluttered shelf: a
     /// boundary up to 8 px off, shifts of up to 6 px, a third of the masks cut short (10-30%
     /// of the object missing), a third bleeding onto the background (a blob of 30-60% of the
-    /// object's radius). No mask goes missing: the pipeline does not yet propagate a model
-    /// frame's mask to a target frame without one (such a frame is taken whole).
+    /// object's radius), one mask in twelve missing.
     pub const SHELF_NETWORK: Self = Self {
         grow_px: 8.0,
         shift_px: 6.0,
@@ -41,7 +40,7 @@ impl NetworkMaskModel {
         cut_fraction: (0.1, 0.3),
         bleed_probability: 0.33,
         bleed_radius: (0.3, 0.6),
-        missing_probability: 0.0,
+        missing_probability: 1.0 / 12.0,
     };
 
     /// Masks as they are.
@@ -288,8 +287,8 @@ mod tests {
         assert!(*bled.at(60, 20) && !*d.at(60, 20) && area(&bled) > area(&d));
         let moved = only(MaskDefects { shift: (4.0, -3.0), ..none }).unwrap();
         assert!(*moved.at(88, 47) && !*d.at(88, 47));
-        // Seeded: the same seed draws the same defects; a model with missing masks drops some.
-        let model = NetworkMaskModel { missing_probability: 1.0 / 12.0, ..NetworkMaskModel::SHELF_NETWORK };
+        // Seeded: the same seed draws the same defects; the shelf model drops some masks.
+        let model = NetworkMaskModel::SHELF_NETWORK;
         let draws = |seed| (0..48).map(|_| model.draw(&mut ChaCha8Rng::seed_from_u64(seed))).collect::<Vec<_>>();
         assert_eq!(draws(3), draws(3));
         let mut rng = ChaCha8Rng::seed_from_u64(5);

@@ -1,0 +1,51 @@
+//! A target frame without an object mask gets the model's: the model's mask moved to where the
+//! coarse search ([`flowfilter_flow::coarse_search`]) finds the region in the target image (or
+//! left where it is when the search finds nothing), and the target's cloud cut to it.
+
+use crate::config::WideBaselineConfig;
+use crate::stages::PreparedFrame;
+use flowfilter_flow::coarse_search::{CoarseMatch, coarse_search};
+use flowfilter_geometry::Mask;
+
+/// `target` with the model's mask propagated into it (see the module documentation), and
+/// whether the coarse search placed it (else it stays where the model's mask is).
+pub(crate) fn with_propagated_mask(
+    model: &PreparedFrame,
+    target: &PreparedFrame,
+    cfg: &WideBaselineConfig,
+) -> (PreparedFrame, bool) {
+    let found = coarse_search(&model.gray, &model.mask, &target.gray, &cfg.search);
+    let mask = found.as_ref().map_or_else(|| model.mask.clone(), |m| moved_mask(&model.mask, m));
+    let camera = &target.sensor.color;
+    let inside: Vec<usize> = (0..target.cloud.len())
+        .filter(|&i| {
+            camera.project(&target.cloud.points[i]).is_some_and(|p| {
+                let (x, y) = (p.x.round(), p.y.round());
+                x >= 0.0 && y >= 0.0 && mask.get(x as usize, y as usize).copied().unwrap_or(false)
+            })
+        })
+        .collect();
+    let propagated = PreparedFrame {
+        label: target.label.clone(),
+        gray: target.gray.clone(),
+        depth: target.depth.clone(),
+        mask,
+        cloud: target.cloud.select(&inside),
+        full_points: target.full_points,
+        sensor: target.sensor,
+        rays: target.rays.clone(),
+        seconds: target.seconds,
+        unmasked: false,
+    };
+    (propagated, found.is_some())
+}
+
+/// `mask` moved by the match: a target pixel is in it when the pixel it came from is.
+fn moved_mask(mask: &Mask, found: &CoarseMatch) -> Mask {
+    let (w, h) = mask.dims();
+    Mask::from_fn(w, h, |x, y| {
+        let [u, v] = found.apply_inverse(x as f64, y as f64);
+        let (u, v) = (u.round(), v.round());
+        u >= 0.0 && v >= 0.0 && mask.get(u as usize, v as usize).copied().unwrap_or(false)
+    })
+}
