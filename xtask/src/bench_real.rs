@@ -195,7 +195,8 @@ pub const WRONG_DEG: f64 = 5.0;
 /// Per method: the pairs over [`WRONG_DEG`] off, how many of them the method reported as
 /// converged, and how many carried no warning at all (the confidently wrong ones).
 fn confidently_wrong(results: &[PairResult], methods: &[String]) -> String {
-    let mut out = format!("Pairs over {WRONG_DEG} deg off (geodesic), and those reported as converged or without a warning:\n\n");
+    let mut out =
+        format!("Pairs over {WRONG_DEG} deg off (geodesic), and those reported as converged or without a warning:\n\n");
     for m in methods {
         let wrong: Vec<&PairResult> = results
             .iter()
@@ -203,7 +204,10 @@ fn confidently_wrong(results: &[PairResult], methods: &[String]) -> String {
             .collect();
         let converged = wrong.iter().filter(|r| r.converged == Some(true)).count();
         let silent = wrong.iter().filter(|r| r.warnings.is_empty()).count();
-        out += &format!("- {m}: {} over {WRONG_DEG} deg, {converged} converged, {silent} without a warning\n", wrong.len());
+        out += &format!(
+            "- {m}: {} over {WRONG_DEG} deg, {converged} converged, {silent} without a warning\n",
+            wrong.len()
+        );
     }
     out
 }
@@ -480,7 +484,9 @@ mod tests {
     fn a_target_without_a_mask_gets_the_models_propagated() {
         let Some(data) = shelf("shelf-G") else { return };
         let whole = PosedFrames::open(&data).unwrap().frame(1).unwrap().mask;
-        let Some((e, rot, shift)) = estimate_region("shelf-G", (0, 1), 3, (4, 5), default_config(), Some(whole)) else { return };
+        let Some((e, rot, shift)) = estimate_region("shelf-G", (0, 1), 3, (4, 5), default_config(), Some(whole)) else {
+            return;
+        };
         let codes: Vec<&str> = e.warnings.iter().map(|w| w.code()).collect();
         assert!(codes.contains(&"mask_propagated"), "{codes:?}");
         assert!(!codes.contains(&"mask_covers_frame"), "{codes:?}");
@@ -498,7 +504,9 @@ mod tests {
         let seed = seed_of("tote", 0, &[a.into(), b.into(), 0]);
         let masks = (seed_of("tote", 0, &[a.into(), id, 1]), seed_of("tote", 0, &[b.into(), id, 1]));
         let mut config = default_config();
-        let Some((_, on, on_shift)) = estimate_region("tote", (a, b), seed, masks, config.clone(), None) else { return };
+        let Some((_, on, on_shift)) = estimate_region("tote", (a, b), seed, masks, config.clone(), None) else {
+            return;
+        };
         config.flow.wide.enabled = false;
         let (off, off_deg, _) = estimate_region("tote", (a, b), seed, masks, config, None).unwrap();
         let codes: Vec<&str> = off.warnings.iter().map(|w| w.code()).collect();

@@ -264,14 +264,13 @@ pub fn search_hypotheses(
             Some((score, shift))
         })
         .collect();
-    let (index, (score, shift)) = searched
-        .into_iter()
-        .enumerate()
-        .filter_map(|(h, r)| r.map(|r| (h, r)))
-        .fold(None, |best: Option<(usize, (f64, [f64; 2]))>, c| match best {
+    let (index, (score, shift)) = searched.into_iter().enumerate().filter_map(|(h, r)| r.map(|r| (h, r))).fold(
+        None,
+        |best: Option<(usize, (f64, [f64; 2]))>, c| match best {
             Some(b) if b.1.0 >= c.1.0 => Some(b),
             _ => Some(c),
-        })?;
+        },
+    )?;
     (score >= p.min_score).then_some(HypothesisMatch { index, shift, score })
 }
 

@@ -71,8 +71,8 @@ impl PipelineWarning {
     /// Whether the condition means the estimate may be far off even though it is plausible:
     /// the flow gave no rigid consensus (the clouds alone decided), a geometric registration
     /// overruled the flow, or other poses fit as well. The pipeline reports such an estimate
-    /// as not converged (on the real shelf sequences 72 of the 82 estimates over 5 degrees
-    /// off carried one of these, and 24 of the 278 within 2 degrees).
+    /// as not converged (on the real shelf and tote sequences of `cargo xtask bench-real`, 66 of
+    /// the 76 estimates over 5 degrees off and 28 of the 289 within 2 degrees).
     pub fn is_doubtful(&self) -> bool {
         match self {
             Self::AmbiguousPose { .. } => true,
@@ -107,7 +107,11 @@ impl fmt::Display for PipelineWarning {
             Self::MaskPropagated { frame, placed } => write!(
                 f,
                 "frame {frame} came without an object mask: the model's mask was propagated into it ({})",
-                if *placed { "moved to where the model's region was found" } else { "the region was not found: left in place" }
+                if *placed {
+                    "moved to where the model's region was found"
+                } else {
+                    "the region was not found: left in place"
+                }
             ),
             Self::MaskCoversFrame { frame, fraction } => write!(
                 f,

@@ -66,7 +66,8 @@ fn orbit_guide(
         Some([q.x, q.y])
     };
     let from_still = CoarseMatch { shift: [0.0; 2], turn_rad: 0.0, ..*found };
-    let best = search_hypotheses(&model.gray, &model.mask, &target.gray, &cfg.search, &from_still, turns.len(), &predict)?;
+    let best =
+        search_hypotheses(&model.gray, &model.mask, &target.gray, &cfg.search, &from_still, turns.len(), &predict)?;
     if best.score < found.score + ORBIT_MARGIN {
         return None;
     }
