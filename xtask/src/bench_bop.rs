@@ -17,7 +17,6 @@ use crate::{dir_name, in_repo};
 use anyhow::{Context, bail};
 use clap::Args;
 use flowfilter_bigbird::SensorId;
-use flowfilter_pipeline::PipelineConfig;
 use rayon::prelude::*;
 use std::collections::BTreeMap;
 use std::fmt;
@@ -82,7 +81,7 @@ pub fn run(args: &BopBenchArgs) -> anyhow::Result<()> {
     if !(0.0..=1.0).contains(&args.min_visib) {
         bail!("--min-visib: expected a fraction in [0, 1], found {}", args.min_visib);
     }
-    let configs = method_configs(args)?;
+    let configs = crate::pairs::method_configs(&args.pipeline, &args.methods, args.run.voxel)?;
     let methods = Methods::new(&args.methods, &configs)?;
     let started = Instant::now();
     let Scenes { all: all_scenes, dirs: scene_dirs, names } = scene_dirs(args)?;
@@ -145,23 +144,6 @@ pub fn run(args: &BopBenchArgs) -> anyhow::Result<()> {
     };
     write_outputs(&spec, &results, &skipped, started.elapsed().as_secs_f64())?;
     Ok(())
-}
-
-/// One pipeline configuration per method.
-fn method_configs(args: &BopBenchArgs) -> anyhow::Result<Vec<PipelineConfig>> {
-    let base = PipelineConfig::from_file(&in_repo(&args.pipeline))?;
-    args.methods
-        .iter()
-        .map(|m| {
-            let mut c = base.clone();
-            c.method = m.clone();
-            if let Some(v) = args.run.voxel {
-                c.cloud.voxel_m = v;
-            }
-            c.validate().map_err(|e| anyhow::anyhow!("method '{m}': {e}"))?;
-            Ok(c)
-        })
-        .collect()
 }
 
 /// Every (image, image + gap, object) of a scene whose object is annotated once in both images

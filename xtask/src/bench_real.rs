@@ -18,7 +18,7 @@ use crate::shard::Shard;
 use crate::{dir_name, in_repo};
 use anyhow::{Context, bail};
 use clap::Args;
-use flowfilter_pipeline::{PipelineConfig, RgbdFrame};
+use flowfilter_pipeline::RgbdFrame;
 use flowfilter_synth::NetworkMaskModel;
 use rayon::prelude::*;
 use std::collections::BTreeMap;
@@ -101,7 +101,7 @@ pub fn run(args: &RealBenchArgs) -> anyhow::Result<()> {
     }
     let regions = if args.quick { args.regions.min(1) } else { args.regions };
     let mask_model = if args.exact_masks { NetworkMaskModel::EXACT } else { NetworkMaskModel::SHELF_NETWORK };
-    let configs = method_configs(args)?;
+    let configs = crate::pairs::method_configs(&args.pipeline, &args.methods, args.run.voxel)?;
     let methods = Methods::new(&args.methods, &configs)?;
     let started = Instant::now();
     let (all, dirs) = sequence_dirs(args)?;
@@ -210,23 +210,6 @@ fn confidently_wrong(results: &[PairResult], methods: &[String]) -> String {
         );
     }
     out
-}
-
-/// One pipeline configuration per method.
-fn method_configs(args: &RealBenchArgs) -> anyhow::Result<Vec<PipelineConfig>> {
-    let base = PipelineConfig::from_file(&in_repo(&args.pipeline))?;
-    args.methods
-        .iter()
-        .map(|m| {
-            let mut c = base.clone();
-            c.method = m.clone();
-            if let Some(v) = args.run.voxel {
-                c.cloud.voxel_m = v;
-            }
-            c.validate().map_err(|e| anyhow::anyhow!("method '{m}': {e}"))?;
-            Ok(c)
-        })
-        .collect()
 }
 
 /// Every sequence (names, in order) and this shard's folders.
@@ -382,6 +365,7 @@ fn save_mask(mask: &flowfilter_pipeline::Mask, path: &Path) -> Result<(), String
 mod tests {
     use super::*;
     use crate::realsense::PosedFrames;
+    use flowfilter_pipeline::PipelineConfig;
 
     /// The shared RealSense shelf sequence, or `None` (with a message) when the shared data is
     /// absent.

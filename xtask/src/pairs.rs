@@ -167,6 +167,32 @@ pub fn progress(len: u64, msg: &str) -> Progress {
     Progress { bar, plain, len, done: AtomicU64::new(0), msg: msg.to_string() }
 }
 
+/// One pipeline configuration per method: the file at `pipeline` (under the repository root
+/// when relative) with its `method` key replaced by each name, and `voxel` as the clouds'
+/// voxel size when given.
+///
+/// # Errors
+/// A file that does not load, or a method the configuration does not validate with.
+pub fn method_configs(
+    pipeline: &std::path::Path,
+    methods: &[String],
+    voxel: Option<f64>,
+) -> anyhow::Result<Vec<PipelineConfig>> {
+    let base = PipelineConfig::from_file(&crate::in_repo(pipeline))?;
+    methods
+        .iter()
+        .map(|m| {
+            let mut c = base.clone();
+            c.method = m.clone();
+            if let Some(v) = voxel {
+                c.cloud.voxel_m = v;
+            }
+            c.validate().map_err(|e| anyhow::anyhow!("method '{m}': {e}"))?;
+            Ok(c)
+        })
+        .collect()
+}
+
 /// For each method, the first method whose depth and cloud stages agree with it: methods of
 /// one group share their prepared frames.
 pub fn preparation_groups(configs: &[PipelineConfig]) -> Vec<usize> {

@@ -138,6 +138,23 @@ pub struct PipelineConfig {
     pub judge: crate::judge::JudgeConfig,
     /// The direct alignment after the judge (Flow Filter methods only).
     pub align: crate::align::AlignConfig,
+    /// What an estimate must show to be reported as converged.
+    pub report: ReportConfig,
+}
+
+/// What an estimate must show to be reported as converged (`[report]`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ReportConfig {
+    /// An estimate whose rotation bound exceeds this (degrees) warns `wide_bounds` and is not
+    /// converged: it may be that far off (0 = never).
+    pub max_bound_deg: f64,
+}
+
+impl Default for ReportConfig {
+    fn default() -> Self {
+        Self { max_bound_deg: 5.0 }
+    }
 }
 
 impl Default for PipelineConfig {
@@ -150,6 +167,7 @@ impl Default for PipelineConfig {
             registration: RegistrationConfig::default(),
             judge: crate::judge::JudgeConfig::default(),
             align: crate::align::AlignConfig::default(),
+            report: ReportConfig::default(),
         }
     }
 }
@@ -204,6 +222,9 @@ impl PipelineConfig {
         self.flow.wide.validate().map_err(|e| format!("table [flow.wide]: {e}"))?;
         self.judge.validate().map_err(|e| e.within("judge").to_string())?;
         self.align.validate().map_err(|e| e.within("align").to_string())?;
+        if !(self.report.max_bound_deg >= 0.0 && self.report.max_bound_deg.is_finite()) {
+            return Err(format!("key 'report.max_bound_deg' must be >= 0, found {}", self.report.max_bound_deg));
+        }
         self.registration.validate().map_err(|e| e.within("registration").to_string())
     }
 }

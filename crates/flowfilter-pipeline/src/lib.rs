@@ -38,7 +38,7 @@ mod warning;
 mod wide;
 
 pub use align::{AlignConfig, AlignReport};
-pub use config::{CloudPrepConfig, FlowStageConfig, PipelineConfig, WideBaselineConfig};
+pub use config::{CloudPrepConfig, FlowStageConfig, PipelineConfig, ReportConfig, WideBaselineConfig};
 pub use error::PipelineError;
 pub use estimate::{
     CorrespondenceSummary, ESTIMATE_SCHEMA, Estimate, GroundTruth, REGISTER_SCHEMA, RegisterReport, RegisterTimes,

@@ -203,6 +203,10 @@ impl Pipeline {
         warnings.extend(reg.warnings.iter().cloned().map(PipelineWarning::from));
         let (report, ambiguity) = judge.map_or((None, None), |j| (j.report, j.warning));
         warnings.extend(ambiguity);
+        let limit_deg = self.config.report.max_bound_deg;
+        if let Some(u) = reg.uncertainty.filter(|u| limit_deg > 0.0 && u.rotation_deg > limit_deg) {
+            warnings.push(PipelineWarning::WideBounds { rotation_deg: u.rotation_deg, limit_deg });
+        }
         let doubtful = warnings.iter().any(PipelineWarning::is_doubtful);
         let mut estimate = self.assemble(model, target, reg, summary, times, warnings);
         // Never confidently wrong: an estimate the evidence does not single out is not converged.

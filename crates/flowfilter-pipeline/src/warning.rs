@@ -39,6 +39,14 @@ pub enum PipelineWarning {
         /// Whether the search placed the region.
         placed: bool,
     },
+    /// The estimate's own rotation bound is wider than `[report] max_bound_deg`: it may be that
+    /// far off.
+    WideBounds {
+        /// The bound, degrees.
+        rotation_deg: f64,
+        /// The limit, degrees.
+        limit_deg: f64,
+    },
     /// Other poses fit the clouds and match the images as well as the estimate: the model
     /// turned about `axis` through `pivot_m` (model camera frame) by any of `turns_deg` (from
     /// the estimate). A symmetric object whose texture does not tell the poses apart (a plain
@@ -63,6 +71,7 @@ impl PipelineWarning {
             Self::FlowFailed { .. } => "flow_failed",
             Self::MaskCoversFrame { .. } => "mask_covers_frame",
             Self::MaskPropagated { .. } => "mask_propagated",
+            Self::WideBounds { .. } => "wide_bounds",
             Self::AmbiguousPose { .. } => "ambiguous_pose",
             Self::Registration(w) => w.code(),
         }
@@ -70,12 +79,13 @@ impl PipelineWarning {
 
     /// Whether the condition means the estimate may be far off even though it is plausible:
     /// the flow gave no rigid consensus (the clouds alone decided), a geometric registration
-    /// overruled the flow, or other poses fit as well. The pipeline reports such an estimate
+    /// overruled the flow, other poses fit as well, or its own bounds are wide. The pipeline
+    /// reports such an estimate
     /// as not converged (on the real shelf and tote sequences of `cargo xtask bench-real`, 66 of
     /// the 76 estimates over 5 degrees off and 28 of the 289 within 2 degrees).
     pub fn is_doubtful(&self) -> bool {
         match self {
-            Self::AmbiguousPose { .. } => true,
+            Self::AmbiguousPose { .. } | Self::WideBounds { .. } => true,
             Self::Registration(w) => {
                 w.is_implausible()
                     || matches!(w, RegistrationWarning::FlowFallback { .. } | RegistrationWarning::MotionCheck { .. })
@@ -112,6 +122,10 @@ impl fmt::Display for PipelineWarning {
                 } else {
                     "the region was not found: left in place"
                 }
+            ),
+            Self::WideBounds { rotation_deg, limit_deg } => write!(
+                f,
+                "the estimate's rotation bound is {rotation_deg:.1} deg, wider than {limit_deg} deg: it may be that far off"
             ),
             Self::MaskCoversFrame { frame, fraction } => write!(
                 f,

@@ -70,6 +70,7 @@ fn bad_values_are_named() {
         ("[flow.wide]\nmin_motion_px = -1.0", "flow.wide"),
         ("[flow.wide.search]\nlevel = 0", "flow.wide"),
         ("[flow.wide.search]\nmin_overlap = 1.5", "flow.wide"),
+        ("[report]\nmax_bound_deg = -1.0", "report.max_bound_deg"),
     ] {
         let msg = PipelineConfig::from_toml_str(text, origin).unwrap_err().to_string();
         assert!(msg.contains("x.toml") && msg.contains(needle), "{text}: {msg}");
