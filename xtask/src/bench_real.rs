@@ -498,6 +498,25 @@ mod tests {
         assert!(off_deg > 5.0 && codes.contains(&"flow_fallback"), "without: {off_deg} deg, {codes:?}");
     }
 
+    /// Never confidently wrong: whole frames of a shelf 25 degrees apart (shelf-G 10 -> 12, where
+    /// the camera circles the bin), which Flow Filter does not get within 2 degrees; the estimate
+    /// says so (not converged, with the warning that says why).
+    #[test]
+    fn a_pair_it_gets_wrong_is_not_reported_as_converged() {
+        let Some(data) = shelf("shelf-G") else { return };
+        let seq = PosedFrames::open(&data).unwrap();
+        let (a, b) = (seq.frame(10).unwrap(), seq.frame(12).unwrap());
+        let e = flowfilter_pipeline::Pipeline::from_config(default_config()).unwrap().estimate(&a, &b).unwrap();
+        let truth = seq.relative_motion(10, 12).unwrap();
+        let error = flowfilter_pipeline::eval::PoseErrors::new(&e.pose, &truth, None).geodesic_error_deg;
+        let doubtful: Vec<&str> = e.warnings.iter().filter(|w| w.is_doubtful()).map(|w| w.code()).collect();
+        assert!(
+            error < 2.0 || (!e.registration.converged && !doubtful.is_empty()),
+            "{error} deg off, converged {}, {doubtful:?}",
+            e.registration.converged
+        );
+    }
+
     /// A region's true mask covers the ball's visible surface in both frames of a pair, and its
     /// network mask differs from it by the drawn defects only (the same seed, the same mask).
     #[test]
