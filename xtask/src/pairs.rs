@@ -63,6 +63,10 @@ pub struct PairResult {
     /// Errors, when the pair ran.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub errors: Option<PoseErrors>,
+    /// The estimated motion (4x4, row-major, `P_target = T * P_model`), when the pair ran with
+    /// a method: to compare estimates of one pair, or an estimate with another truth.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub transform: Option<[[f64; 4]; 4]>,
     /// Whether the method reported convergence.
     pub converged: Option<bool>,
     /// The method's error bounds, when it gives them.
@@ -288,6 +292,7 @@ impl Methods<'_> {
             motion_deg: job.truth.as_ref().ok().map(|t| t.rotation.angle().to_degrees()),
             method: m.map_or(NO_MOTION.to_string(), |m| self.names[m].clone()),
             errors: None,
+            transform: None,
             converged: None,
             uncertainty: None,
             seconds: None,
@@ -316,6 +321,7 @@ impl Methods<'_> {
             let e = self.pipelines[m].estimate_prepared(model, target).map_err(|e| e.to_string())?;
             row.seconds = Some(t0.elapsed().as_secs_f64());
             row.converged = Some(e.registration.converged);
+            row.transform = Some(e.transform);
             row.uncertainty = e.registration.uncertainty;
             row.errors = Some(PoseErrors::new(&e.pose, truth, Some(&model.cloud.points)));
             row.stage_ms = Some(e.stage_ms);

@@ -583,6 +583,7 @@ mod tests {
                 add_s_m: Some(0.001),
                 success: error < 2.0,
             }),
+            transform: None,
             converged: Some(true),
             uncertainty: None,
             seconds: Some(0.1),
