@@ -82,30 +82,43 @@ impl Template {
     /// The masked pixels of level `level`'s image (a pixel is in the region when the full
     /// resolution pixel it samples is: level `l`'s pixel `x` is pixel `x * 2^l`), evenly thinned to `max_pixels`.
     fn new(image: &Gray, mask: &Mask, level: usize, max_pixels: usize) -> Option<Self> {
+        Self::predicted(image, mask, level, max_pixels, &|x, y| Some([x, y]))
+    }
+
+    /// The masked pixels of level `level`'s image at the positions `moved` sends them to
+    /// (full resolution in and out; scaled to the level), evenly thinned to `max_pixels`.
+    fn predicted(
+        image: &Gray,
+        mask: &Mask,
+        level: usize,
+        max_pixels: usize,
+        moved: &dyn Fn(f64, f64) -> Option<[f64; 2]>,
+    ) -> Option<Self> {
         let s = 1usize << level;
         let (w, h) = image.dims();
         let (mw, mh) = mask.dims();
-        let mut pixels = vec![];
+        let mut kept = vec![];
         for y in 0..h {
             for x in 0..w {
                 let (fx, fy) = ((x * s).min(mw - 1), (y * s).min(mh - 1));
-                if *mask.at(fx, fy) {
-                    pixels.push((x, y));
+                if *mask.at(fx, fy)
+                    && let Some(q) = moved(fx as f64, fy as f64)
+                {
+                    kept.push(([q[0] / s as f64, q[1] / s as f64], *image.at(x, y)));
                 }
             }
         }
-        if pixels.len() < 16 {
+        if kept.len() < 16 {
             return None;
         }
-        let keep = pixels.len().div_ceil(max_pixels.max(16));
-        let kept: Vec<(usize, usize)> = pixels.into_iter().step_by(keep).collect();
+        let step = kept.len().div_ceil(max_pixels.max(16));
+        let kept: Vec<([f64; 2], f32)> = kept.into_iter().step_by(step).collect();
         let n = kept.len() as f64;
-        let cx = kept.iter().map(|p| p.0 as f64).sum::<f64>() / n;
-        let cy = kept.iter().map(|p| p.1 as f64).sum::<f64>() / n;
+        let centre = [kept.iter().map(|k| k.0[0]).sum::<f64>() / n, kept.iter().map(|k| k.0[1]).sum::<f64>() / n];
         Some(Self {
-            centre: [cx, cy],
-            offsets: kept.iter().map(|&(x, y)| [(x as f64 - cx) as f32, (y as f64 - cy) as f32]).collect(),
-            values: kept.iter().map(|&(x, y)| *image.at(x, y)).collect(),
+            centre,
+            offsets: kept.iter().map(|k| [(k.0[0] - centre[0]) as f32, (k.0[1] - centre[1]) as f32]).collect(),
+            values: kept.iter().map(|k| k.1).collect(),
         })
     }
 
@@ -242,24 +255,24 @@ pub fn search_hypotheses(
         .into_par_iter()
         .map(|h| {
             let moved = |x: f64, y: f64| predict(h, x, y).map(|q| [q[0] + near.shift[0], q[1] + near.shift[1]]);
-            let coarse = Predicted::new(&coarse_model, mask, level, p.max_pixels, &moved)?;
+            let coarse = Template::predicted(&coarse_model, mask, level, p.max_pixels, &moved)?;
             let s = f64::from(1u32 << level);
             let (w, h) = coarse_target.dims();
             let centres: Vec<(f64, f64)> = (0..h).flat_map(|y| (0..w).map(move |x| (x as f64, y as f64))).collect();
-            let (_, (u, v), _) = best_placement_serial(&coarse.template, &coarse_target, &centres, p.min_overlap)?;
-            let coarse_shift = [(u - coarse.template.centre[0]) * s, (v - coarse.template.centre[1]) * s];
-            let fine = Predicted::new(&fine_model, mask, level - 1, p.max_pixels * 2, &|x, y| {
+            let (_, (u, v), _) = best_placement_serial(&coarse, &coarse_target, &centres, p.min_overlap)?;
+            let coarse_shift = [(u - coarse.centre[0]) * s, (v - coarse.centre[1]) * s];
+            let fine = Template::predicted(&fine_model, mask, level - 1, p.max_pixels * 2, &|x, y| {
                 moved(x, y).map(|q| [q[0] + coarse_shift[0], q[1] + coarse_shift[1]])
             })?;
             let fs = s / 2.0;
             let near_fine: Vec<(f64, f64)> = (-3..=3)
                 .flat_map(|j| (-3..=3).map(move |i| (f64::from(i), f64::from(j))))
-                .map(|(i, j)| (fine.template.centre[0] + i, fine.template.centre[1] + j))
+                .map(|(i, j)| (fine.centre[0] + i, fine.centre[1] + j))
                 .collect();
-            let (score, (fu, fv), _) = best_placement_serial(&fine.template, &fine_target, &near_fine, p.min_overlap)?;
+            let (score, (fu, fv), _) = best_placement_serial(&fine, &fine_target, &near_fine, p.min_overlap)?;
             let shift = [
-                near.shift[0] + coarse_shift[0] + (fu - fine.template.centre[0]) * fs,
-                near.shift[1] + coarse_shift[1] + (fv - fine.template.centre[1]) * fs,
+                near.shift[0] + coarse_shift[0] + (fu - fine.centre[0]) * fs,
+                near.shift[1] + coarse_shift[1] + (fv - fine.centre[1]) * fs,
             ];
             Some((score, shift))
         })
@@ -272,51 +285,6 @@ pub fn search_hypotheses(
         },
     )?;
     (score >= p.min_score).then_some(HypothesisMatch { index, shift, score })
-}
-
-/// A hypothesis's template at one level: the model's grey values at the positions the
-/// hypothesis predicts (scaled to the level), as offsets from their centre.
-struct Predicted {
-    template: Template,
-}
-
-impl Predicted {
-    fn new(
-        image: &Gray,
-        mask: &Mask,
-        level: usize,
-        max_pixels: usize,
-        moved: &dyn Fn(f64, f64) -> Option<[f64; 2]>,
-    ) -> Option<Self> {
-        let s = 1usize << level;
-        let (w, h) = image.dims();
-        let (mw, mh) = mask.dims();
-        let mut kept = vec![];
-        for y in 0..h {
-            for x in 0..w {
-                let (fx, fy) = ((x * s).min(mw - 1), (y * s).min(mh - 1));
-                if *mask.at(fx, fy)
-                    && let Some(q) = moved(fx as f64, fy as f64)
-                {
-                    kept.push(([q[0] / s as f64, q[1] / s as f64], *image.at(x, y)));
-                }
-            }
-        }
-        if kept.len() < 16 {
-            return None;
-        }
-        let step = kept.len().div_ceil(max_pixels.max(16));
-        let kept: Vec<([f64; 2], f32)> = kept.into_iter().step_by(step).collect();
-        let n = kept.len() as f64;
-        let centre = [kept.iter().map(|k| k.0[0]).sum::<f64>() / n, kept.iter().map(|k| k.0[1]).sum::<f64>() / n];
-        Some(Self {
-            template: Template {
-                centre,
-                offsets: kept.iter().map(|k| [(k.0[0] - centre[0]) as f32, (k.0[1] - centre[1]) as f32]).collect(),
-                values: kept.iter().map(|k| k.1).collect(),
-            },
-        })
-    }
 }
 
 /// [`best_placement`] without a turn, in order on one thread (each hypothesis is one task).
