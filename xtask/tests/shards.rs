@@ -220,3 +220,29 @@ fn bop_scenes_shard_and_merge() {
     assert_eq!(m["groups"], serde_json::json!(["000002", "000101", "000103"]));
     assert_eq!(untimed(&single.join("results.json")), untimed(&only_dir(&cwd.join("merged")).join("results.json")));
 }
+
+/// `bench-real` shards by sequence: two shards of two real sequences merged are the single run
+/// (skipped when the shared data is absent).
+#[test]
+fn real_sequences_shard_and_merge() {
+    let data = root().join("../shared/data/realsense-shelf");
+    if !data.is_dir() {
+        eprintln!("skipping: {} is absent (the shared data sits beside the repository)", data.display());
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let cwd = tmp.path();
+    let data = data.to_str().unwrap();
+    let base =
+        ["bench-real", "--quick", "--data", data, "--sequences", "shelf-A,tote", "--methods", "flowfilter", "--check"];
+    ok(cwd, &[&base[..], &["--out", "single"]].concat());
+    for k in ["1/2", "2/2"] {
+        ok(cwd, &[&base[..], &["--out", "shards", "--shard", k]].concat());
+    }
+    ok(cwd, &["bench-merge", "shards", "--out", "merged"]);
+    let (pairs_1, summary_1) = untimed(&only_dir(&cwd.join("single")).join("results.json"));
+    let (pairs_2, summary_2) = untimed(&only_dir(&cwd.join("merged")).join("results.json"));
+    assert!(pairs_1.iter().any(|p| p["object"] == "region") && pairs_1.iter().any(|p| p["camera"] == "tote"));
+    assert_eq!(pairs_1, pairs_2);
+    assert_eq!(summary_1, summary_2);
+}
