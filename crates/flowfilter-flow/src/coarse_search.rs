@@ -157,9 +157,31 @@ impl Template {
     }
 }
 
-/// The image at pyramid level `level` (0: itself).
-fn level_of(image: &Gray, level: usize) -> Gray {
-    (0..level).fold(image.clone(), |img, _| downsample(&img))
+/// The two images at the search's pyramid level and one level finer, built once per pair and
+/// shared by [`coarse_search`] and [`search_hypotheses`].
+pub struct SearchImages {
+    level: usize,
+    coarse: [Gray; 2],
+    fine: [Gray; 2],
+}
+
+impl SearchImages {
+    /// The pyramids of `model` and `target` down to `level` (at least 1).
+    pub fn new(model: &Gray, target: &Gray, level: usize) -> Self {
+        let level = level.max(1);
+        let down = |image: &Gray| {
+            let fine = (1..level).fold(image.clone(), |img, _| downsample(&img));
+            let coarse = downsample(&fine);
+            (coarse, fine)
+        };
+        let ((cm, fm), (ct, ft)) = (down(model), down(target));
+        Self { level, coarse: [cm, ct], fine: [fm, ft] }
+    }
+
+    /// The search's pyramid level.
+    pub fn level(&self) -> usize {
+        self.level
+    }
 }
 
 /// The best placement of `template` in `target` over `centres` and `turns` (radians): score,
@@ -185,19 +207,19 @@ fn best_placement(
 /// Where the `mask`ed region of `model` went in `target` (see the module documentation);
 /// `None` when the region is too small at the search's level or no placement correlates at
 /// least [`CoarseSearchParams::min_score`].
-pub fn coarse_search(model: &Gray, mask: &Mask, target: &Gray, p: &CoarseSearchParams) -> Option<CoarseMatch> {
-    let level = p.level.max(1);
-    let (coarse_model, coarse_target) = (level_of(model, level), level_of(target, level));
-    let template = Template::new(&coarse_model, mask, level, p.max_pixels)?;
+pub fn coarse_search(images: &SearchImages, mask: &Mask, p: &CoarseSearchParams) -> Option<CoarseMatch> {
+    let level = images.level;
+    let [coarse_model, coarse_target] = &images.coarse;
+    let template = Template::new(coarse_model, mask, level, p.max_pixels)?;
     let steps = if p.turn_step_deg > 0.0 { (p.max_turn_deg / p.turn_step_deg).floor() as i64 } else { 0 };
     let turns: Vec<f64> = (-steps..=steps).map(|k| (k as f64 * p.turn_step_deg).to_radians()).collect();
     let (w, h) = coarse_target.dims();
     let centres: Vec<(f64, f64)> = (0..h).flat_map(|y| (0..w).map(move |x| (x as f64, y as f64))).collect();
-    let (_, (u, v), turn) = best_placement(&template, &coarse_target, &centres, &turns, p.min_overlap)?;
+    let (_, (u, v), turn) = best_placement(&template, coarse_target, &centres, &turns, p.min_overlap)?;
     // One level finer: +-3 px around the coarse placement, the turn within half a step.
     let finer = level - 1;
-    let (fine_model, fine_target) = (level_of(model, finer), level_of(target, finer));
-    let fine = Template::new(&fine_model, mask, finer, p.max_pixels * 2)?;
+    let [fine_model, fine_target] = &images.fine;
+    let fine = Template::new(fine_model, mask, finer, p.max_pixels * 2)?;
     // Level `finer`'s coordinates of the coarse placement's centre: the fine template's centre
     // goes where the coarse match sends it.
     let s = 2.0;
@@ -210,7 +232,7 @@ pub fn coarse_search(model: &Gray, mask: &Mask, target: &Gray, p: &CoarseSearchP
         (-3..=3).flat_map(|j| (-3..=3).map(move |i| (guess[0] + f64::from(i), guess[1] + f64::from(j)))).collect();
     let half = p.turn_step_deg.to_radians() / 2.0;
     let fine_turns = [turn - half / 2.0, turn, turn + half / 2.0];
-    let (score, (fu, fv), fturn) = best_placement(&fine, &fine_target, &near, &fine_turns, p.min_overlap)?;
+    let (score, (fu, fv), fturn) = best_placement(&fine, fine_target, &near, &fine_turns, p.min_overlap)?;
     if score < p.min_score {
         return None;
     }
@@ -240,28 +262,26 @@ pub struct HypothesisMatch {
 /// region, then refined one level finer; the best placement of all is returned. Hypotheses stand for motions that
 /// are not a shift and a turn in the image (a camera circling the object).
 pub fn search_hypotheses(
-    model: &Gray,
+    images: &SearchImages,
     mask: &Mask,
-    target: &Gray,
     p: &CoarseSearchParams,
     near: &CoarseMatch,
     count: usize,
     predict: &(dyn Fn(usize, f64, f64) -> Option<[f64; 2]> + Sync),
 ) -> Option<HypothesisMatch> {
-    let level = p.level.max(1);
-    let (coarse_model, coarse_target) = (level_of(model, level), level_of(target, level));
-    let (fine_model, fine_target) = (level_of(model, level - 1), level_of(target, level - 1));
+    let level = images.level;
+    let ([coarse_model, coarse_target], [fine_model, fine_target]) = (&images.coarse, &images.fine);
     let searched: Vec<Option<(f64, [f64; 2])>> = (0..count)
         .into_par_iter()
         .map(|h| {
             let moved = |x: f64, y: f64| predict(h, x, y).map(|q| [q[0] + near.shift[0], q[1] + near.shift[1]]);
-            let coarse = Template::predicted(&coarse_model, mask, level, p.max_pixels, &moved)?;
+            let coarse = Template::predicted(coarse_model, mask, level, p.max_pixels, &moved)?;
             let s = f64::from(1u32 << level);
             let (w, h) = coarse_target.dims();
             let centres: Vec<(f64, f64)> = (0..h).flat_map(|y| (0..w).map(move |x| (x as f64, y as f64))).collect();
-            let (_, (u, v), _) = best_placement_serial(&coarse, &coarse_target, &centres, p.min_overlap)?;
+            let (_, (u, v), _) = best_placement(&coarse, coarse_target, &centres, &[0.0], p.min_overlap)?;
             let coarse_shift = [(u - coarse.centre[0]) * s, (v - coarse.centre[1]) * s];
-            let fine = Template::predicted(&fine_model, mask, level - 1, p.max_pixels * 2, &|x, y| {
+            let fine = Template::predicted(fine_model, mask, level - 1, p.max_pixels * 2, &|x, y| {
                 moved(x, y).map(|q| [q[0] + coarse_shift[0], q[1] + coarse_shift[1]])
             })?;
             let fs = s / 2.0;
@@ -269,7 +289,7 @@ pub fn search_hypotheses(
                 .flat_map(|j| (-3..=3).map(move |i| (f64::from(i), f64::from(j))))
                 .map(|(i, j)| (fine.centre[0] + i, fine.centre[1] + j))
                 .collect();
-            let (score, (fu, fv), _) = best_placement_serial(&fine, &fine_target, &near_fine, p.min_overlap)?;
+            let (score, (fu, fv), _) = best_placement(&fine, fine_target, &near_fine, &[0.0], p.min_overlap)?;
             let shift = [
                 near.shift[0] + coarse_shift[0] + (fu - fine.centre[0]) * fs,
                 near.shift[1] + coarse_shift[1] + (fv - fine.centre[1]) * fs,
@@ -285,23 +305,6 @@ pub fn search_hypotheses(
         },
     )?;
     (score >= p.min_score).then_some(HypothesisMatch { index, shift, score })
-}
-
-/// [`best_placement`] without a turn, in order on one thread (each hypothesis is one task).
-fn best_placement_serial(
-    template: &Template,
-    target: &Gray,
-    centres: &[(f64, f64)],
-    min_overlap: f64,
-) -> Option<(f64, (f64, f64), f64)> {
-    centres
-        .iter()
-        .filter_map(|&c| template.score(target, c, (0.0, 1.0), min_overlap).map(|s| (s, c)))
-        .fold(None, |best: Option<(f64, (f64, f64))>, c| match best {
-            Some(b) if b.0 >= c.0 => Some(b),
-            _ => Some(c),
-        })
-        .map(|(s, c)| (s, c, 0.0))
 }
 
 #[cfg(test)]
@@ -337,7 +340,8 @@ mod tests {
                 let (u, v) = inv(x as f64, y as f64);
                 1.3 * tex(u, v) - 0.1
             });
-            let found = coarse_search(&model, &mask, &target, &CoarseSearchParams::default()).expect("found");
+            let found = coarse_search(&SearchImages::new(&model, &target, 3), &mask, &CoarseSearchParams::default())
+                .expect("found");
             for (x, y) in [(110.0, 100.0), (140.0, 120.0), (80.0, 80.0)] {
                 let (a, b) = (found.apply(x, y), truth.apply(x, y));
                 let e = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt();
@@ -355,10 +359,10 @@ mod tests {
         let tex = texture(w, h, 0.0);
         let mask = Mask::from_fn(w, h, |x, y| (60..140).contains(&x) && (60..140).contains(&y));
         let flat = Gray::filled(w, h, 0.5);
-        assert!(coarse_search(&flat, &mask, &flat, &CoarseSearchParams::default()).is_none());
+        assert!(coarse_search(&SearchImages::new(&flat, &flat, 3), &mask, &CoarseSearchParams::default()).is_none());
         let model = Gray::from_fn(w, h, |x, y| tex(x as f64, y as f64));
         let noise = Gray::from_fn(w, h, |x, y| ((x * 7919 + y * 104_729) % 97) as f32 / 97.0);
-        let m = coarse_search(&model, &mask, &noise, &CoarseSearchParams::default());
+        let m = coarse_search(&SearchImages::new(&model, &noise, 3), &mask, &CoarseSearchParams::default());
         assert!(m.is_none(), "{m:?}");
     }
 }

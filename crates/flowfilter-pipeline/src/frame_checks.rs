@@ -6,6 +6,7 @@ use crate::error::PipelineError;
 use crate::frame::RgbdFrame;
 use crate::stages::PreparedFrame;
 use crate::warning::PipelineWarning;
+use flowfilter_geometry::Mask;
 
 /// The nearest median depth accepted, metres: no RGB-D sensor measures closer.
 pub const MIN_MEDIAN_DEPTH_M: f64 = 0.05;
@@ -108,12 +109,16 @@ pub fn check_cloud(frame: &RgbdFrame, prepared: &PreparedFrame) -> Result<(), Pi
     ))
 }
 
+/// The fraction of the image inside `mask`.
+fn covered_fraction(mask: &Mask) -> f64 {
+    mask.count() as f64 / mask.as_slice().len().max(1) as f64
+}
+
 /// Whether a frame came without an object mask: its mask covers (nearly) the whole image, or
 /// is exactly its pixels with depth (what a frame of registered depth gets without a mask).
 pub fn is_unmasked(frame: &RgbdFrame) -> bool {
     let mask = frame.mask.as_slice();
-    let covered = mask.iter().filter(|&&m| m).count() as f64 / mask.len().max(1) as f64;
-    covered >= FULL_MASK_FRACTION
+    covered_fraction(&frame.mask) >= FULL_MASK_FRACTION
         || (frame.sensor.is_registered()
             && frame.depth.dims() == frame.mask.dims()
             && mask.iter().zip(frame.depth.as_slice()).all(|(m, d)| *m == (*d > 0)))
@@ -121,7 +126,6 @@ pub fn is_unmasked(frame: &RgbdFrame) -> bool {
 
 /// A warning when the frame's mask covers (nearly) the whole image.
 pub fn mask_coverage(frame: &PreparedFrame) -> Option<PipelineWarning> {
-    let total = frame.mask.as_slice().len().max(1);
-    let fraction = frame.mask.as_slice().iter().filter(|&&m| m).count() as f64 / total as f64;
+    let fraction = covered_fraction(&frame.mask);
     (fraction >= FULL_MASK_FRACTION).then(|| PipelineWarning::MaskCoversFrame { frame: frame.label.clone(), fraction })
 }

@@ -8,6 +8,7 @@ use crate::frame::RgbdFrame;
 use crate::judge::{self, JudgeReport};
 use crate::stages::{CorrespondenceFinder, DepthPreparer, FlowCorrespondenceFinder, FramePreparer, PreparedFrame};
 use crate::warning::PipelineWarning;
+use crate::wide::CoarseView;
 use flowfilter_flow::correspondences::FlowPairs;
 use flowfilter_geometry::Pose;
 use flowfilter_registration::judge::{TurnCandidate, TurnHypotheses};
@@ -169,17 +170,22 @@ impl Pipeline {
             StageTimes { depth_model: model.seconds * 1e3, depth_target: target.seconds * 1e3, ..Default::default() };
         let mut warnings: Vec<PipelineWarning> = vec![];
         // A target without a mask, for a model with one: the model's mask is propagated.
-        let propagated = (target.unmasked && !model.unmasked).then(|| {
-            let (frame, placed) = crate::propagate::with_propagated_mask(model, target, &self.config.flow.wide);
+        let propagate = target.unmasked && !model.unmasked;
+        let wide = &self.config.flow.wide;
+        let coarse =
+            (propagate || (wide.enabled && self.finder().is_some())).then(|| CoarseView::new(model, target, wide));
+        let propagated = coarse.as_ref().filter(|_| propagate).map(|view| {
+            let placed = view.found.is_some();
             warnings.push(PipelineWarning::MaskPropagated { frame: target.label.clone(), placed });
-            frame
+            crate::propagate::with_propagated_mask(model, target, view.found.as_ref())
         });
         let target = propagated.as_ref().unwrap_or(target);
         warnings.extend([model, target].into_iter().filter_map(crate::frame_checks::mask_coverage));
         let mut problem = RegistrationProblem::new(model.cloud.clone(), target.cloud.clone());
         let found = self.finder().and_then(|finder| {
             let tf = Instant::now();
-            let found = self.correspondence_stage(finder, model, target, &mut problem, &mut warnings);
+            let found =
+                self.correspondence_stage(finder, (model, target), coarse.as_ref(), &mut problem, &mut warnings);
             if let Some(f) = &found {
                 times.flow = f.flow_seconds * 1e3;
                 times.correspondences = (tf.elapsed().as_secs_f64() - f.flow_seconds).max(0.0) * 1e3;
@@ -220,8 +226,8 @@ impl Pipeline {
     fn correspondence_stage(
         &self,
         finder: &dyn CorrespondenceFinder,
-        model: &PreparedFrame,
-        target: &PreparedFrame,
+        (model, target): (&PreparedFrame, &PreparedFrame),
+        coarse: Option<&CoarseView>,
         problem: &mut RegistrationProblem,
         warnings: &mut Vec<PipelineWarning>,
     ) -> Option<FoundSets> {
@@ -229,7 +235,7 @@ impl Pipeline {
             warnings.push(PipelineWarning::FlowSkipped { model: model.label.clone(), target: target.label.clone() });
             return None;
         }
-        match self.find_correspondences(finder, model, target, problem) {
+        match self.find_correspondences(finder, (model, target), coarse, problem) {
             Ok(found) => Some(found),
             Err(e) => {
                 (problem.correspondences, problem.alternative_correspondences, problem.prior) = (None, vec![], None);
@@ -245,14 +251,14 @@ impl Pipeline {
     fn find_correspondences(
         &self,
         finder: &dyn CorrespondenceFinder,
-        model: &PreparedFrame,
-        target: &PreparedFrame,
+        (model, target): (&PreparedFrame, &PreparedFrame),
+        coarse: Option<&CoarseView>,
         problem: &mut RegistrationProblem,
     ) -> Result<FoundSets, PipelineError> {
         let mut sets = vec![finder.find(model, target)?];
         // The region tracked again from where a coarse search finds it, when it moved beyond
         // the pyramid's reach: one more candidate set for the registration's RANSAC.
-        if let Some(guide) = crate::wide::wide_guide(model, target, &self.config.flow.wide) {
+        if let Some(guide) = coarse.and_then(|view| crate::wide::wide_guide(model, view, &self.config.flow.wide)) {
             sets.push(finder.find_guided(model, target, &guide)?);
         }
         if self.config.flow.guided

@@ -2,20 +2,18 @@
 //! coarse search ([`flowfilter_flow::coarse_search`]) finds the region in the target image (or
 //! left where it is when the search finds nothing), and the target's cloud cut to it.
 
-use crate::config::WideBaselineConfig;
 use crate::stages::PreparedFrame;
-use flowfilter_flow::coarse_search::{CoarseMatch, coarse_search};
+use flowfilter_flow::coarse_search::CoarseMatch;
 use flowfilter_geometry::Mask;
 
-/// `target` with the model's mask propagated into it (see the module documentation), and
-/// whether the coarse search placed it (else it stays where the model's mask is).
+/// `target` with the model's mask propagated into it: moved by where the coarse search
+/// `found` the model's region, else left in place (see the module documentation).
 pub(crate) fn with_propagated_mask(
     model: &PreparedFrame,
     target: &PreparedFrame,
-    cfg: &WideBaselineConfig,
-) -> (PreparedFrame, bool) {
-    let found = coarse_search(&model.gray, &model.mask, &target.gray, &cfg.search);
-    let mask = found.as_ref().map_or_else(|| model.mask.clone(), |m| moved_mask(&model.mask, m));
+    found: Option<&CoarseMatch>,
+) -> PreparedFrame {
+    let mask = found.map_or_else(|| model.mask.clone(), |m| moved_mask(&model.mask, m));
     let camera = &target.sensor.color;
     let inside: Vec<usize> = (0..target.cloud.len())
         .filter(|&i| {
@@ -25,7 +23,7 @@ pub(crate) fn with_propagated_mask(
             })
         })
         .collect();
-    let propagated = PreparedFrame {
+    PreparedFrame {
         label: target.label.clone(),
         gray: target.gray.clone(),
         depth: target.depth.clone(),
@@ -36,8 +34,7 @@ pub(crate) fn with_propagated_mask(
         rays: target.rays.clone(),
         seconds: target.seconds,
         unmasked: false,
-    };
-    (propagated, found.is_some())
+    }
 }
 
 /// `mask` moved by the match: a target pixel is in it when the pixel it came from is.

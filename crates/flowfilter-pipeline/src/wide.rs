@@ -4,9 +4,26 @@
 use crate::config::WideBaselineConfig;
 use crate::stages::PreparedFrame;
 use flowfilter_camera::{CameraModel, Pixel};
-use flowfilter_flow::coarse_search::{CoarseMatch, coarse_search, search_hypotheses};
+use flowfilter_flow::coarse_search::{CoarseMatch, SearchImages, coarse_search, search_hypotheses};
 use flowfilter_geometry::Pose;
 use nalgebra::{Rotation3, Translation3, Unit, UnitQuaternion, Vector3};
+
+/// The coarse search of one pair, run once: its pyramid levels and where it placed the model's
+/// region (shared by the wide-baseline guide and the mask propagation).
+pub(crate) struct CoarseView {
+    images: SearchImages,
+    /// Where the model's region went, when the search found it.
+    pub(crate) found: Option<CoarseMatch>,
+}
+
+impl CoarseView {
+    /// The search of `model`'s region in `target`.
+    pub(crate) fn new(model: &PreparedFrame, target: &PreparedFrame, cfg: &WideBaselineConfig) -> Self {
+        let images = SearchImages::new(&model.gray, &target.gray, cfg.search.level);
+        let found = coarse_search(&images, &model.mask, &cfg.search);
+        Self { images, found }
+    }
+}
 
 /// The motion the coarse search predicts for the model's region, when the search finds the
 /// region and the motion moves its pixels at least `min_motion_px` on average.
@@ -16,14 +33,14 @@ use nalgebra::{Rotation3, Translation3, Unit, UnitQuaternion, Vector3};
 /// [`ORBIT_MAX_DEG`] about the camera's x or y axis, each placed by its own shift search (a
 /// camera circling the object: its sides turn away while it shifts less than a pan would move
 /// it). The second is taken when it correlates clearly better.
-pub(crate) fn wide_guide(model: &PreparedFrame, target: &PreparedFrame, cfg: &WideBaselineConfig) -> Option<Pose> {
+pub(crate) fn wide_guide(model: &PreparedFrame, view: &CoarseView, cfg: &WideBaselineConfig) -> Option<Pose> {
     if !cfg.enabled {
         return None;
     }
-    let found = coarse_search(&model.gray, &model.mask, &target.gray, &cfg.search)?;
+    let found = view.found?;
     let camera = &model.sensor.color;
     let flat = camera_turn(camera, &found)?;
-    let orbit = cfg.orbit.then(|| orbit_guide(model, target, cfg, &found)).flatten();
+    let orbit = cfg.orbit.then(|| orbit_guide(model, view, cfg, &found)).flatten();
     let guide = orbit.unwrap_or(flat);
     (mean_motion_px(&guide, model) >= cfg.min_motion_px).then_some(guide)
 }
@@ -39,7 +56,7 @@ const ORBIT_MARGIN: f64 = 0.05;
 /// match `found` by [`ORBIT_MARGIN`] (the hypotheses' shifts are searched from no shift).
 fn orbit_guide(
     model: &PreparedFrame,
-    target: &PreparedFrame,
+    view: &CoarseView,
     cfg: &WideBaselineConfig,
     found: &CoarseMatch,
 ) -> Option<Pose> {
@@ -66,8 +83,7 @@ fn orbit_guide(
         Some([q.x, q.y])
     };
     let from_still = CoarseMatch { shift: [0.0; 2], turn_rad: 0.0, ..*found };
-    let best =
-        search_hypotheses(&model.gray, &model.mask, &target.gray, &cfg.search, &from_still, turns.len(), &predict)?;
+    let best = search_hypotheses(&view.images, &model.mask, &cfg.search, &from_still, turns.len(), &predict)?;
     if best.score < found.score + ORBIT_MARGIN {
         return None;
     }

@@ -183,10 +183,7 @@ impl FrameDraw {
     pub fn perturb_mask(&self, mask: &Mask) -> Mask {
         let (w, h) = mask.dims();
         let (dx, dy) = self.mask_shift;
-        let at = |x: i64, y: i64| {
-            x >= 0 && y >= 0 && (x as usize) < w && (y as usize) < h && *mask.at(x as usize, y as usize)
-        };
-        let shifted = Mask::from_fn(w, h, |x, y| at(x as i64 - i64::from(dx), y as i64 - i64::from(dy)));
+        let shifted = crate::network_mask::shifted(mask, (i64::from(dx), i64::from(dy)));
         let r = i64::from(self.mask_grow.unsigned_abs());
         if r == 0 {
             return shifted;

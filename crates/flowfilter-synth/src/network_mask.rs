@@ -123,12 +123,8 @@ impl MaskDefects {
                 *mask.at(x, y) || (x as f64 - bx).powi(2) + (y as f64 - by).powi(2) <= r * r
             });
         }
-        let (dx, dy) = (self.shift.0.round() as i64, self.shift.1.round() as i64);
-        let shifted = Mask::from_fn(w, h, |x, y| {
-            let (sx, sy) = (x as i64 - dx, y as i64 - dy);
-            sx >= 0 && sy >= 0 && (sx as usize) < w && (sy as usize) < h && *mask.at(sx as usize, sy as usize)
-        });
-        shifted.as_slice().iter().any(|m| *m).then_some(shifted)
+        let moved = shifted(&mask, (self.shift.0.round() as i64, self.shift.1.round() as i64));
+        moved.as_slice().iter().any(|m| *m).then_some(moved)
     }
 }
 
@@ -162,6 +158,15 @@ impl MaskShape {
             .map(|(i, _)| ((i % w) as f64 - self.cx) * dir.0 + ((i / w) as f64 - self.cy) * dir.1);
         offsets.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), o| (lo.min(o), hi.max(o)))
     }
+}
+
+/// `mask` moved by `(dx, dy)` pixels (what moves in from beyond the border is background).
+pub(crate) fn shifted(mask: &Mask, (dx, dy): (i64, i64)) -> Mask {
+    let (w, h) = mask.dims();
+    Mask::from_fn(w, h, |x, y| {
+        let (sx, sy) = (x as i64 - dx, y as i64 - dy);
+        sx >= 0 && sy >= 0 && (sx as usize) < w && (sy as usize) < h && *mask.at(sx as usize, sy as usize)
+    })
 }
 
 /// `mask` with its boundary moved out by `px` pixels (in for negative `px`): pixels within
