@@ -132,7 +132,8 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
     let protocol = load_protocol(args)?;
     let cameras = protocol.sensors().map_err(anyhow::Error::msg)?;
     let configs = protocol.method_configs(args.run.voxel)?;
-    let methods = Methods::new(&protocol.methods, &configs)?;
+    let mut methods = Methods::new(&protocol.methods, &configs)?;
+    methods.record_failures(args.run.rerun.as_deref(), args.run.rerun_limit)?;
     let started = Instant::now();
     let (all_objects, object_dirs) = object_dirs(args, &protocol, &cameras)?;
     let mut results: Vec<PairResult> = Vec::new();
@@ -148,7 +149,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
             }
         };
         let bench = ObjectBench { name: &name, object: &obj, protocol: &protocol, cameras: &cameras };
-        results.append(&mut bench.run(&methods));
+        results.append(&mut bench.run(&methods)?);
     }
     let mut paper = String::from(
         "The paper's published numbers (real BigBIRD objects, for reference):\n\n| paper object | Flow Filter | FilterReg | CPD |\n| --- | --- | --- | --- |\n",
@@ -177,6 +178,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         check: args.run.check,
         shard: args.run.shard.map(|shard| ShardRun { shard, group_field: "object", all_groups: all_objects }),
     };
+    methods.finish_recording()?;
     write_outputs(&spec, &results, &skipped, started.elapsed().as_secs_f64())?;
     Ok(())
 }
@@ -279,10 +281,10 @@ impl ObjectBench<'_> {
     }
 
     /// The object's frames prepared and its pairs run.
-    fn run(&self, methods: &Methods) -> Vec<PairResult> {
+    fn run(&self, methods: &Methods) -> anyhow::Result<Vec<PairResult>> {
         let load = |id: FrameId| load_bigbird_frame(self.object, id).map_err(|e| format!("loading: {e}"));
         let prepared = methods.prepare(&self.frames(), &load, self.name);
-        methods.run(&self.jobs(), &prepared, self.name)
+        methods.run(&self.jobs(), &prepared, &load, self.name)
     }
 }
 
@@ -320,7 +322,7 @@ mod tests {
             meshes: None,
             protocol: Some(protocol),
             methods: None,
-            run: RunArgs { out: out.clone(), voxel: Some(0.002), check: true, shard: None },
+            run: RunArgs { out: out.clone(), voxel: Some(0.002), check: true, shard: None, rerun: None, rerun_limit: 20 },
         };
         run(&args).unwrap();
         let run_dir = std::fs::read_dir(&out).unwrap().next().unwrap().unwrap().path();

@@ -82,7 +82,8 @@ pub fn run(args: &BopBenchArgs) -> anyhow::Result<()> {
         bail!("--min-visib: expected a fraction in [0, 1], found {}", args.min_visib);
     }
     let configs = crate::pairs::method_configs(&args.pipeline, &args.methods, args.run.voxel)?;
-    let methods = Methods::new(&args.methods, &configs)?;
+    let mut methods = Methods::new(&args.methods, &configs)?;
+    methods.record_failures(args.run.rerun.as_deref(), args.run.rerun_limit)?;
     let started = Instant::now();
     let Scenes { all: all_scenes, dirs: scene_dirs, names } = scene_dirs(args)?;
     let mut results: Vec<PairResult> = vec![];
@@ -107,7 +108,7 @@ pub fn run(args: &BopBenchArgs) -> anyhow::Result<()> {
         frames.dedup();
         let load = |k: BopKey| scene.frame(k.im_id, k.obj_id);
         let prepared = methods.prepare(&frames, &load, &format!("scene {label}"));
-        results.append(&mut methods.run(&jobs, &prepared, &format!("scene {label}")));
+        results.append(&mut methods.run(&jobs, &prepared, &load, &format!("scene {label}"))?);
     }
     // A shard may hold no pair (more shards than scenes, or only skipped scenes): the merge
     // decides whether the run as a whole has any.
@@ -142,6 +143,7 @@ pub fn run(args: &BopBenchArgs) -> anyhow::Result<()> {
         check: args.run.check,
         shard: args.run.shard.map(|shard| ShardRun { shard, group_field: "camera", all_groups: all_scenes.clone() }),
     };
+    methods.finish_recording()?;
     write_outputs(&spec, &results, &skipped, started.elapsed().as_secs_f64())?;
     Ok(())
 }
@@ -314,7 +316,7 @@ mod tests {
             min_visib: 0.1,
             quick: false,
             meshes: None,
-            run: RunArgs { out, voxel: Some(0.002), check: true, shard: None },
+            run: RunArgs { out, voxel: Some(0.002), check: true, shard: None, rerun: None, rerun_limit: 20 },
         }
     }
 
@@ -386,7 +388,7 @@ mod real_frames {
             min_visib: 0.1,
             quick: false,
             meshes: None,
-            run: RunArgs { out: tmp.path().to_path_buf(), voxel: None, check: true, shard: None },
+            run: RunArgs { out: tmp.path().to_path_buf(), voxel: None, check: true, shard: None, rerun: None, rerun_limit: 20 },
         };
         run(&args).unwrap();
         let run_dir = std::fs::read_dir(tmp.path()).unwrap().next().unwrap().unwrap().path();

@@ -102,7 +102,8 @@ pub fn run(args: &RealBenchArgs) -> anyhow::Result<()> {
     let regions = if args.quick { args.regions.min(1) } else { args.regions };
     let mask_model = if args.exact_masks { NetworkMaskModel::EXACT } else { NetworkMaskModel::SHELF_NETWORK };
     let configs = crate::pairs::method_configs(&args.pipeline, &args.methods, args.run.voxel)?;
-    let methods = Methods::new(&args.methods, &configs)?;
+    let mut methods = Methods::new(&args.methods, &configs)?;
+    methods.record_failures(args.run.rerun.as_deref(), args.run.rerun_limit)?;
     let started = Instant::now();
     let (all, dirs) = sequence_dirs(args)?;
     let mut results: Vec<PairResult> = vec![];
@@ -148,7 +149,7 @@ pub fn run(args: &RealBenchArgs) -> anyhow::Result<()> {
         frames.dedup();
         let load = |k: RealKey| plan.frame(k, &regions_of);
         let prepared = methods.prepare(&frames, &load, &format!("sequence {label}"));
-        results.append(&mut methods.run(&jobs, &prepared, &format!("sequence {label}")));
+        results.append(&mut methods.run(&jobs, &prepared, &load, &format!("sequence {label}"))?);
     }
     if results.is_empty() && args.run.shard.is_none() {
         bail!("no pair to run: {}", skipped.iter().map(|(g, e)| format!("{g}: {e}")).collect::<Vec<_>>().join("; "));
@@ -185,6 +186,7 @@ pub fn run(args: &RealBenchArgs) -> anyhow::Result<()> {
         check: args.run.check,
         shard: args.run.shard.map(|shard| ShardRun { shard, group_field: "camera", all_groups: all.clone() }),
     };
+    methods.finish_recording()?;
     write_outputs(&spec, &results, &skipped, started.elapsed().as_secs_f64())?;
     Ok(())
 }
@@ -392,7 +394,7 @@ mod tests {
             pipeline: PathBuf::from("configs/flowfilter.toml"),
             save_masks: None,
             quick: true,
-            run: RunArgs { out, voxel: None, check: true, shard: None },
+            run: RunArgs { out, voxel: None, check: true, shard: None, rerun: None, rerun_limit: 20 },
         }
     }
 

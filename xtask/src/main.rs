@@ -24,6 +24,7 @@ mod bench_bop;
 mod bench_real;
 mod dataset;
 mod deps;
+mod failures;
 mod merge;
 mod mutate;
 mod pairs;

@@ -1,6 +1,7 @@
 //! What both benchmarks share: frames prepared once per group of methods, every (pair, method)
 //! estimated and scored against the ground truth, and the "no motion" answer scored beside them.
 
+use crate::failures::FailureLog;
 use anyhow::Context;
 use flowfilter_eval::PoseErrors;
 use flowfilter_pipeline::geometry::rigid_from_matrix;
@@ -14,7 +15,8 @@ use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, BTreeSet};
 use std::fmt::Display;
 use std::io::IsTerminal;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
@@ -37,6 +39,14 @@ pub struct RunArgs {
     /// `cargo xtask bench-merge` checks and merges.
     #[arg(long)]
     pub shard: Option<crate::shard::Shard>,
+    /// Record the failing pairs (a method's estimate not a success) to this Rerun file: both
+    /// frames, depth, masks, clouds, flow pairs, the judge's candidates, pose, bounds and
+    /// error, one step of the `pair` timeline each (docs/rerun.md). Needs `--features rerun`.
+    #[arg(long)]
+    pub rerun: Option<PathBuf>,
+    /// At most this many failing pairs are recorded (each holds both frames' images).
+    #[arg(long, default_value_t = 20)]
+    pub rerun_limit: usize,
 }
 
 /// The row of the identity estimate: what answering "it did not move" scores.
@@ -216,6 +226,8 @@ pub struct Methods<'a> {
     pub pipelines: Vec<Pipeline>,
     /// [`preparation_groups`] of their configurations.
     pub groups: Vec<usize>,
+    /// Where failing pairs are recorded (`--rerun`), when asked.
+    pub failures: Option<Mutex<FailureLog>>,
 }
 
 impl<'a> Methods<'a> {
@@ -228,7 +240,7 @@ impl<'a> Methods<'a> {
             .iter()
             .map(|c| Pipeline::from_config(c.clone()).with_context(|| format!("method '{}'", c.method)))
             .collect::<anyhow::Result<_>>()?;
-        Ok(Self { names, pipelines, groups: preparation_groups(configs) })
+        Ok(Self { names, pipelines, groups: preparation_groups(configs), failures: None })
     }
 }
 
@@ -258,8 +270,51 @@ impl Methods<'_> {
         prepared
     }
 
-    /// Every pair with every method, plus its "no motion" row, estimated and scored.
-    pub fn run<K>(&self, jobs: &[PairJob<K>], prepared: &PreparedFrames<K>, label: &str) -> Vec<PairResult>
+    /// Record the failing pairs of every later [`Methods::run`] in `path` (at most `limit`).
+    ///
+    /// # Errors
+    /// The file cannot be created, or this build has no Rerun (feature `rerun`).
+    pub fn record_failures(&mut self, path: Option<&Path>, limit: usize) -> anyhow::Result<()> {
+        self.failures = path.map(|p| FailureLog::create(p, limit)).transpose()?;
+        Ok(())
+    }
+
+    /// Close the recording of failing pairs, if any.
+    ///
+    /// # Errors
+    /// The last entities cannot be written.
+    pub fn finish_recording(&mut self) -> anyhow::Result<()> {
+        match self.failures.take() {
+            Some(log) => log.into_inner().map_err(|_| anyhow::anyhow!("--rerun: the recording was poisoned"))?.finish(),
+            None => Ok(()),
+        }
+    }
+
+    /// Every pair with every method, plus its "no motion" row, estimated and scored; the
+    /// failing pairs recorded when [`Methods::record_failures`] asked for it (`load` gives
+    /// their colour images again).
+    ///
+    /// # Errors
+    /// Only the recording's: a failing pair that cannot be written.
+    pub fn run<K>(
+        &self,
+        jobs: &[PairJob<K>],
+        prepared: &PreparedFrames<K>,
+        load: &(dyn Fn(K) -> Result<RgbdFrame, String> + Sync),
+        label: &str,
+    ) -> anyhow::Result<Vec<PairResult>>
+    where
+        K: Ord + Copy + Send + Sync + Display,
+    {
+        let rows = self.run_rows(jobs, prepared, label);
+        if let Some(log) = &self.failures {
+            let mut log = log.lock().map_err(|_| anyhow::anyhow!("--rerun: the recording was poisoned"))?;
+            log.record((self.names, &self.pipelines, &self.groups), jobs, prepared, &rows, load)?;
+        }
+        Ok(rows)
+    }
+
+    fn run_rows<K>(&self, jobs: &[PairJob<K>], prepared: &PreparedFrames<K>, label: &str) -> Vec<PairResult>
     where
         K: Ord + Copy + Send + Sync + Display,
     {

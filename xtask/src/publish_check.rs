@@ -17,7 +17,7 @@ pub struct PublishCheckArgs {
 }
 
 /// The crates that are published, in dependency order.
-pub const PUBLISHED: [&str; 10] = [
+pub const PUBLISHED: [&str; 11] = [
     "flowfilter-geometry",
     "flowfilter-camera",
     "flowfilter-eval",
@@ -27,6 +27,7 @@ pub const PUBLISHED: [&str; 10] = [
     "flowfilter-flow",
     "flowfilter-registration",
     "flowfilter-pipeline",
+    "flowfilter-rerun",
     "flowfilter",
 ];
 

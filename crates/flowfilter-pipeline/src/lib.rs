@@ -34,6 +34,7 @@ mod pipeline;
 mod propagate;
 mod source;
 mod stages;
+mod trace;
 mod warning;
 mod wide;
 
@@ -49,6 +50,7 @@ pub use judge::{JudgeConfig, JudgeReport};
 pub use pipeline::Pipeline;
 pub use source::{FrameFiles, MaskSource};
 pub use stages::{CorrespondenceFinder, DepthPreparer, FlowCorrespondenceFinder, FramePreparer, PreparedFrame};
+pub use trace::{PairTrace, TracedCandidate, TracedSet};
 pub use warning::PipelineWarning;
 
 // What the stage traits' signatures speak, so that a custom stage needs no other import.

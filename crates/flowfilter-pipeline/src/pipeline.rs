@@ -7,6 +7,7 @@ use crate::estimate::{CorrespondenceSummary, ESTIMATE_SCHEMA, Estimate, Registra
 use crate::frame::RgbdFrame;
 use crate::judge::{self, JudgeReport};
 use crate::stages::{CorrespondenceFinder, DepthPreparer, FlowCorrespondenceFinder, FramePreparer, PreparedFrame};
+use crate::trace::{PairTrace, TracedCandidate, TracedSet};
 use crate::warning::PipelineWarning;
 use crate::wide::CoarseView;
 use flowfilter_flow::correspondences::FlowPairs;
@@ -32,6 +33,8 @@ pub struct Pipeline {
 
 /// The correspondence stage's candidate sets, in the order handed to the registrar.
 struct FoundSets {
+    /// Per set: where it came from (`plain`, `wide`, `guided`).
+    sources: Vec<&'static str>,
     /// Per set: pixels tracked, pairs found, pairs with a positive weight.
     counts: Vec<SearchCounts>,
     /// Seconds spent in flow estimation.
@@ -149,10 +152,36 @@ impl Pipeline {
         target: &RgbdFrame,
         truth: Option<&Pose>,
     ) -> Result<(Estimate, PreparedFrame, PreparedFrame), PipelineError> {
+        self.against(model, target, truth, None)
+    }
+
+    /// [`Pipeline::estimate_against`] with the pair's [`PairTrace`] (as
+    /// [`Pipeline::estimate_traced`]): what a recording of the pair shows.
+    ///
+    /// # Errors
+    /// As [`Pipeline::estimate`].
+    pub fn estimate_against_traced(
+        &self,
+        model: &RgbdFrame,
+        target: &RgbdFrame,
+        truth: Option<&Pose>,
+    ) -> Result<(Estimate, PreparedFrame, PreparedFrame, PairTrace), PipelineError> {
+        let mut trace = self.empty_trace();
+        let (e, a, b) = self.against(model, target, truth, Some(&mut trace))?;
+        Ok((e, a, b, trace))
+    }
+
+    fn against(
+        &self,
+        model: &RgbdFrame,
+        target: &RgbdFrame,
+        truth: Option<&Pose>,
+        trace: Option<&mut PairTrace>,
+    ) -> Result<(Estimate, PreparedFrame, PreparedFrame), PipelineError> {
         let t0 = Instant::now();
         let a = self.prepare(model)?;
         let b = self.prepare(target)?;
-        let mut e = self.estimate_prepared(&a, &b)?;
+        let mut e = self.estimate_inner(&a, &b, trace)?;
         e.stage_ms.total = t0.elapsed().as_secs_f64() * 1e3;
         if let Some(truth) = truth {
             e = e.with_ground_truth(truth, Some(&a.cloud.points));
@@ -160,11 +189,63 @@ impl Pipeline {
         Ok((e, a, b))
     }
 
+    /// A trace with nothing recorded yet but the configuration's inlier distance.
+    fn empty_trace(&self) -> PairTrace {
+        PairTrace { inlier_distance_m: self.config.registration.flowfilter.inlier_threshold_m, ..PairTrace::default() }
+    }
+
     /// Estimate from frames already prepared (their preparation times are reported).
     ///
     /// # Errors
     /// [`PipelineError::Registration`] when the clouds cannot be registered.
     pub fn estimate_prepared(&self, model: &PreparedFrame, target: &PreparedFrame) -> Result<Estimate, PipelineError> {
+        self.estimate_inner(model, target, None)
+    }
+
+    /// [`Pipeline::estimate_prepared`] with what it weighed on the way: the candidate sets of
+    /// flow correspondences, the set kept, the judge's candidates and scores, a propagated
+    /// mask ([`PairTrace`]). The estimate is the same as without the trace.
+    ///
+    /// # Errors
+    /// As [`Pipeline::estimate_prepared`].
+    ///
+    /// ```
+    /// use flowfilter_bigbird::SensorId;
+    /// use flowfilter_pipeline::{Pipeline, PipelineConfig, RgbdFrame};
+    /// use flowfilter_synth::{Rig, Scene, procedural, render_frame};
+    ///
+    /// let (rig, sensor) = (Rig::bigbird_like(), SensorId::new(3).unwrap());
+    /// let scene = Scene::new(procedural("box", 1)?.placed_on_table(0.01, -0.005), 1);
+    /// let frame = |angle| {
+    ///     let f = render_frame(&scene, &rig, sensor, angle, None, 7);
+    ///     let sensor = rig.sensors[&sensor].rgbd;
+    ///     RgbdFrame { label: format!("NP3_{angle}"), color: f.color, depth: f.raw_depth, mask: f.mask, sensor }
+    /// };
+    /// let pipeline = Pipeline::from_config(PipelineConfig::default())?;
+    /// let (a, b) = (pipeline.prepare(&frame(0))?, pipeline.prepare(&frame(6))?);
+    /// let (estimate, trace) = pipeline.estimate_traced(&a, &b)?;
+    /// let kept = &trace.sets[trace.kept_set.unwrap_or(0)].pairs;
+    /// let inliers = (0..kept.len()).filter(|&i| trace.is_inlier(kept, i, &estimate.pose)).count();
+    /// assert!(inliers >= 12, "{inliers} of {} pairs agree", kept.len());
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
+    pub fn estimate_traced(
+        &self,
+        model: &PreparedFrame,
+        target: &PreparedFrame,
+    ) -> Result<(Estimate, PairTrace), PipelineError> {
+        let mut trace = self.empty_trace();
+        let estimate = self.estimate_inner(model, target, Some(&mut trace))?;
+        Ok((estimate, trace))
+    }
+
+    /// The pair through the stages, filling `trace` when given.
+    fn estimate_inner(
+        &self,
+        model: &PreparedFrame,
+        target: &PreparedFrame,
+        mut trace: Option<&mut PairTrace>,
+    ) -> Result<Estimate, PipelineError> {
         let t0 = Instant::now();
         let mut times =
             StageTimes { depth_model: model.seconds * 1e3, depth_target: target.seconds * 1e3, ..Default::default() };
@@ -179,6 +260,9 @@ impl Pipeline {
             warnings.push(PipelineWarning::MaskPropagated { frame: target.label.clone(), placed });
             crate::propagate::with_propagated_mask(model, target, view.found.as_ref())
         });
+        if let (Some(t), Some(p)) = (trace.as_deref_mut(), propagated.as_ref()) {
+            t.propagated_mask = Some(p.mask.clone());
+        }
         let target = propagated.as_ref().unwrap_or(target);
         warnings.extend([model, target].into_iter().filter_map(crate::frame_checks::mask_coverage));
         let mut problem = RegistrationProblem::new(model.cloud.clone(), target.cloud.clone());
@@ -192,8 +276,15 @@ impl Pipeline {
             }
             found
         });
+        if let (Some(t), Some(f)) = (trace.as_deref_mut(), found.as_ref()) {
+            let sets = problem.correspondences.iter().chain(&problem.alternative_correspondences);
+            t.sets = sets.zip(&f.sources).map(|(pairs, &source)| TracedSet { source, pairs: pairs.clone() }).collect();
+        }
         let tr = Instant::now();
         let reg = self.registrar.register_checked(&problem)?;
+        if let Some(t) = trace.as_deref_mut() {
+            t.kept_set = reg.correspondence_set.or(found.as_ref().map(|_| 0));
+        }
         times.registration = tr.elapsed().as_secs_f64() * 1e3;
         let tj = Instant::now();
         let (reg, judge) = if found.is_some() { self.judge(model, target, &problem, reg)? } else { (reg, None) };
@@ -207,6 +298,10 @@ impl Pipeline {
             None => found.map(|f| correspondence_summary(&f, &reg)),
         };
         warnings.extend(reg.warnings.iter().cloned().map(PipelineWarning::from));
+        if let (Some(t), Some(j)) = (trace, judge.as_ref()) {
+            t.candidates.clone_from(&j.candidates);
+            t.answer_score = j.report.as_ref().map(|r| r.answer_score);
+        }
         let (report, ambiguity) = judge.map_or((None, None), |j| (j.report, j.warning));
         warnings.extend(ambiguity);
         let limit_deg = self.config.report.max_bound_deg;
@@ -256,18 +351,22 @@ impl Pipeline {
         problem: &mut RegistrationProblem,
     ) -> Result<FoundSets, PipelineError> {
         let mut sets = vec![finder.find(model, target)?];
+        let mut sources = vec!["plain"];
         // The region tracked again from where a coarse search finds it, when it moved beyond
         // the pyramid's reach: one more candidate set for the registration's RANSAC.
         if let Some(guide) = coarse.and_then(|view| crate::wide::wide_guide(model, view, &self.config.flow.wide)) {
             sets.push(finder.find_guided(model, target, &guide)?);
+            sources.push("wide");
         }
         if self.config.flow.guided
             && let Some(prior) = self.registrar.prior(problem)?
         {
             sets.push(finder.find_guided(model, target, &prior.transform)?);
+            sources.push("guided");
             problem.prior = Some(prior);
         }
         let found = FoundSets {
+            sources,
             counts: sets.iter().map(search_counts).collect(),
             flow_seconds: sets.iter().map(|s| s.flow_seconds).sum(),
         };
@@ -293,10 +392,18 @@ impl Pipeline {
         let images = judge::Textures::new(model, target, cfg);
         let answer_score = judge::photometric_score(&images, &reg.transform, cfg);
         let sweep = judge::sweep(&hypotheses, &images, cfg);
+        let candidates: Vec<TracedCandidate> = sweep
+            .coarse
+            .iter()
+            .map(|(c, score)| {
+                let a = hypotheses.axes[c.axis].direction;
+                TracedCandidate { axis: [a.x, a.y, a.z], turn_deg: c.deg, pose: c.pose, score: *score }
+            })
+            .collect();
         let Some(answer_score) = answer_score else {
             // No texture to compare: the judge can only say what else the clouds allow.
             let warning = self.ambiguity(&hypotheses, &sweep, None, None);
-            return Ok((reg, Some(Judged { report: None, retracked: None, warning })));
+            return Ok((reg, Some(Judged { report: None, candidates, retracked: None, warning })));
         };
         let best = sweep.best;
         let mut report = JudgeReport {
@@ -355,7 +462,7 @@ impl Pipeline {
                 Some(a) => self.ambiguity(&hypotheses, &aligned_sweep, Some(a), None),
                 None => self.ambiguity(&hypotheses, &sweep, Some(answer_score), None),
             };
-            Judged { report: Some(report), retracked: None, warning }
+            Judged { report: Some(report), candidates: candidates.clone(), retracked: None, warning }
         };
         // The re-tracked result is taken when it matches the image better than the answer (and,
         // with an aligned candidate in play, when aligned alike it matches at least as well as
@@ -368,7 +475,7 @@ impl Pipeline {
             report.replaced = true;
             let score = report.retracked_score.unwrap_or(answer_score);
             let warning = self.ambiguity(&hypotheses, &sweep, Some(score), Some((candidate.axis, candidate.deg)));
-            return Ok((again, Some(Judged { report: Some(report), retracked: Some(counts), warning })));
+            return Ok((again, Some(Judged { report: Some(report), candidates, retracked: Some(counts), warning })));
         }
         let Some((score, pose, candidate)) = aligned_best else { return Ok((reg, Some(kept(report)))) };
         report.replaced = true;
@@ -376,7 +483,7 @@ impl Pipeline {
         report.retracked_score = Some(score);
         report.retracked_transform = Some(matrix_rows(&pose));
         let warning = self.ambiguity(&hypotheses, &aligned_sweep, Some(score), Some((candidate.axis, candidate.deg)));
-        Ok((moved_to(reg, pose), Some(Judged { report: Some(report), retracked: None, warning })))
+        Ok((moved_to(reg, pose), Some(Judged { report: Some(report), candidates, retracked: None, warning })))
     }
 
     /// The alignment the judge runs on its candidates: `[align]` with `judge.candidate_pixels`
@@ -494,6 +601,8 @@ type SearchCounts = (usize, usize, usize);
 /// the answer, that search's counts (tracked, consistent, inliers).
 struct Judged {
     report: Option<JudgeReport>,
+    /// The candidates weighed, with their scores (for [`PairTrace`]).
+    candidates: Vec<TracedCandidate>,
     retracked: Option<SearchCounts>,
     /// Other poses that the clouds and the images allow as well.
     warning: Option<PipelineWarning>,

@@ -31,6 +31,25 @@ impl Estimate {
     fn transformation<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
         matrix(py, &self.estimate.transform)
     }
+    /// Log the estimate to Rerun (needs `rerun-sdk`): the pose, its bounds and its error when
+    /// known, the judge's scores, the stage times, the warnings and the summary, at the entity
+    /// paths of `flowfilter estimate --rerun` (docs/rerun.md), at step `step` of the `pair`
+    /// timeline. `model`/`target`: the two `Frame`s, to log their colour, depth and masks too.
+    /// `recording`: a `rerun.RecordingStream` (None: the current one).
+    ///
+    /// Raises ImportError without rerun-sdk, InputError for frames that are not `Frame`s.
+    #[pyo3(signature = (model = None, target = None, recording = None, step = 0))]
+    fn log_to_rerun(
+        slf: &Bound<'_, Self>,
+        model: Option<&Bound<'_, PyAny>>,
+        target: Option<&Bound<'_, PyAny>>,
+        recording: Option<&Bound<'_, PyAny>>,
+        step: i64,
+    ) -> PyResult<()> {
+        let log = PyModule::import(slf.py(), "flowfilter._rerun")?.getattr("log_estimate")?;
+        log.call1((slf, model, target, recording, step))?;
+        Ok(())
+    }
     /// Registration method.
     #[getter]
     fn method(&self) -> &str {

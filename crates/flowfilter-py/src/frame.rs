@@ -109,17 +109,21 @@ impl Camera {
     }
 }
 
-/// A camera argument: a `Camera`, a path to a camera file, or a dict.
+/// A camera argument: a `Camera`, an `open3d.camera.PinholeCameraIntrinsic`, a path to a camera
+/// file, or a dict.
 pub fn camera_arg(obj: &Bound<'_, PyAny>) -> PyResult<CameraFile> {
     if let Ok(c) = obj.cast::<Camera>() {
         return Ok(c.get().file.clone());
+    }
+    if let Some(d) = crate::open3d::pinhole_intrinsic(obj)? {
+        return Camera::from_dict(&d).map(|c| c.file);
     }
     if let Ok(d) = obj.cast::<PyDict>() {
         return Camera::from_dict(d).map(|c| c.file);
     }
     let path: PathBuf = obj
         .extract()
-        .map_err(|_| input("camera: expected a flowfilter.Camera, a path to a camera file (JSON) or a dict"))?;
+        .map_err(|_| input("camera: expected a flowfilter.Camera, an open3d.camera.PinholeCameraIntrinsic, a path to a camera file (JSON) or a dict"))?;
     Camera::from_file(path).map(|c| c.file)
 }
 
@@ -157,9 +161,12 @@ impl Frame {
         depth_scale: Option<f64>,
         name: &str,
     ) -> PyResult<Self> {
-        let color = arrays::color(color, "color")?;
-        let depth = arrays::depth(depth, "depth")?;
-        let mask = mask.filter(|m| !m.is_none()).map(|m| arrays::mask(m, "mask")).transpose()?;
+        let color = arrays::color(&crate::open3d::color(color, "color")?, "color")?;
+        let depth = arrays::depth(&crate::open3d::image(depth, "depth")?, "depth")?;
+        let mask = mask
+            .filter(|m| !m.is_none())
+            .map(|m| crate::open3d::image(m, "mask").and_then(|m| arrays::mask(&m, "mask")))
+            .transpose()?;
         if let Some(s) = depth_scale
             && !(s.is_finite() && s > 0.0)
         {
@@ -310,7 +317,15 @@ fn check_depth_unit(raw: &RawDepth, camera: &CameraFile, name: &str) -> PyResult
 
 /// A frame argument: a `Frame`.
 pub fn frame_arg(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Frame> {
+    if let Some((color, depth)) = crate::open3d::rgbd_parts(obj, name)? {
+        return Frame::new(&color, &depth, None, None, name);
+    }
     obj.cast::<Frame>().map(|f| f.get().clone()).map_err(|_| {
-        input(format!("{name}: expected a flowfilter.Frame (Frame(color, depth, mask=None, depth_scale=None))"))
+        let found = crate::open3d::class_name(obj)
+            .map_or_else(|| obj.get_type().name().map_or("?".into(), |n| n.to_string()), |c| format!("open3d.{c}"));
+        input(format!(
+            "{name}: expected a flowfilter.Frame (Frame(color, depth, mask=None, depth_scale=None)) or an \
+             open3d.geometry.RGBDImage, found {found}"
+        ))
     })
 }

@@ -13,6 +13,7 @@ mod errors;
 mod estimate;
 mod flow;
 mod frame;
+mod open3d;
 mod params;
 mod readers;
 mod register;
@@ -66,6 +67,7 @@ fn _flowfilter(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<frame::Camera>()?;
     m.add_class::<frame::Frame>()?;
     m.add_function(wrap_pyfunction!(register::register, m)?)?;
+    m.add_function(wrap_pyfunction!(register::evaluate_registration, m)?)?;
     m.add_function(wrap_pyfunction!(estimate::estimate, m)?)?;
     m.add_function(wrap_pyfunction!(estimate::correspondences, m)?)?;
     m.add_function(wrap_pyfunction!(flow::flow, m)?)?;

@@ -3,7 +3,7 @@
 use crate::arrays::{self, json_object, matrix};
 use crate::errors::{input, registration};
 use crate::{params, threads};
-use flowfilter_pipeline::registration::registrar_by_name;
+use flowfilter_pipeline::registration::{correspondence_set, evaluate, registrar_by_name};
 use flowfilter_pipeline::{Correspondences, PointCloud, RegisterReport, RegistrationProblem};
 use numpy::PyArray2;
 use pyo3::prelude::*;
@@ -94,10 +94,12 @@ impl RegistrationResult {
     }
 }
 
-/// A cloud from its points and optional normals (same number of rows).
+/// A cloud from its points and optional normals (same number of rows). `points` may be an
+/// `open3d.geometry.PointCloud`: its normals are used unless `normals` are given.
 pub fn cloud(points: &Bound<'_, PyAny>, normals: Option<&Bound<'_, PyAny>>, name: &str) -> PyResult<PointCloud> {
-    let mut cloud = PointCloud::from_points(arrays::points(points, name)?);
-    if let Some(n) = normals.filter(|n| !n.is_none()) {
+    let (points, own_normals) = crate::open3d::points_and_normals(points, name)?;
+    let mut cloud = PointCloud::from_points(arrays::points(&points, name)?);
+    if let Some(n) = normals.filter(|n| !n.is_none()).or(own_normals.as_ref()) {
         let normals = arrays::vectors(n, &format!("{name}_normals"))?;
         if normals.len() != cloud.len() {
             return Err(input(format!("{name}_normals: {} rows, but {name} has {}", normals.len(), cloud.len())));
@@ -135,7 +137,8 @@ fn correspondences(obj: &Bound<'_, PyAny>) -> PyResult<Correspondences> {
 
 /// Align `source` to `target`: the rigid `T` with `target ~ T @ source`.
 ///
-/// `source`, `target`: (N, 3) float32 or float64 arrays (any memory layout). `method`: one of
+/// `source`, `target`: (N, 3) float32 or float64 arrays (any memory layout), or
+/// `open3d.geometry.PointCloud`s (their normals used when they have them). `method`: one of
 /// icp-pt2pt, icp-pt2pl, cpd, filterreg-pt2pt, filterreg-pt2pl, flowfilter (with
 /// `correspondences`; without them Flow Filter falls back to FilterReg with a warning).
 /// `init`: a 4x4 initial transform. `target_normals` (and `source_normals`): (N, 3) unit
@@ -183,4 +186,46 @@ pub fn register(
         scale: r.scale,
         seconds,
     })
+}
+
+/// How well `transformation` aligns `source` to `target` (Open3D's `evaluate_registration`):
+/// `(fitness, inlier_rmse, correspondence_set)`, with fitness the fraction of moved source
+/// points whose nearest target point lies within `max_correspondence_distance`, the RMSE of
+/// those pairs (metres), and the pairs as a (K, 2) int64 array of `(source index, target
+/// index)`. `source`, `target`: (N, 3) arrays or `open3d.geometry.PointCloud`s;
+/// `transformation`: 4x4 (default identity).
+///
+/// Raises InputError for arrays that cannot be used or a distance that is not positive.
+#[pyfunction]
+#[pyo3(signature = (source, target, max_correspondence_distance, transformation = None))]
+pub fn evaluate_registration<'py>(
+    py: Python<'py>,
+    source: &Bound<'py, PyAny>,
+    target: &Bound<'py, PyAny>,
+    max_correspondence_distance: f64,
+    transformation: Option<&Bound<'py, PyAny>>,
+) -> PyResult<(f64, f64, Bound<'py, PyArray2<i64>>)> {
+    if !(max_correspondence_distance.is_finite() && max_correspondence_distance > 0.0) {
+        return Err(input(format!(
+            "max_correspondence_distance: expected a positive distance (metres), found {max_correspondence_distance}"
+        )));
+    }
+    let source = cloud(source, None, "source")?;
+    let target = cloud(target, None, "target")?;
+    let transform = match transformation.filter(|t| !t.is_none()) {
+        Some(t) => arrays::pose(t, "transformation")?,
+        None => flowfilter_pipeline::Pose::identity(),
+    };
+    let (fitness, rmse, pairs) = threads::run(py, || {
+        let index = flowfilter_pipeline::geometry::KnnIndex::new(&target.points);
+        let (fitness, rmse) = evaluate(&source.points, &index, &transform, max_correspondence_distance);
+        (fitness, rmse, correspondence_set(&source.points, &index, &transform, max_correspondence_distance))
+    })?;
+    let rows: Vec<Vec<i64>> = pairs.into_iter().map(|(s, t)| vec![s as i64, t as i64]).collect();
+    let array = if rows.is_empty() {
+        numpy::PyArray2::zeros(py, [0, 2], false)
+    } else {
+        numpy::PyArray2::from_vec2(py, &rows).map_err(|e| input(e.to_string()))?
+    };
+    Ok((fitness, rmse, array))
 }

@@ -14,6 +14,33 @@ pub fn evaluate(source: &[Point3], target: &KnnIndex, transform: &Pose, max_dist
     evaluate_by(source, transform, max_distance, |_, q| target.nearest(q).map(|n| n.dist2))
 }
 
+/// The pairs `(source index, target index)` of [`evaluate`]: each source point moved by
+/// `transform` with its nearest target point, where that is within `max_distance` (Open3D's
+/// `RegistrationResult.correspondence_set`). In source order, the same for any thread count.
+///
+/// ```
+/// use flowfilter_geometry::{KnnIndex, Point3, Pose};
+/// use flowfilter_registration::correspondence_set;
+///
+/// let target = [Point3::new(0.0, 0.0, 1.0), Point3::new(0.1, 0.0, 1.0)];
+/// let source = [Point3::new(0.1, 0.0, 1.0), Point3::new(5.0, 0.0, 1.0)];
+/// let pairs = correspondence_set(&source, &KnnIndex::new(&target), &Pose::identity(), 0.01);
+/// assert_eq!(pairs, vec![(0, 1)]);
+/// ```
+pub fn correspondence_set(
+    source: &[Point3],
+    target: &KnnIndex,
+    transform: &Pose,
+    max_distance: f64,
+) -> Vec<(usize, usize)> {
+    let limit2 = max_distance * max_distance;
+    source
+        .par_iter()
+        .enumerate()
+        .filter_map(|(i, p)| target.nearest(&(transform * p)).filter(|n| n.dist2 <= limit2).map(|n| (i, n.index)))
+        .collect()
+}
+
 /// [`evaluate`] with the squared distance from moved source point `i` (at `q`) to its nearest
 /// target point given by `nearest2(i, q)` (`None`: no target point).
 pub(crate) fn evaluate_by(

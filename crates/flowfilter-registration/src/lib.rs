@@ -25,7 +25,7 @@ mod warning;
 
 pub use cpd::{Cpd, CpdConfig, CpdEStep, MIN_LATTICE_NEIGHBOURS};
 pub use error::RegistrationError;
-pub use evaluate::{RobustKernel, evaluate};
+pub use evaluate::{RobustKernel, correspondence_set, evaluate};
 pub use filterreg::{FilterReg, FilterRegConfig, FilterRegEStep, FilterRegVariant, SigmaSchedule};
 pub use flowfilter::{FlowFilter, FlowFilterConfig, FlowFilterMode, ransac_kabsch};
 pub use gmm::mean_pair_distance2;

@@ -11,6 +11,7 @@ use flowfilter_pipeline::{
     CameraFile, Estimate, FrameFiles, MaskSource, Pipeline, PipelineConfig, PipelineWarning, PreparedFrame, RgbdFrame,
     load_bigbird_frame,
 };
+use flowfilter_rerun::{FrameInput, PairScene, Recorder};
 use image::{Rgb, RgbImage};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -78,6 +79,12 @@ pub struct EstimateArgs {
     /// unaligned model in red).
     #[arg(long)]
     pub viz: Option<PathBuf>,
+    /// Write a Rerun recording of the pair to this .rrd file: both frames, depth and masks, the
+    /// clouds before and after, the flow pairs by inlier, the judge's candidates, the pose with
+    /// its bounds and the stage times (entities in docs/rerun.md; open with `rerun FILE.rrd`).
+    /// Needs a build with `--features rerun`.
+    #[arg(long)]
+    pub rerun: Option<PathBuf>,
 }
 
 /// The two frames and, when known, the true motion.
@@ -104,7 +111,10 @@ pub fn run(args: &EstimateArgs) -> anyhow::Result<ExitCode> {
         Some(object) => bigbird_frames(args, object)?,
         None => file_frames(args)?,
     };
-    let (e, a, b) = pipeline.estimate_against(&fa, &fb, truth.as_ref())?;
+    let (e, a, b, trace) = match &args.rerun {
+        Some(_) => pipeline.estimate_against_traced(&fa, &fb, truth.as_ref()).map(|(e, a, b, t)| (e, a, b, Some(t)))?,
+        None => pipeline.estimate_against(&fa, &fb, truth.as_ref()).map(|(e, a, b)| (e, a, b, None))?,
+    };
     // The estimate first: a file that then cannot be written does not lose it.
     if args.json {
         println!("{}", serde_json::to_string_pretty(&e)?);
@@ -122,6 +132,13 @@ pub fn run(args: &EstimateArgs) -> anyhow::Result<ExitCode> {
         write_atomic_with(path, |p| image.save(p).map_err(std::io::Error::other))
             .with_context(|| format!("writing {}", path.display()))?;
     }
+    if let (Some(path), Some(trace)) = (&args.rerun, trace) {
+        let recorder = Recorder::create(path, "flowfilter estimate")?;
+        let model = FrameInput { color: &fa.color, prepared: &a };
+        let target = FrameInput { color: &fb.color, prepared: &b };
+        recorder.log_pair(0, &PairScene::new(model, target, &e, &trace, truth.as_ref()))?;
+        recorder.finish()?;
+    }
     Ok(crate::exit_code(e.warnings.iter().any(PipelineWarning::is_implausible)))
 }
 
@@ -133,6 +150,12 @@ fn check_outputs(args: &EstimateArgs) -> anyhow::Result<()> {
     }
     if let Some(dir) = &args.save_ply {
         check_writable_dir(dir).context("--save-ply")?;
+    }
+    if let Some(path) = &args.rerun {
+        check_writable_file(path).context("--rerun")?;
+        if !flowfilter_rerun::CAN_RECORD {
+            return Err(flowfilter_rerun::RecordError::NotBuilt { path: path.clone() }).context("--rerun");
+        }
     }
     Ok(())
 }

@@ -215,3 +215,23 @@ fn estimate_from_rgbd_files_with_label_masks() {
     let (ok, _, stderr) = flowfilter(&a);
     assert!(!ok && stderr.contains("/no/camera.json"), "{stderr}");
 }
+
+/// `--rerun` without the feature stops before any work, naming the rebuild; with it, the
+/// recording is written (its entities are read back by the Python tests, with rerun-sdk).
+#[test]
+fn rerun_recording() {
+    let tmp = tempfile::tempdir().unwrap();
+    let rrd = tmp.path().join("pair.rrd");
+    let (ok, stdout, stderr) = estimate("15", &["--rerun", rrd.to_str().unwrap()]);
+    if cfg!(feature = "rerun") {
+        assert!(ok, "{stderr}");
+        let bytes = std::fs::read(&rrd).unwrap();
+        assert_eq!(&bytes[..4], b"RRF2", "not an RRD file");
+        // Both 1280x1024 colour images and depth maps, compressed (LZ4): megabytes, not a header.
+        assert!(bytes.len() > 1_000_000, "{} bytes: the images belong in it", bytes.len());
+    } else {
+        assert!(!ok && stdout.is_empty(), "{stdout}");
+        assert!(stderr.contains("--features rerun") && stderr.contains("--rerun"), "{stderr}");
+        assert!(!rrd.exists());
+    }
+}

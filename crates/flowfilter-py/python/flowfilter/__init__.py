@@ -5,7 +5,8 @@ Filter, a faster replacement for Open3D's ``registration_icp`` and probreg's
 ``registration_filterreg``), the whole pipeline on two RGB-D frames (``estimate``), dense
 optical flow (``flow``), flow correspondences (``correspondences``), normals
 (``estimate_normals``) and readers for PLY clouds, camera files, RGB-D files, BigBIRD objects and
-BOP scenes.
+BOP scenes. ``flowfilter.open3d`` has Open3D's ``registration_icp`` API on our ICP; Open3D's
+point clouds, images, RGB-D images and pinhole intrinsics are taken as they are.
 
 Every error is a ``flowfilter.Error``: ``InputError`` for arrays and files that cannot be used,
 ``ConfigError`` for unknown methods and bad parameters. Calls release the GIL and run on the
@@ -32,6 +33,7 @@ from ._flowfilter import (
     default_params,
     estimate,
     estimate_normals,
+    evaluate_registration,
     flow,
     get_num_threads,
     read_bigbird_frame,
@@ -64,6 +66,7 @@ __all__ = [
     "default_params",
     "estimate",
     "estimate_normals",
+    "evaluate_registration",
     "flow",
     "get_num_threads",
     "read_bigbird_frame",

@@ -115,7 +115,7 @@ class Frame:
         depth_scale: Optional[float] = None,
         name: str = "frame",
     ) -> None:
-        """A frame from arrays. `depth_scale`: raw units per metre for uint16 depth (Open3D's
+        """A frame from arrays (or `open3d.geometry.Image`s). `depth_scale`: raw units per metre for uint16 depth (Open3D's
         convention: 1000.0 for millimetres); without it the camera's depth unit applies. Float
         depth is metres (NaN, inf and 0: no reading). Without a mask the object is every pixel
         with depth."""
@@ -197,6 +197,12 @@ class Estimate:
         """The true transform and the errors against it, when `gt` was given."""
     def to_dict(self) -> Dict[str, Any]:
         """The estimate as `flowfilter estimate --json` prints it."""
+    def log_to_rerun(
+        self, model: Optional[Frame] = None, target: Optional[Frame] = None, recording: Any = None, step: int = 0
+    ) -> None:
+        """Log the estimate to Rerun (needs rerun-sdk) at the entity paths of `flowfilter estimate
+        --rerun` (docs/rerun.md), at step `step` of the `pair` timeline; with `model`/`target`, their
+        colour, depth and masks too. `recording`: a `rerun.RecordingStream` (None: the current one)."""
 
 class Correspondences:
     """Flow correspondences: model points and where the flow puts them in the target frame."""
@@ -228,7 +234,8 @@ def register(
 ) -> RegistrationResult:
     """Align `source` to `target`: the rigid `T` with `target ~ T @ source`.
 
-    `source`, `target`: (N, 3) float32 or float64 arrays (any memory layout). `method`: one of
+    `source`, `target`: (N, 3) float32 or float64 arrays (any memory layout), or
+    `open3d.geometry.PointCloud`s (their normals used when they have them). `method`: one of
     `METHODS`. `init`: a 4x4 initial transform. `target_normals` (and `source_normals`): (N, 3)
     normals for the point-to-plane methods (see `estimate_normals`). `correspondences`:
     `(source_points, target_points[, weights])` for the Flow Filter methods. `**params`: the
@@ -238,9 +245,19 @@ def register(
     parameter or a value out of range.
     """
 
+def evaluate_registration(
+    source: ArrayLike, target: ArrayLike, max_correspondence_distance: float, transformation: Optional[ArrayLike] = None
+) -> Tuple[float, float, npt.NDArray[np.int64]]:
+    """How well `transformation` (4x4, default identity) aligns `source` to `target` (Open3D's
+    `evaluate_registration`): `(fitness, inlier_rmse, correspondence_set)`, the pairs a (K, 2)
+    int64 array of (source index, target index) within `max_correspondence_distance`. Clouds are
+    (N, 3) arrays or `open3d.geometry.PointCloud`s.
+
+    Raises InputError for arrays that cannot be used or a distance that is not positive."""
+
 def estimate(
-    model: Frame,
-    target: Frame,
+    model: Union[Frame, Any],
+    target: Union[Frame, Any],
     camera: Optional[CameraLike] = None,
     method: Optional[str] = "flowfilter",
     config: ConfigLike = None,
@@ -249,7 +266,9 @@ def estimate(
 ) -> Estimate:
     """The relative pose of the object between two RGB-D frames of one camera.
 
-    `camera`: required for frames made from arrays. `method` replaces the configuration's (None
+    `model`, `target`: `Frame`s or `open3d.geometry.RGBDImage`s. `camera`: required for frames
+    made from arrays (a `Camera`, an `open3d.camera.PinholeCameraIntrinsic`, a camera-file path or
+    a dict). `method` replaces the configuration's (None
     keeps it). `config`: a TOML file path or a dict of its tables (`default_config()`). `gt`: the
     true 4x4 motion, for `ground_truth`.
     """
