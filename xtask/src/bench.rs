@@ -322,7 +322,14 @@ mod tests {
             meshes: None,
             protocol: Some(protocol),
             methods: None,
-            run: RunArgs { out: out.clone(), voxel: Some(0.002), check: true, shard: None, rerun: None, rerun_limit: 20 },
+            run: RunArgs {
+                out: out.clone(),
+                voxel: Some(0.002),
+                check: true,
+                shard: None,
+                rerun: None,
+                rerun_limit: 20,
+            },
         };
         run(&args).unwrap();
         let run_dir = std::fs::read_dir(&out).unwrap().next().unwrap().unwrap().path();

@@ -388,7 +388,14 @@ mod real_frames {
             min_visib: 0.1,
             quick: false,
             meshes: None,
-            run: RunArgs { out: tmp.path().to_path_buf(), voxel: None, check: true, shard: None, rerun: None, rerun_limit: 20 },
+            run: RunArgs {
+                out: tmp.path().to_path_buf(),
+                voxel: None,
+                check: true,
+                shard: None,
+                rerun: None,
+                rerun_limit: 20,
+            },
         };
         run(&args).unwrap();
         let run_dir = std::fs::read_dir(tmp.path()).unwrap().next().unwrap().unwrap().path();

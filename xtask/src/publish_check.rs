@@ -17,7 +17,7 @@ pub struct PublishCheckArgs {
 }
 
 /// The crates that are published, in dependency order.
-pub const PUBLISHED: [&str; 11] = [
+pub const PUBLISHED: [&str; 12] = [
     "flowfilter-geometry",
     "flowfilter-camera",
     "flowfilter-eval",
@@ -28,6 +28,7 @@ pub const PUBLISHED: [&str; 11] = [
     "flowfilter-registration",
     "flowfilter-pipeline",
     "flowfilter-rerun",
+    "flowfilter-track",
     "flowfilter",
 ];
 

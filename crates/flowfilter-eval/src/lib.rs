@@ -7,8 +7,12 @@
 //! - [`add_s`]: mean distance from each model point moved by the estimate to the nearest model
 //!   point moved by the truth (symmetric objects are not penalised).
 //! - [`PoseErrors`]: all of them for one estimate, with the success test (< 2 deg and < 1 cm).
+//! - [`trajectory::trajectory_errors`]: ATE and RPE of a sequence of poses, as the TUM RGB-D
+//!   benchmark defines them.
 
 #![warn(missing_docs)]
+
+pub mod trajectory;
 
 use flowfilter_geometry::{KnnIndex, Point3, Pose};
 use serde::{Deserialize, Serialize};

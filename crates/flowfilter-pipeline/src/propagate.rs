@@ -14,27 +14,7 @@ pub(crate) fn with_propagated_mask(
     found: Option<&CoarseMatch>,
 ) -> PreparedFrame {
     let mask = found.map_or_else(|| model.mask.clone(), |m| moved_mask(&model.mask, m));
-    let camera = &target.sensor.color;
-    let inside: Vec<usize> = (0..target.cloud.len())
-        .filter(|&i| {
-            camera.project(&target.cloud.points[i]).is_some_and(|p| {
-                let (x, y) = (p.x.round(), p.y.round());
-                x >= 0.0 && y >= 0.0 && mask.get(x as usize, y as usize).copied().unwrap_or(false)
-            })
-        })
-        .collect();
-    PreparedFrame {
-        label: target.label.clone(),
-        gray: target.gray.clone(),
-        depth: target.depth.clone(),
-        mask,
-        cloud: target.cloud.select(&inside),
-        full_points: target.full_points,
-        sensor: target.sensor,
-        rays: target.rays.clone(),
-        seconds: target.seconds,
-        unmasked: false,
-    }
+    target.with_mask(mask)
 }
 
 /// `mask` moved by the match: a target pixel is in it when the pixel it came from is.

@@ -44,6 +44,33 @@ pub struct PreparedFrame {
 }
 
 impl PreparedFrame {
+    /// The frame with another object mask: its cloud cut to the points that project into the
+    /// mask (the rest of the preparation kept). How a mask found later (propagated, carried by a
+    /// tracker) applies to a frame prepared without one.
+    pub fn with_mask(&self, mask: Mask) -> PreparedFrame {
+        let camera = &self.sensor.color;
+        let inside: Vec<usize> = (0..self.cloud.len())
+            .filter(|&i| {
+                camera.project(&self.cloud.points[i]).is_some_and(|p| {
+                    let (x, y) = (p.x.round(), p.y.round());
+                    x >= 0.0 && y >= 0.0 && mask.get(x as usize, y as usize).copied().unwrap_or(false)
+                })
+            })
+            .collect();
+        PreparedFrame {
+            label: self.label.clone(),
+            gray: self.gray.clone(),
+            depth: self.depth.clone(),
+            mask,
+            cloud: self.cloud.select(&inside),
+            full_points: self.full_points,
+            sensor: self.sensor,
+            rays: self.rays.clone(),
+            seconds: self.seconds,
+            unmasked: false,
+        }
+    }
+
     /// The frame as the correspondence search sees it.
     pub fn view(&self) -> FlowView<'_> {
         FlowView { gray: &self.gray, depth: &self.depth, mask: &self.mask }

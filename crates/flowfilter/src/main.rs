@@ -14,6 +14,7 @@ mod matrix_file;
 mod progress;
 mod register;
 mod synth;
+mod track;
 mod truth_flow;
 
 use clap::{Parser, Subcommand};
@@ -43,6 +44,8 @@ enum Command {
     Flow(flow::FlowArgs),
     /// Render two views of a synthetic object and write their exact optical flow and occlusion.
     TruthFlow(truth_flow::TruthFlowArgs),
+    /// Track an object (or the whole scene) through a folder of RGB-D frames from one mask.
+    Track(track::TrackArgs),
 }
 
 /// `--method` of `register` and `estimate`: the registration backends' names (checked and
@@ -108,6 +111,7 @@ fn main() -> ExitCode {
         Command::EstimateBatch(args) => estimate_batch::run(&args),
         Command::Flow(args) => flow::run(&args),
         Command::TruthFlow(args) => truth_flow::run(&args),
+        Command::Track(args) => track::run(&args),
     };
     match result {
         Ok(code) => code,

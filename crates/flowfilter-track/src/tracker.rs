@@ -1,0 +1,410 @@
+//! [`Tracker`]: frames pushed one at a time, the object's pose in each relative to the first,
+//! measured against keyframes so that drift stays bounded.
+
+use crate::carry::{area, carry_mask};
+use flowfilter_geometry::Pose;
+use flowfilter_pipeline::{Estimate, Pipeline, PipelineError, PipelineWarning, PreparedFrame, RgbdFrame};
+use serde::{Deserialize, Serialize};
+
+/// How the tracker keeps keyframes and carries the mask.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TrackerConfig {
+    /// A frame tracked this many degrees away from its keyframe becomes a keyframe.
+    pub keyframe_deg: f64,
+    /// ... or this many metres away.
+    pub keyframe_m: f64,
+    /// Keyframes kept for recovery after a loss (the first frame always stays).
+    pub max_keyframes: usize,
+    /// The carried mask: each moved object point covers this many pixels around it.
+    pub splat_px: usize,
+    /// The carried mask: pixels whose depth differs from the moved object's by more than this
+    /// (metres) are dropped.
+    pub depth_tolerance_m: f64,
+    /// A carried mask smaller than this (pixels) means the object left the view or is hidden.
+    pub min_mask_px: usize,
+    /// Consecutive uncertain frames after which the track is lost.
+    pub max_uncertain: usize,
+}
+
+impl Default for TrackerConfig {
+    fn default() -> Self {
+        Self {
+            keyframe_deg: 10.0,
+            keyframe_m: 0.05,
+            max_keyframes: 12,
+            splat_px: 2,
+            depth_tolerance_m: 0.03,
+            min_mask_px: 300,
+            max_uncertain: 3,
+        }
+    }
+}
+
+/// The state of the track at a frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TrackState {
+    /// A converged estimate against a keyframe (or the previous frame).
+    Tracking,
+    /// An estimate the pipeline doubts (not converged): the pose is its best, the reason says why.
+    Uncertain,
+    /// No usable estimate: the pose is held at the last one; the reason says why.
+    Lost,
+    /// The first converged estimate after a loss, found by matching against the keyframes.
+    Recovered,
+}
+
+/// One frame's result.
+#[derive(Debug, Clone)]
+pub struct TrackedFrame {
+    /// Position in the stream (0: the first frame).
+    pub index: usize,
+    /// The frame's label.
+    pub label: String,
+    /// The object's motion from the first frame (`P_k = pose * P_0`, colour camera frames).
+    pub pose: Pose,
+    /// The state.
+    pub state: TrackState,
+    /// Why the state is not `tracking` (or what the estimate warned of).
+    pub reason: Option<String>,
+    /// The stream index of the frame the pose was measured against.
+    pub reference: Option<usize>,
+    /// Whether this frame became a keyframe.
+    pub keyframe: bool,
+    /// The estimate against the reference, when one was made.
+    pub estimate: Option<Estimate>,
+    /// Pixels of the object's carried mask (0 in whole-frame mode).
+    pub mask_px: usize,
+}
+
+/// A keyframe: a frame prepared with the object's mask, and its pose from the first frame.
+struct Keyframe {
+    index: usize,
+    frame: PreparedFrame,
+    pose: Pose,
+}
+
+/// The previous frame, prepared with the object's mask, when it was tracked.
+struct Previous {
+    index: usize,
+    frame: PreparedFrame,
+    pose: Pose,
+}
+
+/// Keyframes tried first: this many nearest to the last pose.
+const NEAREST_KEYFRAMES: usize = 2;
+
+/// How far apart two poses are: degrees of rotation plus centimetres of translation.
+fn pose_distance(a: &Pose, b: &Pose) -> f64 {
+    let d = a.inverse() * b;
+    d.rotation.angle().to_degrees() + 100.0 * d.translation.vector.norm()
+}
+
+/// Why a tracker cannot start.
+#[derive(Debug, thiserror::Error)]
+pub enum TrackError {
+    /// The first frame cannot be prepared (no depth in its mask, a camera that does not fit).
+    #[error("the first frame: {0}")]
+    FirstFrame(#[source] PipelineError),
+}
+
+/// Tracks one object (or the whole scene, without a mask) through a stream of RGB-D frames of
+/// one camera: each frame is prepared once, estimated against the current keyframe (falling
+/// back to the previous frame), and gets a state and a reason; after a loss every keyframe is
+/// tried.
+pub struct Tracker {
+    pipeline: Pipeline,
+    config: TrackerConfig,
+    keyframes: Vec<Keyframe>,
+    current: usize,
+    previous: Option<Previous>,
+    /// Whether an object is tracked (a mask given with the first frame).
+    object: bool,
+    size: (usize, usize),
+    next: usize,
+    last_pose: Pose,
+    /// The motion between the last two tracked frames (`T_0k * inv(T_0,k-1)`), for the
+    /// prediction that picks the nearest keyframes.
+    velocity: Pose,
+    lost: bool,
+    uncertain_run: usize,
+}
+
+impl Tracker {
+    /// Start with the first frame: its mask is the object's (a mask covering the frame tracks the
+    /// whole scene).
+    ///
+    /// # Errors
+    /// [`TrackError::FirstFrame`] when the first frame cannot be prepared.
+    ///
+    /// ```
+    /// use flowfilter_bigbird::SensorId;
+    /// use flowfilter_pipeline::{Pipeline, PipelineConfig, RgbdFrame};
+    /// use flowfilter_synth::{Rig, Scene, procedural, render_frame};
+    /// use flowfilter_track::{TrackState, Tracker, TrackerConfig};
+    ///
+    /// let (rig, sensor) = (Rig::bigbird_like(), SensorId::new(3).unwrap());
+    /// let scene = Scene::new(procedural("box", 1)?.placed_on_table(0.01, -0.005), 1);
+    /// let frame = |angle| {
+    ///     let f = render_frame(&scene, &rig, sensor, angle, None, 7);
+    ///     let sensor = rig.sensors[&sensor].rgbd;
+    ///     RgbdFrame { label: format!("NP3_{angle}"), color: f.color, depth: f.raw_depth, mask: f.mask, sensor }
+    /// };
+    /// let pipeline = Pipeline::from_config(PipelineConfig::default())?;
+    /// let mut tracker = Tracker::new(pipeline, TrackerConfig::default(), &frame(0))?;
+    /// let mut unmasked = frame(4);
+    /// unmasked.mask.as_mut_slice().fill(true); // later frames need no mask
+    /// let tracked = tracker.update(Ok(unmasked));
+    /// assert_eq!(tracked.state, TrackState::Tracking);
+    /// assert!((tracked.pose.rotation.angle().to_degrees() - 4.0).abs() < 1.0);
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
+    pub fn new(pipeline: Pipeline, config: TrackerConfig, first: &RgbdFrame) -> Result<Self, TrackError> {
+        let frame = pipeline.prepare(first).map_err(TrackError::FirstFrame)?;
+        let object = !frame.unmasked;
+        let size = frame.gray.dims();
+        let previous = Previous { index: 0, frame: frame.clone(), pose: Pose::identity() };
+        Ok(Self {
+            pipeline,
+            config,
+            keyframes: vec![Keyframe { index: 0, frame, pose: Pose::identity() }],
+            current: 0,
+            previous: Some(previous),
+            object,
+            size,
+            next: 1,
+            last_pose: Pose::identity(),
+            velocity: Pose::identity(),
+            lost: false,
+            uncertain_run: 0,
+        })
+    }
+
+    /// The first frame's result (identity, tracking, a keyframe).
+    pub fn first(&self) -> TrackedFrame {
+        let k = &self.keyframes[0];
+        TrackedFrame {
+            index: 0,
+            label: k.frame.label.clone(),
+            pose: Pose::identity(),
+            state: TrackState::Tracking,
+            reason: None,
+            reference: None,
+            keyframe: true,
+            estimate: None,
+            mask_px: if self.object { area(&k.frame.mask) } else { 0 },
+        }
+    }
+
+    /// The next frame of the stream, or why it could not be read (a missing file): its result.
+    /// Never fails: a frame that cannot be used is `lost`, with the reason.
+    pub fn update(&mut self, frame: Result<RgbdFrame, String>) -> TrackedFrame {
+        let index = self.next;
+        self.next += 1;
+        let label = frame.as_ref().map_or_else(|_| format!("#{index}"), |f| f.label.clone());
+        let prepared = frame.and_then(|f| self.prepare(&f));
+        let result = match prepared {
+            Ok(target) => self.track(index, target),
+            Err(reason) => self.lose(index, reason),
+        };
+        TrackedFrame { label, ..result }
+    }
+
+    /// Keyframes held now (stream indices).
+    pub fn keyframes(&self) -> Vec<usize> {
+        self.keyframes.iter().map(|k| k.index).collect()
+    }
+
+    fn prepare(&self, frame: &RgbdFrame) -> Result<PreparedFrame, String> {
+        let size = (frame.color.width() as usize, frame.color.height() as usize);
+        if size != self.size {
+            return Err(format!(
+                "a frame of another size: {}x{}, the stream's is {}x{}",
+                size.0, size.1, self.size.0, self.size.1
+            ));
+        }
+        self.pipeline.prepare(frame).map_err(|e| e.to_string())
+    }
+
+    /// The frame estimated against its candidates, its state decided, the keyframes updated.
+    fn track(&mut self, index: usize, target: PreparedFrame) -> TrackedFrame {
+        let mut doubtful: Option<(usize, Estimate, Pose)> = None;
+        let mut failure: Option<String> = None;
+        for (reference, model, reference_pose) in self.candidates() {
+            match self.pipeline.estimate_prepared(model, &target) {
+                Ok(e) if e.registration.converged => {
+                    return self.accept(index, target, reference, e, reference_pose);
+                }
+                Ok(e) => {
+                    if doubtful.is_none() && !e.warnings.iter().any(PipelineWarning::is_implausible) {
+                        doubtful = Some((reference, e, reference_pose));
+                    }
+                }
+                Err(err) => failure = Some(err.to_string()),
+            }
+        }
+        match doubtful.filter(|_| !self.lost && self.uncertain_run < self.config.max_uncertain) {
+            Some((reference, e, reference_pose)) => {
+                self.uncertain_run += 1;
+                let pose = e.pose * reference_pose;
+                let reason = warning_codes(&e);
+                let mask = if self.object {
+                    let model = self.reference_frame(reference);
+                    carry_mask(model, &e.pose, &target, self.config.splat_px, self.config.depth_tolerance_m)
+                } else {
+                    target.mask.clone()
+                };
+                self.last_pose = pose;
+                TrackedFrame {
+                    index,
+                    label: String::new(),
+                    pose,
+                    state: TrackState::Uncertain,
+                    reason: Some(format!("not converged: {reason}")),
+                    reference: Some(reference),
+                    keyframe: false,
+                    mask_px: if self.object { area(&mask) } else { 0 },
+                    estimate: Some(e),
+                }
+            }
+            None => {
+                let reason = failure.unwrap_or_else(|| {
+                    if self.uncertain_run >= self.config.max_uncertain {
+                        format!("{} uncertain frames in a row", self.uncertain_run)
+                    } else {
+                        "no keyframe gives a converged estimate".into()
+                    }
+                });
+                self.lose(index, reason)
+            }
+        }
+    }
+
+    /// The frames to estimate against, in order: the keyframes nearest to the predicted pose
+    /// (constant velocity; the
+    /// smallest motions, and the oldest measurements when the object comes back: drift stays
+    /// bounded), then the current keyframe and the previous frame; after a loss every keyframe,
+    /// nearest first.
+    fn candidates(&self) -> Vec<(usize, &PreparedFrame, Pose)> {
+        let predicted = if self.lost { self.last_pose } else { self.velocity * self.last_pose };
+        let mut keyframes: Vec<&Keyframe> = self.keyframes.iter().collect();
+        keyframes.sort_by(|a, b| pose_distance(&a.pose, &predicted).total_cmp(&pose_distance(&b.pose, &predicted)));
+        if self.lost {
+            return keyframes.into_iter().map(|k| (k.index, &k.frame, k.pose)).collect();
+        }
+        let mut out: Vec<(usize, &PreparedFrame, Pose)> = vec![];
+        let current = &self.keyframes[self.current];
+        for k in keyframes.into_iter().take(NEAREST_KEYFRAMES).chain([current]) {
+            if out.iter().all(|(i, _, _)| *i != k.index) {
+                out.push((k.index, &k.frame, k.pose));
+            }
+        }
+        if let Some(p) = self.previous.as_ref().filter(|p| out.iter().all(|(i, _, _)| *i != p.index)) {
+            out.push((p.index, &p.frame, p.pose));
+        }
+        out
+    }
+
+    fn reference_frame(&self, index: usize) -> &PreparedFrame {
+        match self.keyframes.iter().find(|k| k.index == index) {
+            Some(k) => &k.frame,
+            None => &self.previous.as_ref().expect("a reference is a keyframe or the previous frame").frame,
+        }
+    }
+
+    /// A converged estimate: the pose from the first frame, the mask carried, a keyframe when the
+    /// object moved far enough from the current one.
+    fn accept(
+        &mut self,
+        index: usize,
+        target: PreparedFrame,
+        reference: usize,
+        e: Estimate,
+        reference_pose: Pose,
+    ) -> TrackedFrame {
+        let pose = e.pose * reference_pose;
+        let (frame, mask_px) = if self.object {
+            let mask = carry_mask(
+                self.reference_frame(reference),
+                &e.pose,
+                &target,
+                self.config.splat_px,
+                self.config.depth_tolerance_m,
+            );
+            let px = area(&mask);
+            if px < self.config.min_mask_px {
+                return self
+                    .lose(index, format!("the object's mask emptied ({px} pixels): it left the view or is hidden"));
+            }
+            (target.with_mask(mask), px)
+        } else {
+            (target, 0)
+        };
+        let state = if self.lost { TrackState::Recovered } else { TrackState::Tracking };
+        self.velocity = match (&self.previous, self.lost) {
+            (Some(p), false) if p.index + 1 == index => pose * p.pose.inverse(),
+            _ => Pose::identity(),
+        };
+        self.lost = false;
+        self.uncertain_run = 0;
+        self.last_pose = pose;
+        if let Some(k) = self.keyframes.iter().position(|k| k.index == reference) {
+            self.current = k;
+        }
+        let from_keyframe = pose * self.keyframes[self.current].pose.inverse();
+        let far = from_keyframe.rotation.angle().to_degrees() >= self.config.keyframe_deg
+            || from_keyframe.translation.vector.norm() >= self.config.keyframe_m;
+        if far {
+            self.add_keyframe(Keyframe { index, frame: frame.clone(), pose });
+        }
+        self.previous = Some(Previous { index, frame, pose });
+        let reason = Some(warning_codes(&e)).filter(|r| !r.is_empty());
+        TrackedFrame {
+            index,
+            label: String::new(),
+            pose,
+            state,
+            reason,
+            reference: Some(reference),
+            keyframe: far,
+            mask_px,
+            estimate: Some(e),
+        }
+    }
+
+    fn add_keyframe(&mut self, k: Keyframe) {
+        if self.keyframes.len() >= self.config.max_keyframes.max(2) {
+            // The first frame stays (recovery to the start); the oldest other one goes.
+            self.keyframes.remove(1);
+        }
+        self.keyframes.push(k);
+        self.current = self.keyframes.len() - 1;
+    }
+
+    fn lose(&mut self, index: usize, reason: String) -> TrackedFrame {
+        self.lost = true;
+        self.velocity = Pose::identity();
+        self.uncertain_run = 0;
+        self.previous = None;
+        TrackedFrame {
+            index,
+            label: String::new(),
+            pose: self.last_pose,
+            state: TrackState::Lost,
+            reason: Some(reason),
+            reference: None,
+            keyframe: false,
+            estimate: None,
+            mask_px: 0,
+        }
+    }
+}
+
+/// The warnings' codes, comma separated, without those the tracker causes itself: whole frames
+/// (`mask_covers_frame`) and the target's mask propagated (later frames come without one).
+fn warning_codes(e: &Estimate) -> String {
+    let own = ["mask_covers_frame", "mask_propagated"];
+    let codes: Vec<&str> = e.warnings.iter().map(PipelineWarning::code).filter(|c| !own.contains(c)).collect();
+    codes.join(", ")
+}

@@ -1,0 +1,93 @@
+//! The tracker on synthesised turntable streams (a textured box turning 3 degrees a frame, the
+//! synth's sensor effects) and on a bad stream; the shared real sequences when present.
+
+use flowfilter_bigbird::SensorId;
+use flowfilter_geometry::Pose;
+use flowfilter_pipeline::{Pipeline, PipelineConfig, RgbdFrame};
+use flowfilter_synth::{Rig, Scene, procedural, render_frame, world_from_table};
+use flowfilter_track::{TrackState, Tracker, TrackerConfig};
+
+struct Stream {
+    rig: Rig,
+    scene: Scene,
+    sensor: SensorId,
+}
+
+impl Stream {
+    fn new() -> Self {
+        let scene = Scene::new(procedural("box", 1).unwrap().placed_on_table(0.01, -0.005), 1);
+        Self { rig: Rig::bigbird_like(), scene, sensor: SensorId::new(3).unwrap() }
+    }
+
+    /// The frame at `angle`, with its mask (`masked`) or without one.
+    fn frame(&self, angle: u32, masked: bool) -> RgbdFrame {
+        let f = render_frame(&self.scene, &self.rig, self.sensor, angle, None, u64::from(angle) + 7);
+        let sensor = self.rig.sensors[&self.sensor].rgbd;
+        let mut frame =
+            RgbdFrame { label: format!("NP3_{angle}"), color: f.color, depth: f.raw_depth, mask: f.mask, sensor };
+        if !masked {
+            frame.mask.as_mut_slice().fill(true);
+        }
+        frame
+    }
+
+    /// The object's true motion from angle 0.
+    fn truth(&self, angle: u32) -> Pose {
+        let s = &self.rig.sensors[&self.sensor];
+        let h = |a: u32| s.h_color_from_world * world_from_table(f64::from(a));
+        h(angle) * h(0).inverse()
+    }
+}
+
+fn tracker(stream: &Stream) -> Tracker {
+    let pipeline = Pipeline::from_config(PipelineConfig::default()).unwrap();
+    Tracker::new(pipeline, TrackerConfig::default(), &stream.frame(0, true)).unwrap()
+}
+
+#[test]
+fn an_object_is_tracked_from_its_first_mask_with_keyframes() {
+    let stream = Stream::new();
+    let mut t = tracker(&stream);
+    let mut worst: f64 = 0.0;
+    for angle in (3..=30).step_by(3) {
+        let r = t.update(Ok(stream.frame(angle, false)));
+        assert_eq!(r.state, TrackState::Tracking, "{angle} deg: {:?}", r.reason);
+        assert!(r.mask_px > 1000, "{angle} deg: the carried mask has {} pixels", r.mask_px);
+        let error = (r.pose * stream.truth(angle).inverse()).rotation.angle().to_degrees();
+        worst = worst.max(error);
+    }
+    assert!(worst < 1.0, "worst rotation error {worst} deg");
+    // 30 degrees of turn at a keyframe every 10 degrees or more: the first and 2-3 more.
+    let k = t.keyframes();
+    assert!(k.len() >= 3 && k[0] == 0, "keyframes {k:?}");
+}
+
+#[test]
+fn a_bad_stream_gives_a_state_and_a_reason_per_frame_and_recovers() {
+    let stream = Stream::new();
+    let mut t = tracker(&stream);
+    assert_eq!(t.update(Ok(stream.frame(3, false))).state, TrackState::Tracking);
+    // A missing file, as the CLI reports it.
+    let r = t.update(Err("frame-000002.depth.png: cannot read the image: No such file".into()));
+    assert_eq!(r.state, TrackState::Lost);
+    assert!(r.reason.as_deref().unwrap().contains("depth.png"), "{:?}", r.reason);
+    // A frame of another size.
+    let mut small = stream.frame(6, false);
+    small.color = image::imageops::crop_imm(&small.color, 0, 0, 320, 240).to_image();
+    let r = t.update(Ok(small));
+    assert_eq!(r.state, TrackState::Lost);
+    assert!(r.reason.as_deref().unwrap().contains("another size"), "{:?}", r.reason);
+    // The object gone (depth only of the background far away): lost, the pose held.
+    let mut empty = stream.frame(9, false);
+    let held = r.pose;
+    empty.depth.as_mut_slice().fill(0);
+    let r = t.update(Ok(empty));
+    assert_eq!(r.state, TrackState::Lost, "{:?}", r.reason);
+    assert_eq!(r.pose, held, "a lost frame holds the last pose");
+    // Back in view: recovered against the keyframes, at the right pose.
+    let r = t.update(Ok(stream.frame(9, false)));
+    assert_eq!(r.state, TrackState::Recovered, "{:?}", r.reason);
+    let error = (r.pose * stream.truth(9).inverse()).rotation.angle().to_degrees();
+    assert!(error < 1.0, "{error} deg after recovery");
+    assert_eq!(t.update(Ok(stream.frame(12, false))).state, TrackState::Tracking);
+}

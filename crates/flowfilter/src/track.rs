@@ -1,0 +1,179 @@
+//! `flowfilter track`: an RGB-D stream in (a folder of frames), the object's pose in every frame
+//! relative to the first out, with a state and a reason per frame.
+
+use anyhow::Context;
+use clap::Args;
+use flowfilter_eval::trajectory::trajectory_errors;
+use flowfilter_eval::{geodesic_error_deg, translation_error_m};
+use flowfilter_geometry::Pose;
+use flowfilter_geometry::atomic::{check_writable_file, write_atomic_with};
+use flowfilter_pipeline::{CameraFile, FrameFiles, MaskSource, RgbdFrame, matrix_rows};
+use flowfilter_track::{FrameEntry, FrameFolder, TrackState, TrackedFrame, Tracker, TrackerConfig, tum};
+use std::collections::BTreeMap;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+/// Arguments of `track`.
+#[derive(Args)]
+pub struct TrackArgs {
+    /// A folder of frames: `frame-NNNNNN.color.png|jpg` + `frame-NNNNNN.depth.png`, or
+    /// YCB-Video's `NNNNNN-color.png` + `NNNNNN-depth.png` (other files are ignored).
+    #[arg(long)]
+    pub frames: PathBuf,
+    /// The camera file (JSON: ours, BOP's, Open3D's PinholeCameraIntrinsic).
+    #[arg(long)]
+    pub camera: PathBuf,
+    /// The object's mask in the first frame (binary PNG). Without it the whole scene is tracked.
+    #[arg(long)]
+    pub mask: Option<PathBuf>,
+    /// Frames to use: at most this many, from the first.
+    #[arg(long)]
+    pub max_frames: Option<usize>,
+    /// Pipeline configuration (TOML; default: configs/flowfilter.toml's values).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Write one JSON line per frame (`frame`, `state`, `reason`, `reference`, `keyframe`,
+    /// `pose_from_first`, the errors with --gt, and `estimate`: the `estimate --json` fields).
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    /// Write the trajectory in the TUM format (`timestamp tx ty tz qx qy qz qw`: the object's
+    /// motion from the first frame, `P_k = T_0k P_0`), for `evo` and the TUM tools.
+    #[arg(long)]
+    pub tum: Option<PathBuf>,
+    /// Frames per second of the stream: TUM timestamps are frame number / fps.
+    #[arg(long, default_value_t = 30.0)]
+    pub fps: f64,
+    /// The true motion, for the errors: a TUM file of `T_0k`, or a `poses.json` of calibrated
+    /// camera poses (`camera_to_world_calibrated`: a static scene, the camera moving).
+    #[arg(long)]
+    pub gt: Option<PathBuf>,
+}
+
+/// Run `track`.
+pub fn run(args: &TrackArgs) -> anyhow::Result<ExitCode> {
+    for (path, flag) in [(&args.json, "--json"), (&args.tum, "--tum")] {
+        if let Some(p) = path {
+            check_writable_file(p).context(flag)?;
+        }
+    }
+    if !(args.fps.is_finite() && args.fps > 0.0) {
+        anyhow::bail!("--fps: expected a positive number of frames per second, found {}", args.fps);
+    }
+    let camera = CameraFile::from_file(&args.camera)?;
+    let mut folder = FrameFolder::open(&args.frames)?;
+    if let Some(n) = args.max_frames {
+        folder.frames.truncate(n.max(1));
+    }
+    let numbers: Vec<u64> = folder.frames.iter().map(|f| f.number).collect();
+    let truth = args.gt.as_deref().map(|p| tum::read_truth(p, &numbers)).transpose()?;
+    let pipeline = crate::estimate::pipeline(args.config.as_deref(), None)?;
+    let first_mask = args.mask.clone().map_or(MaskSource::None, MaskSource::Binary);
+    let first = load(&folder.frames[0], &camera, first_mask).context("the first frame")?;
+    let mut tracker = Tracker::new(pipeline, TrackerConfig::default(), &first)?;
+    let bar = crate::progress::bar(folder.frames.len(), "frames");
+    bar.set_message("track");
+    let mut out: Vec<TrackedFrame> = vec![tracker.first()];
+    crate::progress::advance(&bar, 1);
+    for (i, entry) in folder.frames.iter().enumerate().skip(1) {
+        let frame = load(entry, &camera, MaskSource::None).map_err(|e| format!("{e:#}"));
+        out.push(tracker.update(frame));
+        crate::progress::advance(&bar, i + 1);
+    }
+    bar.finish_and_clear();
+    let rows: Vec<serde_json::Value> =
+        out.iter().zip(&folder.frames).map(|(t, f)| json_row(t, f, truth.as_ref())).collect();
+    if let Some(path) = &args.json {
+        write_lines(path, rows.iter().map(serde_json::Value::to_string))?;
+    }
+    if let Some(path) = &args.tum {
+        let header = std::iter::once(
+            "# timestamp tx ty tz qx qy qz qw (flowfilter track: the object's motion from the first frame)".to_string(),
+        );
+        let lines = out.iter().zip(&folder.frames).map(|(t, f)| tum::line(f.number as f64 / args.fps, &t.pose));
+        write_lines(path, header.chain(lines))?;
+    }
+    print_summary(&out, &folder.frames, truth.as_ref());
+    Ok(ExitCode::SUCCESS)
+}
+
+/// One frame from its files (the mask only for the first).
+fn load(entry: &FrameEntry, camera: &CameraFile, mask: MaskSource) -> anyhow::Result<RgbdFrame> {
+    let files = FrameFiles { color: entry.color.clone(), depth: entry.depth.clone(), mask };
+    Ok(files.load(camera, &entry.label())?)
+}
+
+fn json_row(t: &TrackedFrame, f: &FrameEntry, truth: Option<&BTreeMap<u64, Pose>>) -> serde_json::Value {
+    let mut row = serde_json::json!({
+        "frame": f.number,
+        "label": t.label,
+        "state": t.state,
+        "reason": t.reason,
+        "reference": t.reference,
+        "keyframe": t.keyframe,
+        "mask_px": t.mask_px,
+        "pose_from_first": matrix_rows(&t.pose),
+        "estimate": t.estimate,
+    });
+    if let Some(g) = truth.and_then(|m| m.get(&f.number)) {
+        row["errors"] = serde_json::json!({
+            "rotation_deg": geodesic_error_deg(&t.pose, g),
+            "translation_m": translation_error_m(&t.pose, g),
+        });
+    }
+    row
+}
+
+fn write_lines(path: &Path, lines: impl Iterator<Item = String>) -> anyhow::Result<()> {
+    let lines: Vec<String> = lines.collect();
+    write_atomic_with(path, |p| {
+        let mut f = std::io::BufWriter::new(std::fs::File::create(p)?);
+        for l in &lines {
+            writeln!(f, "{l}")?;
+        }
+        f.flush()
+    })
+    .with_context(|| format!("writing {}", path.display()))
+}
+
+fn print_summary(out: &[TrackedFrame], frames: &[FrameEntry], truth: Option<&BTreeMap<u64, Pose>>) {
+    for (t, f) in out.iter().zip(frames) {
+        let state = serde_json::to_value(t.state).ok().and_then(|v| v.as_str().map(str::to_string)).unwrap_or_default();
+        let error = truth.and_then(|m| m.get(&f.number)).map_or(String::new(), |g| {
+            format!(", error {:.2} deg {:.1} mm", geodesic_error_deg(&t.pose, g), translation_error_m(&t.pose, g) * 1e3)
+        });
+        let reference = t.reference.map_or(String::new(), |r| format!(" vs {}", frames[r].label()));
+        let reason = t.reason.as_ref().map_or(String::new(), |r| format!(" ({r})"));
+        println!(
+            "{}: {state}{reference}{}, {:.2} deg {:.1} mm from the first{error}{reason}",
+            f.label(),
+            if t.keyframe { ", keyframe" } else { "" },
+            t.pose.rotation.angle().to_degrees(),
+            t.pose.translation.vector.norm() * 1e3
+        );
+    }
+    let count = |s: TrackState| out.iter().filter(|t| t.state == s).count();
+    println!(
+        "{} frames: {} tracking, {} uncertain, {} lost, {} recovered",
+        out.len(),
+        count(TrackState::Tracking),
+        count(TrackState::Uncertain),
+        count(TrackState::Lost),
+        count(TrackState::Recovered)
+    );
+    let Some(truth) = truth else { return };
+    let paired: Vec<(Pose, Pose)> =
+        out.iter().zip(frames).filter_map(|(t, f)| truth.get(&f.number).map(|g| (t.pose, *g))).collect();
+    let (est, gt): (Vec<Pose>, Vec<Pose>) = paired.into_iter().unzip();
+    if let Some(e) = trajectory_errors(&est, &gt) {
+        println!(
+            "vs ground truth ({} frames): ATE {:.1} mm, RPE {:.1} mm / {:.2} deg per frame, last frame {:.2} deg {:.1} mm",
+            e.frames,
+            e.ate_rmse_m * 1e3,
+            e.rpe_rmse_m * 1e3,
+            e.rpe_mean_deg,
+            e.final_rotation_deg,
+            e.final_translation_m * 1e3
+        );
+    }
+}
