@@ -22,6 +22,7 @@ static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 mod bench;
 mod bench_bop;
 mod bench_real;
+mod bench_track;
 mod dataset;
 mod deps;
 mod failures;
@@ -59,6 +60,10 @@ enum Command {
     /// (default: ../shared/data/realsense-shelf): whole frames and region objects with a
     /// segmentation network's masks, and write results/<timestamp>/.
     BenchReal(bench_real::RealBenchArgs),
+    /// Track objects through streams (synthetic turntable loops, the real sequences as whole
+    /// frames and regions) with `flowfilter track`'s tracker and with chained pairwise
+    /// estimates; ATE, RPE, the last frame's error, frames per second.
+    BenchTrack(bench_track::TrackBenchArgs),
     /// Merge the shards of a sharded benchmark run (`--shard K/N`) into the outputs one
     /// process would have written.
     BenchMerge(merge::MergeArgs),
@@ -103,6 +108,7 @@ fn main() -> ExitCode {
         Command::BenchBigbird(args) => bench::run(&args),
         Command::BenchBop(args) => bench_bop::run(&args),
         Command::BenchReal(args) => bench_real::run(&args),
+        Command::BenchTrack(args) => bench_track::run(&args),
         Command::BenchMerge(args) => merge::run(&args),
         Command::BenchSpeed(args) => speed::run(&args),
         Command::PublishCheck(args) => publish_check::run(&args),

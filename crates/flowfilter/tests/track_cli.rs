@@ -1,0 +1,97 @@
+//! `flowfilter track` on a shared real sequence (whole frames, with the calibrated poses as the
+//! truth; skipped without ../shared), its JSON lines and TUM trajectory, and a bad stream.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn flowfilter(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_flowfilter")).args(args).output().unwrap();
+    (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
+}
+
+fn shelf() -> Option<PathBuf> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/realsense-shelf/shelf-D");
+    if dir.is_dir() {
+        Some(dir)
+    } else {
+        eprintln!("skipping: {} is absent (the real-frame tests need ../shared)", dir.display());
+        None
+    }
+}
+
+#[test]
+fn a_real_sequence_is_tracked_with_json_lines_and_a_tum_trajectory() {
+    let Some(dir) = shelf() else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let (json, tum) = (tmp.path().join("track.jsonl"), tmp.path().join("track.tum"));
+    let d = dir.to_str().unwrap();
+    let camera = format!("{d}/camera.json");
+    let gt = format!("{d}/poses.json");
+    let (ok, stdout, stderr) = flowfilter(&[
+        "track", "--frames", d, "--camera", &camera, "--gt", &gt, "--max-frames", "5",
+        "--json", json.to_str().unwrap(), "--tum", tum.to_str().unwrap(),
+    ]);
+    assert!(ok, "{stderr}");
+    assert!(stdout.contains("5 frames: ") && stdout.contains("vs ground truth (5 frames): ATE"), "{stdout}");
+    let rows: Vec<serde_json::Value> =
+        std::fs::read_to_string(&json).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert_eq!(rows.len(), 5);
+    assert_eq!(rows[0]["state"], "tracking");
+    assert_eq!(rows[0]["keyframe"], true);
+    for r in &rows[1..] {
+        assert_eq!(r["state"], "tracking", "{r}");
+        assert!(r["estimate"]["transform"].is_array() && r["reference"].is_u64());
+        // Frames 10-15 deg apart, four of them: each within 2 deg of the calibrated truth.
+        assert!(r["errors"]["rotation_deg"].as_f64().unwrap() < 2.0, "{r}");
+    }
+    let lines: Vec<String> = std::fs::read_to_string(&tum).unwrap().lines().map(String::from).collect();
+    assert!(lines[0].starts_with('#'));
+    assert_eq!(lines.len(), 6);
+    let first: Vec<f64> = lines[1].split_whitespace().map(|v| v.parse().unwrap()).collect();
+    assert_eq!(first, vec![0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]);
+    let last: Vec<f64> = lines[5].split_whitespace().map(|v| v.parse().unwrap()).collect();
+    assert!((last[0] - 4.0 / 30.0).abs() < 1e-6, "timestamps are frame number / fps");
+    let q = (last[4] * last[4] + last[5] * last[5] + last[6] * last[6] + last[7] * last[7]).sqrt();
+    assert!((q - 1.0).abs() < 1e-6);
+}
+
+#[test]
+fn a_missing_depth_file_is_a_lost_frame_not_a_crash() {
+    let Some(dir) = shelf() else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    for n in 0..3 {
+        for kind in ["color", "depth"] {
+            if (n, kind) == (1, "depth") {
+                continue;
+            }
+            let name = format!("frame-{n:06}.{kind}.png");
+            std::fs::copy(dir.join(&name), tmp.path().join(&name)).unwrap();
+        }
+    }
+    std::fs::write(tmp.path().join("notes.txt"), "ignored").unwrap();
+    let json = tmp.path().join("t.jsonl");
+    let camera = dir.join("camera.json");
+    let (ok, stdout, stderr) = flowfilter(&[
+        "track", "--frames", tmp.path().to_str().unwrap(), "--camera", camera.to_str().unwrap(),
+        "--json", json.to_str().unwrap(),
+    ]);
+    assert!(ok, "{stderr}");
+    let rows: Vec<serde_json::Value> =
+        std::fs::read_to_string(&json).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert_eq!(rows.len(), 3, "{stdout}");
+    assert_eq!(rows[1]["state"], "lost");
+    assert!(rows[1]["reason"].as_str().unwrap().contains("frame-000001.depth.png"), "{}", rows[1]);
+    // Frame 2 is matched against the keyframes again (frame 0, 25 deg away).
+    assert!(["recovered", "uncertain", "lost"].contains(&rows[2]["state"].as_str().unwrap()));
+}
+
+#[test]
+fn bad_arguments_are_reported() {
+    let tmp = tempfile::tempdir().unwrap();
+    let empty = tmp.path().to_str().unwrap();
+    let camera = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/bop/000001/scene_camera.json");
+    let (ok, _, stderr) = flowfilter(&["track", "--frames", empty, "--camera", camera.to_str().unwrap()]);
+    assert!(!ok && stderr.contains("no RGB-D frames"), "{stderr}");
+    let (ok, _, stderr) = flowfilter(&["track", "--frames", empty, "--camera", camera.to_str().unwrap(), "--fps", "0"]);
+    assert!(!ok && stderr.contains("--fps"), "{stderr}");
+}

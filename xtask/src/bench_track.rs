@@ -1,0 +1,325 @@
+//! `cargo xtask bench-track`: the tracker over whole streams, against chaining pairwise
+//! estimates (what a user without a tracker does: `estimate` on each consecutive pair, a mask
+//! for every frame, the answers composed).
+//!
+//! Streams: synthetic turntable loops (a full turn at `--steps` degrees, the synth's Carmine
+//! sensor effects, the object's first mask only), and the shared real RealSense sequences as
+//! whole frames and as a region "object" with a segmentation network's mask in the first frame
+//! (the regions and masks of `bench-real`). Errors as the TUM benchmark defines them (ATE, RPE
+//! over one frame) and the last frame's rotation error (a loop's closure error).
+
+use crate::bench_real::seed_of;
+use crate::realsense::{PosedFrames, is_posed_folder, network_mask};
+use anyhow::Context;
+use clap::Args;
+use flowfilter_bigbird::SensorId;
+use flowfilter_eval::trajectory::{TrajectoryErrors, trajectory_errors};
+use flowfilter_pipeline::{Pipeline, PipelineConfig, Pose, RgbdFrame};
+use flowfilter_synth::{NetworkMaskModel, NoiseProfile, Rig, Scene, procedural, render_frame, world_from_table};
+use flowfilter_track::{TrackState, Tracker, TrackerConfig};
+use serde::Serialize;
+use std::fmt::Write as _;
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// Arguments of `bench-track`.
+#[derive(Args)]
+pub struct TrackBenchArgs {
+    /// Real posed sequences: a folder of them (or one), as `bench-real` reads.
+    #[arg(long, default_value = "../shared/data/realsense-shelf")]
+    pub data: PathBuf,
+    /// Real sequences to run, comma separated; default: all.
+    #[arg(long, value_delimiter = ',')]
+    pub sequences: Option<Vec<String>>,
+    /// Synthetic turntable objects (procedural), comma separated.
+    #[arg(long, value_delimiter = ',', default_value = "box,can,bottle")]
+    pub objects: Vec<String>,
+    /// Turntable steps of the synthetic loops, degrees.
+    #[arg(long, value_delimiter = ',', default_value = "3")]
+    pub steps: Vec<u32>,
+    /// Pipeline configuration.
+    #[arg(long, default_value = "configs/flowfilter.toml")]
+    pub pipeline: PathBuf,
+    /// Seed of the regions and masks.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// CI-sized: a 30-degree arc of the box, the first 4 frames of one real sequence.
+    #[arg(long)]
+    pub quick: bool,
+    /// Output root (a timestamped folder is made inside).
+    #[arg(long, default_value = "results")]
+    pub out: PathBuf,
+    /// Exit non-zero unless every stream ran and the tracker kept every frame tracked or
+    /// recovered on the synthetic streams.
+    #[arg(long)]
+    pub check: bool,
+}
+
+/// One stream run by one method.
+#[derive(Debug, Clone, Serialize)]
+struct StreamResult {
+    stream: String,
+    kind: &'static str,
+    method: &'static str,
+    frames: usize,
+    tracking: usize,
+    uncertain: usize,
+    lost: usize,
+    recovered: usize,
+    seconds: f64,
+    frames_per_second: f64,
+    errors: Option<TrajectoryErrors>,
+}
+
+/// A stream: frames (the first with the object's mask, or whole), and each frame's true motion
+/// from the first.
+struct Stream {
+    name: String,
+    kind: &'static str,
+    /// Frames as the tracker gets them (only the first masked).
+    frames: Vec<RgbdFrame>,
+    /// Frames with a mask each (what chaining needs).
+    masked: Vec<RgbdFrame>,
+    truth: Vec<Pose>,
+}
+
+/// Run the benchmark.
+pub fn run(args: &TrackBenchArgs) -> anyhow::Result<()> {
+    let config = PipelineConfig::from_file(&args.pipeline).with_context(|| args.pipeline.display().to_string())?;
+    let pipeline = Pipeline::from_config(config.clone()).context("--pipeline")?;
+    let started = Instant::now();
+    let mut streams: Vec<Stream> = vec![];
+    let objects: Vec<String> = if args.quick { vec!["box".into()] } else { args.objects.clone() };
+    for object in &objects {
+        for &step in &args.steps {
+            streams.push(turntable(object, step, if args.quick { 30 } else { 360 })?);
+        }
+    }
+    streams.extend(real_streams(args)?);
+    let mut results = vec![];
+    for s in &streams {
+        println!("{} ({} frames)", s.name, s.frames.len());
+        results.push(track(Pipeline::from_config(config.clone())?, s));
+        results.push(chain(&pipeline, s));
+    }
+    let dir = args.out.join(crate::report::timestamp());
+    std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
+    std::fs::write(dir.join("results.json"), serde_json::to_string_pretty(&results)?)?;
+    let summary = summary(&results, started.elapsed().as_secs_f64());
+    std::fs::write(dir.join("summary.md"), &summary)?;
+    println!("{summary}\nresults in {}", dir.display());
+    if args.check {
+        check(&results)?;
+    }
+    Ok(())
+}
+
+/// A synthetic loop: the object on the turntable, NP3, from 0 to `span` degrees at `step`.
+fn turntable(object: &str, step: u32, span: u32) -> anyhow::Result<Stream> {
+    let rig = Rig::bigbird_like();
+    let sensor = SensorId::new(3).expect("NP3");
+    let scene = Scene::new(procedural(object, 1)?.placed_on_table(0.01, -0.005), 1);
+    let noise = NoiseProfile::carmine();
+    let s = &rig.sensors[&sensor];
+    let h = |a: u32| s.h_color_from_world * world_from_table(f64::from(a));
+    let angles: Vec<u32> = (0..=span / step.max(1)).map(|k| k * step.max(1)).collect();
+    let (mut frames, mut masked, mut truth) = (vec![], vec![], vec![]);
+    for &a in &angles {
+        let f = render_frame(&scene, &rig, sensor, a % 360, Some(&noise), 7);
+        let frame = RgbdFrame { label: format!("{object}_{a}"), color: f.color, depth: f.raw_depth, mask: f.mask, sensor: s.rgbd };
+        let mut whole = frame.clone();
+        if a != 0 {
+            whole.mask.as_mut_slice().fill(true);
+        }
+        frames.push(whole);
+        masked.push(frame);
+        truth.push(h(a % 360) * h(0).inverse());
+    }
+    Ok(Stream { name: format!("{object} turntable {span} deg at {step} deg"), kind: "synthetic loop", frames, masked, truth })
+}
+
+/// The real sequences: each as whole frames and as a region with the network's first mask.
+fn real_streams(args: &TrackBenchArgs) -> anyhow::Result<Vec<Stream>> {
+    if !args.data.is_dir() {
+        println!("skipping the real sequences: {} is absent", args.data.display());
+        return Ok(vec![]);
+    }
+    let mut dirs: Vec<PathBuf> = if is_posed_folder(&args.data) {
+        vec![args.data.clone()]
+    } else {
+        let mut d: Vec<PathBuf> =
+            std::fs::read_dir(&args.data)?.flatten().map(|e| e.path()).filter(|p| is_posed_folder(p)).collect();
+        d.sort();
+        d
+    };
+    if let Some(names) = &args.sequences {
+        dirs.retain(|d| names.iter().any(|n| d.file_name().is_some_and(|f| f == n.as_str())));
+    }
+    if args.quick {
+        dirs.truncate(1);
+    }
+    let mut out = vec![];
+    for dir in dirs {
+        let label = dir.file_name().map_or_else(String::new, |n| n.to_string_lossy().into_owned());
+        let seq = PosedFrames::open(&dir).map_err(anyhow::Error::msg)?;
+        let mut ids = seq.ids();
+        if args.quick {
+            ids.truncate(4);
+        }
+        let frames: Vec<RgbdFrame> = ids.iter().map(|&i| seq.frame(i)).collect::<Result<_, _>>().map_err(anyhow::Error::msg)?;
+        let truth: Vec<Pose> =
+            ids.iter().map(|&i| seq.relative_motion(ids[0], i)).collect::<Result<_, _>>().map_err(anyhow::Error::msg)?;
+        out.push(Stream {
+            name: format!("{label} whole frames"),
+            kind: "real, whole frames",
+            frames: frames.clone(),
+            masked: frames.clone(),
+            truth: truth.clone(),
+        });
+        if args.quick || frames.len() < 2 {
+            continue;
+        }
+        if let Some(region_stream) = region_stream(&seq, &label, &ids, &frames, &truth, args.seed) {
+            out.push(region_stream);
+        }
+    }
+    Ok(out)
+}
+
+/// A region of the sequence's first two frames (as `bench-real` draws them) tracked from the
+/// network's mask in the first frame; chaining gets the network's mask in every frame.
+fn region_stream(
+    seq: &PosedFrames,
+    label: &str,
+    ids: &[u32],
+    frames: &[RgbdFrame],
+    truth: &[Pose],
+    seed: u64,
+) -> Option<Stream> {
+    let (a, b) = (ids[0], ids[1]);
+    let region = seq.draw_region((&frames[0], &frames[1]), (a, b), seed_of(label, seed, &[a.into(), b.into(), 0]))?;
+    let model = NetworkMaskModel::SHELF_NETWORK;
+    let masked: Vec<RgbdFrame> = frames
+        .iter()
+        .zip(ids)
+        .map(|(f, &im)| {
+            let mut f = f.clone();
+            let truth_mask = seq.true_mask(&f, im, &region);
+            let drawn = network_mask(&truth_mask, &model, seed_of(label, seed, &[im.into(), 1, 1]), true);
+            f.mask = drawn.unwrap_or(truth_mask);
+            f
+        })
+        .collect();
+    let mut tracked = frames.to_vec();
+    tracked[0] = masked[0].clone();
+    Some(Stream {
+        name: format!("{label} region"),
+        kind: "real, region",
+        frames: tracked,
+        masked,
+        truth: truth.to_vec(),
+    })
+}
+
+/// The tracker over the stream.
+fn track(pipeline: Pipeline, s: &Stream) -> StreamResult {
+    let t0 = Instant::now();
+    let mut poses = vec![Pose::identity()];
+    let mut states = vec![TrackState::Tracking];
+    match Tracker::new(pipeline, TrackerConfig::default(), &s.frames[0]) {
+        Ok(mut tracker) => {
+            for f in &s.frames[1..] {
+                let r = tracker.update(Ok(f.clone()));
+                poses.push(r.pose);
+                states.push(r.state);
+            }
+        }
+        Err(e) => {
+            tracing::warn!(stream = %s.name, error = %e, "the tracker could not start");
+            poses.resize(s.frames.len(), Pose::identity());
+            states.resize(s.frames.len(), TrackState::Lost);
+        }
+    }
+    result(s, "tracker", &poses, &states, t0.elapsed().as_secs_f64())
+}
+
+/// Pairwise estimates of consecutive frames (each with its mask), composed.
+fn chain(pipeline: &Pipeline, s: &Stream) -> StreamResult {
+    let t0 = Instant::now();
+    let mut poses = vec![Pose::identity()];
+    let mut states = vec![TrackState::Tracking];
+    let prepared: Vec<_> = s.masked.iter().map(|f| pipeline.prepare(f)).collect();
+    for k in 1..s.masked.len() {
+        let last = poses[k - 1];
+        match (&prepared[k - 1], &prepared[k]) {
+            (Ok(a), Ok(b)) => match pipeline.estimate_prepared(a, b) {
+                Ok(e) => {
+                    poses.push(e.pose * last);
+                    states.push(if e.registration.converged { TrackState::Tracking } else { TrackState::Uncertain });
+                }
+                Err(_) => {
+                    poses.push(last);
+                    states.push(TrackState::Lost);
+                }
+            },
+            _ => {
+                poses.push(last);
+                states.push(TrackState::Lost);
+            }
+        }
+    }
+    result(s, "chained estimates", &poses, &states, t0.elapsed().as_secs_f64())
+}
+
+fn result(s: &Stream, method: &'static str, poses: &[Pose], states: &[TrackState], seconds: f64) -> StreamResult {
+    let count = |x: TrackState| states.iter().filter(|s| **s == x).count();
+    StreamResult {
+        stream: s.name.clone(),
+        kind: s.kind,
+        method,
+        frames: poses.len(),
+        tracking: count(TrackState::Tracking),
+        uncertain: count(TrackState::Uncertain),
+        lost: count(TrackState::Lost),
+        recovered: count(TrackState::Recovered),
+        seconds,
+        frames_per_second: poses.len() as f64 / seconds.max(1e-9),
+        errors: trajectory_errors(poses, &s.truth),
+    }
+}
+
+fn summary(results: &[StreamResult], seconds: f64) -> String {
+    let mut out = format!(
+        "# bench-track\n\n{} stream runs in {seconds:.0} s. States: tracking / uncertain / lost / recovered. \
+         ATE: position RMSE after rigid alignment; RPE: over one frame; last: the last frame's error.\n\n\
+         | stream | method | frames | states | ATE (mm) | RPE (mm / deg) | last (deg / mm) | frames/s |\n|---|---|---|---|---|---|---|---|\n",
+        results.len()
+    );
+    for r in results {
+        let e = r.errors.map_or("- | - | -".into(), |e| {
+            format!(
+                "{:.1} | {:.1} / {:.2} | {:.2} / {:.1}",
+                e.ate_rmse_m * 1e3,
+                e.rpe_rmse_m * 1e3,
+                e.rpe_mean_deg,
+                e.final_rotation_deg,
+                e.final_translation_m * 1e3
+            )
+        });
+        let _ = writeln!(
+            out,
+            "| {} | {} | {} | {} / {} / {} / {} | {e} | {:.2} |",
+            r.stream, r.method, r.frames, r.tracking, r.uncertain, r.lost, r.recovered, r.frames_per_second
+        );
+    }
+    out
+}
+
+fn check(results: &[StreamResult]) -> anyhow::Result<()> {
+    for r in results.iter().filter(|r| r.method == "tracker" && r.kind == "synthetic loop") {
+        if r.lost > 0 || r.errors.is_none() {
+            anyhow::bail!("check: {} lost {} frames", r.stream, r.lost);
+        }
+    }
+    Ok(())
+}
