@@ -126,7 +126,13 @@ fn turntable(object: &str, step: u32, span: u32) -> anyhow::Result<Stream> {
     let (mut frames, mut masked, mut truth) = (vec![], vec![], vec![]);
     for &a in &angles {
         let f = render_frame(&scene, &rig, sensor, a % 360, Some(&noise), 7);
-        let frame = RgbdFrame { label: format!("{object}_{a}"), color: f.color, depth: f.raw_depth, mask: f.mask, sensor: s.rgbd };
+        let frame = RgbdFrame {
+            label: format!("{object}_{a}"),
+            color: f.color,
+            depth: f.raw_depth,
+            mask: f.mask,
+            sensor: s.rgbd,
+        };
         let mut whole = frame.clone();
         if a != 0 {
             whole.mask.as_mut_slice().fill(true);
@@ -135,7 +141,13 @@ fn turntable(object: &str, step: u32, span: u32) -> anyhow::Result<Stream> {
         masked.push(frame);
         truth.push(h(a % 360) * h(0).inverse());
     }
-    Ok(Stream { name: format!("{object} turntable {span} deg at {step} deg"), kind: "synthetic loop", frames, masked, truth })
+    Ok(Stream {
+        name: format!("{object} turntable {span} deg at {step} deg"),
+        kind: "synthetic loop",
+        frames,
+        masked,
+        truth,
+    })
 }
 
 /// The real sequences: each as whole frames and as a region with the network's first mask.
@@ -166,9 +178,13 @@ fn real_streams(args: &TrackBenchArgs) -> anyhow::Result<Vec<Stream>> {
         if args.quick {
             ids.truncate(4);
         }
-        let frames: Vec<RgbdFrame> = ids.iter().map(|&i| seq.frame(i)).collect::<Result<_, _>>().map_err(anyhow::Error::msg)?;
-        let truth: Vec<Pose> =
-            ids.iter().map(|&i| seq.relative_motion(ids[0], i)).collect::<Result<_, _>>().map_err(anyhow::Error::msg)?;
+        let frames: Vec<RgbdFrame> =
+            ids.iter().map(|&i| seq.frame(i)).collect::<Result<_, _>>().map_err(anyhow::Error::msg)?;
+        let truth: Vec<Pose> = ids
+            .iter()
+            .map(|&i| seq.relative_motion(ids[0], i))
+            .collect::<Result<_, _>>()
+            .map_err(anyhow::Error::msg)?;
         out.push(Stream {
             name: format!("{label} whole frames"),
             kind: "real, whole frames",

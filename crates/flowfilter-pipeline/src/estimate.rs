@@ -159,6 +159,19 @@ pub fn matrix_rows(p: &Pose) -> [[f64; 4]; 4] {
 }
 
 impl Estimate {
+    /// The estimate with another pose (its transform, angle, axis and translation with it): a
+    /// tracker reports the motion from the first frame this way.
+    pub fn with_pose(mut self, pose: Pose) -> Self {
+        let (axis, angle) = pose.rotation.axis_angle().map_or(([0.0; 3], 0.0), |(a, t)| ([a.x, a.y, a.z], t));
+        let t = pose.translation.vector;
+        self.transform = matrix_rows(&pose);
+        self.rotation_angle_deg = angle.to_degrees();
+        self.rotation_axis = axis;
+        self.translation_m = [t.x, t.y, t.z];
+        self.pose = pose;
+        self
+    }
+
     /// Attach the ground truth; `model_points` (the model cloud) gives ADD-S.
     pub fn with_ground_truth(mut self, truth: &Pose, model_points: Option<&[Point3]>) -> Self {
         self.ground_truth = Some(GroundTruth {

@@ -16,7 +16,9 @@ use pyo3::prelude::*;
 /// "flowfilter estimate v3").
 #[pyclass(module = "flowfilter", frozen)]
 pub struct Estimate {
-    estimate: flowfilter_pipeline::Estimate,
+    pub(crate) estimate: flowfilter_pipeline::Estimate,
+    /// The tracker's report, for an estimate made by `Tracker.update`.
+    pub(crate) track: Option<crate::track::TrackInfo>,
 }
 
 #[pymethods]
@@ -128,7 +130,39 @@ impl Estimate {
     }
     /// The estimate as `flowfilter estimate --json` prints it.
     fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        json_object(py, &self.estimate)
+        let d = json_object(py, &self.estimate)?;
+        if let Some(t) = &self.track {
+            d.set_item("track", json_object(py, t)?)?;
+        }
+        Ok(d)
+    }
+    /// For `Tracker.update`'s estimates: the track's state at this frame (`tracking`,
+    /// `uncertain`, `lost`, `recovered`); None for a pairwise estimate.
+    #[getter]
+    fn state(&self) -> Option<&'static str> {
+        self.track.as_ref().map(|t| t.state)
+    }
+    /// For `Tracker.update`'s estimates: why the state is not `tracking` (or what the estimate
+    /// warned of); else None.
+    #[getter]
+    fn reason(&self) -> Option<&str> {
+        self.track.as_ref().and_then(|t| t.reason.as_deref())
+    }
+    /// For `Tracker.update`'s estimates: the stream index of the frame measured against (None
+    /// when lost).
+    #[getter]
+    fn reference(&self) -> Option<usize> {
+        self.track.as_ref().and_then(|t| t.reference)
+    }
+    /// For `Tracker.update`'s estimates: whether this frame became a keyframe.
+    #[getter]
+    fn keyframe(&self) -> Option<bool> {
+        self.track.as_ref().map(|t| t.keyframe)
+    }
+    /// For `Tracker.update`'s estimates: the frame's index in the stream (0: the first).
+    #[getter]
+    fn frame_index(&self) -> Option<usize> {
+        self.track.as_ref().map(|t| t.index)
     }
     fn __repr__(&self) -> String {
         let e = &self.estimate;
@@ -144,7 +178,7 @@ impl Estimate {
 }
 
 /// Both frames as the pipeline's, with the camera argument when given.
-fn frames(
+pub(crate) fn frames(
     model: &Bound<'_, PyAny>,
     target: &Bound<'_, PyAny>,
     camera: Option<&Bound<'_, PyAny>>,
@@ -185,7 +219,7 @@ pub fn estimate(
     let (fa, fb) = frames(model, target, camera)?;
     let truth: Option<Pose> = gt.filter(|g| !g.is_none()).map(|g| arrays::pose(g, "gt")).transpose()?;
     let result = threads::run(py, || pipeline.estimate_against(&fa, &fb, truth.as_ref()))?;
-    result.map(|(estimate, _, _)| Estimate { estimate }).map_err(|e| crate::errors::pipeline(&e))
+    result.map(|(estimate, _, _)| Estimate { estimate, track: None }).map_err(|e| crate::errors::pipeline(&e))
 }
 
 /// Flow correspondences between two frames: model points (colour camera frame) and where the

@@ -18,6 +18,7 @@ mod params;
 mod readers;
 mod register;
 mod threads;
+mod track;
 
 use pyo3::prelude::*;
 
@@ -66,6 +67,7 @@ fn _flowfilter(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<estimate::Correspondences>()?;
     m.add_class::<frame::Camera>()?;
     m.add_class::<frame::Frame>()?;
+    m.add_class::<track::Tracker>()?;
     m.add_function(wrap_pyfunction!(register::register, m)?)?;
     m.add_function(wrap_pyfunction!(register::evaluate_registration, m)?)?;
     m.add_function(wrap_pyfunction!(estimate::estimate, m)?)?;

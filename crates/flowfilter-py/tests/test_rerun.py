@@ -135,3 +135,19 @@ def test_log_to_rerun_writes_the_documented_entities(tmp_path, bop_scene):
     assert not expected - found, sorted(expected - found)
     with pytest.raises(flowfilter.InputError, match="model: expected a flowfilter.Frame"):
         e.log_to_rerun(np.zeros((2, 2)), b, recording=rec)
+
+
+def test_track_records_each_frame(tmp_path):
+    """`flowfilter track --rerun` on three frames of a real shelf: each frame's estimate against its
+    reference, with the truth's entities (the calibrated poses)."""
+    shelf = SHARED / "realsense-shelf" / "shelf-D"
+    if not shelf.is_dir():
+        pytest.skip(f"{shelf} is absent: the real-frame tests need ../shared beside the repository")
+    cli, _ = recording_cli()
+    rrd = tmp_path / "track.rrd"
+    run_cli(cli, "track", "--frames", shelf, "--camera", shelf / "camera.json", "--gt", shelf / "poses.json",
+            "--max-frames", "3", "--rerun", rrd)
+    found, has_pair_timeline = entities(rrd)
+    assert has_pair_timeline
+    missing = (PAIR_ENTITIES | TRUTH_ENTITIES) - found
+    assert not missing, f"missing entities: {sorted(missing)}"

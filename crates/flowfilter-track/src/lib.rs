@@ -21,4 +21,4 @@ mod tracker;
 pub mod tum;
 
 pub use folder::{FolderError, FrameEntry, FrameFolder};
-pub use tracker::{TrackError, TrackState, TrackedFrame, Tracker, TrackerConfig};
+pub use tracker::{TracedPair, TrackError, TrackState, TrackedFrame, Tracker, TrackerConfig};

@@ -3,7 +3,10 @@
 
 use crate::carry::{area, carry_mask};
 use flowfilter_geometry::Pose;
-use flowfilter_pipeline::{Estimate, Pipeline, PipelineError, PipelineWarning, PreparedFrame, RgbdFrame};
+use flowfilter_pipeline::{
+    Estimate, PairTrace, Pipeline, PipelineError, PipelineWarning, PreparedFrame, RegistrationSummary, RgbdFrame,
+    StageTimes,
+};
 use serde::{Deserialize, Serialize};
 
 /// How the tracker keeps keyframes and carries the mask.
@@ -25,6 +28,9 @@ pub struct TrackerConfig {
     pub min_mask_px: usize,
     /// Consecutive uncertain frames after which the track is lost.
     pub max_uncertain: usize,
+    /// Keep what each kept estimate weighed ([`TrackedFrame::traced`]: the frames and the
+    /// pipeline's trace), for recordings.
+    pub trace: bool,
 }
 
 impl Default for TrackerConfig {
@@ -37,6 +43,7 @@ impl Default for TrackerConfig {
             depth_tolerance_m: 0.03,
             min_mask_px: 300,
             max_uncertain: 3,
+            trace: false,
         }
     }
 }
@@ -76,6 +83,66 @@ pub struct TrackedFrame {
     pub estimate: Option<Estimate>,
     /// Pixels of the object's carried mask (0 in whole-frame mode).
     pub mask_px: usize,
+    /// With [`TrackerConfig::trace`]: the reference and this frame as prepared, and what the
+    /// pipeline weighed between them.
+    pub traced: Option<Box<TracedPair>>,
+}
+
+/// A kept estimate's inputs and trace.
+#[derive(Debug, Clone)]
+pub struct TracedPair {
+    /// The reference frame (a keyframe or the previous frame), prepared.
+    pub model: PreparedFrame,
+    /// This frame, prepared.
+    pub target: PreparedFrame,
+    /// What the pipeline weighed.
+    pub trace: PairTrace,
+}
+
+impl TrackedFrame {
+    /// The frame's result as an estimate of the motion from the first frame (`first`, its
+    /// label) to this one: the estimate against the reference with its transform replaced by
+    /// the motion from the first frame (converged only when tracking or recovered); for a frame
+    /// without an estimate (lost), the held pose, not converged, the reason as a warning-free
+    /// estimate of `method`.
+    pub fn from_first(&self, first: &str, method: &str) -> Estimate {
+        let trusted = matches!(self.state, TrackState::Tracking | TrackState::Recovered);
+        let mut e = match &self.estimate {
+            Some(e) => e.clone(),
+            None => Estimate {
+                schema: flowfilter_pipeline::ESTIMATE_SCHEMA,
+                method: method.to_string(),
+                flow_estimator: None,
+                model: String::new(),
+                target: String::new(),
+                transform: [[0.0; 4]; 4],
+                rotation_angle_deg: 0.0,
+                rotation_axis: [0.0; 3],
+                translation_m: [0.0; 3],
+                registration: RegistrationSummary {
+                    iterations: 0,
+                    converged: false,
+                    fitness: 0.0,
+                    inlier_rmse_m: 0.0,
+                    sigma2: None,
+                    model_points: 0,
+                    target_points: 0,
+                    uncertainty: None,
+                },
+                correspondences: None,
+                stage_ms: StageTimes::default(),
+                judge: None,
+                align: None,
+                warnings: vec![],
+                ground_truth: None,
+                pose: Pose::identity(),
+            },
+        };
+        e.model = first.to_string();
+        e.target.clone_from(&self.label);
+        e.registration.converged &= trusted;
+        e.with_pose(self.pose)
+    }
 }
 
 /// A keyframe: a frame prepared with the object's mask, and its pose from the first frame.
@@ -194,6 +261,7 @@ impl Tracker {
             keyframe: true,
             estimate: None,
             mask_px: if self.object { area(&k.frame.mask) } else { 0 },
+            traced: None,
         }
     }
 
@@ -231,14 +299,26 @@ impl Tracker {
     fn track(&mut self, index: usize, target: PreparedFrame) -> TrackedFrame {
         let mut doubtful: Option<(usize, Estimate, Pose)> = None;
         let mut failure: Option<String> = None;
+        let mut traced: Option<Box<TracedPair>> = None;
         for (reference, model, reference_pose) in self.candidates() {
-            match self.pipeline.estimate_prepared(model, &target) {
-                Ok(e) if e.registration.converged => {
-                    return self.accept(index, target, reference, e, reference_pose);
+            let estimated = if self.config.trace {
+                self.pipeline.estimate_traced(model, &target).map(|(e, trace)| {
+                    let pair = TracedPair { model: model.clone(), target: target.clone(), trace };
+                    (e, Some(Box::new(pair)))
+                })
+            } else {
+                self.pipeline.estimate_prepared(model, &target).map(|e| (e, None))
+            };
+            match estimated {
+                Ok((e, pair)) if e.registration.converged => {
+                    let mut r = self.accept(index, target, reference, e, reference_pose);
+                    r.traced = pair;
+                    return r;
                 }
-                Ok(e) => {
+                Ok((e, pair)) => {
                     if doubtful.is_none() && !e.warnings.iter().any(PipelineWarning::is_implausible) {
                         doubtful = Some((reference, e, reference_pose));
+                        traced = pair;
                     }
                 }
                 Err(err) => failure = Some(err.to_string()),
@@ -266,6 +346,7 @@ impl Tracker {
                     keyframe: false,
                     mask_px: if self.object { area(&mask) } else { 0 },
                     estimate: Some(e),
+                    traced,
                 }
             }
             None => {
@@ -370,6 +451,7 @@ impl Tracker {
             keyframe: far,
             mask_px,
             estimate: Some(e),
+            traced: None,
         }
     }
 
@@ -397,6 +479,7 @@ impl Tracker {
             keyframe: false,
             estimate: None,
             mask_px: 0,
+            traced: None,
         }
     }
 }

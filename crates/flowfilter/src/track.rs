@@ -8,7 +8,9 @@ use flowfilter_eval::{geodesic_error_deg, translation_error_m};
 use flowfilter_geometry::Pose;
 use flowfilter_geometry::atomic::{check_writable_file, write_atomic_with};
 use flowfilter_pipeline::{CameraFile, FrameFiles, MaskSource, RgbdFrame, matrix_rows};
+use flowfilter_rerun::{FrameInput, PairScene, Recorder};
 use flowfilter_track::{FrameEntry, FrameFolder, TrackState, TrackedFrame, Tracker, TrackerConfig, tum};
+use image::RgbImage;
 use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -48,14 +50,22 @@ pub struct TrackArgs {
     /// camera poses (`camera_to_world_calibrated`: a static scene, the camera moving).
     #[arg(long)]
     pub gt: Option<PathBuf>,
+    /// Write a Rerun recording: each frame's estimate against its reference (both frames,
+    /// depth, masks, clouds, flow pairs, the judge's candidates, pose, bounds, times) at the
+    /// frame's index on the `pair` timeline (docs/rerun.md). Needs `--features rerun`.
+    #[arg(long)]
+    pub rerun: Option<PathBuf>,
 }
 
 /// Run `track`.
 pub fn run(args: &TrackArgs) -> anyhow::Result<ExitCode> {
-    for (path, flag) in [(&args.json, "--json"), (&args.tum, "--tum")] {
+    for (path, flag) in [(&args.json, "--json"), (&args.tum, "--tum"), (&args.rerun, "--rerun")] {
         if let Some(p) = path {
             check_writable_file(p).context(flag)?;
         }
+    }
+    if let Some(path) = args.rerun.as_ref().filter(|_| !flowfilter_rerun::CAN_RECORD) {
+        return Err(flowfilter_rerun::RecordError::NotBuilt { path: path.clone() }).context("--rerun");
     }
     if !(args.fps.is_finite() && args.fps > 0.0) {
         anyhow::bail!("--fps: expected a positive number of frames per second, found {}", args.fps);
@@ -70,17 +80,28 @@ pub fn run(args: &TrackArgs) -> anyhow::Result<ExitCode> {
     let pipeline = crate::estimate::pipeline(args.config.as_deref(), None)?;
     let first_mask = args.mask.clone().map_or(MaskSource::None, MaskSource::Binary);
     let first = load(&folder.frames[0], &camera, first_mask).context("the first frame")?;
-    let mut tracker = Tracker::new(pipeline, TrackerConfig::default(), &first)?;
+    let config = TrackerConfig { trace: args.rerun.is_some(), ..TrackerConfig::default() };
+    let mut tracker = Tracker::new(pipeline, config, &first)?;
+    let recording = args.rerun.as_deref().map(|p| Recorder::create(p, "flowfilter track")).transpose()?;
+    let mut colours: Vec<Option<RgbImage>> = vec![recording.as_ref().map(|_| first.color.clone())];
     let bar = crate::progress::bar(folder.frames.len(), "frames");
     bar.set_message("track");
     let mut out: Vec<TrackedFrame> = vec![tracker.first()];
     crate::progress::advance(&bar, 1);
     for (i, entry) in folder.frames.iter().enumerate().skip(1) {
         let frame = load(entry, &camera, MaskSource::None).map_err(|e| format!("{e:#}"));
-        out.push(tracker.update(frame));
+        colours.push(recording.as_ref().and_then(|_| frame.as_ref().ok().map(|f| f.color.clone())));
+        let mut tracked = tracker.update(frame);
+        if let Some(recorder) = &recording {
+            record(recorder, &mut tracked, &colours, &folder.frames, truth.as_ref())?;
+        }
+        out.push(tracked);
         crate::progress::advance(&bar, i + 1);
     }
     bar.finish_and_clear();
+    if let Some(recorder) = recording {
+        recorder.finish()?;
+    }
     let rows: Vec<serde_json::Value> =
         out.iter().zip(&folder.frames).map(|(t, f)| json_row(t, f, truth.as_ref())).collect();
     if let Some(path) = &args.json {
@@ -95,6 +116,37 @@ pub fn run(args: &TrackArgs) -> anyhow::Result<ExitCode> {
     }
     print_summary(&out, &folder.frames, truth.as_ref());
     Ok(ExitCode::SUCCESS)
+}
+
+/// A frame's estimate against its reference, recorded at the frame's index (its trace then
+/// dropped: a recording of a long stream does not hold every frame in memory).
+fn record(
+    recorder: &Recorder,
+    tracked: &mut TrackedFrame,
+    colours: &[Option<RgbImage>],
+    frames: &[FrameEntry],
+    truth: Option<&BTreeMap<u64, Pose>>,
+) -> anyhow::Result<()> {
+    let (Some(pair), Some(e), Some(reference)) = (tracked.traced.take(), tracked.estimate.as_ref(), tracked.reference)
+    else {
+        return Ok(());
+    };
+    let (Some(Some(model_colour)), Some(Some(colour))) = (colours.get(reference), colours.get(tracked.index)) else {
+        return Ok(());
+    };
+    let pair_truth = truth.and_then(|t| {
+        let (a, b) = (t.get(&frames[reference].number)?, t.get(&frames[tracked.index].number)?);
+        Some(b * a.inverse())
+    });
+    let e = match &pair_truth {
+        Some(t) => e.clone().with_ground_truth(t, Some(&pair.model.cloud.points)),
+        None => e.clone(),
+    };
+    let model = FrameInput { color: model_colour, prepared: &pair.model };
+    let target = FrameInput { color: colour, prepared: &pair.target };
+    let step = i64::try_from(tracked.index).unwrap_or(i64::MAX);
+    recorder.log_pair(step, &PairScene::new(model, target, &e, &pair.trace, pair_truth.as_ref()))?;
+    Ok(())
 }
 
 /// One frame from its files (the mask only for the first).

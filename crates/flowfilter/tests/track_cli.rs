@@ -28,8 +28,19 @@ fn a_real_sequence_is_tracked_with_json_lines_and_a_tum_trajectory() {
     let camera = format!("{d}/camera.json");
     let gt = format!("{d}/poses.json");
     let (ok, stdout, stderr) = flowfilter(&[
-        "track", "--frames", d, "--camera", &camera, "--gt", &gt, "--max-frames", "5",
-        "--json", json.to_str().unwrap(), "--tum", tum.to_str().unwrap(),
+        "track",
+        "--frames",
+        d,
+        "--camera",
+        &camera,
+        "--gt",
+        &gt,
+        "--max-frames",
+        "5",
+        "--json",
+        json.to_str().unwrap(),
+        "--tum",
+        tum.to_str().unwrap(),
     ]);
     assert!(ok, "{stderr}");
     assert!(stdout.contains("5 frames: ") && stdout.contains("vs ground truth (5 frames): ATE"), "{stdout}");
@@ -72,8 +83,13 @@ fn a_missing_depth_file_is_a_lost_frame_not_a_crash() {
     let json = tmp.path().join("t.jsonl");
     let camera = dir.join("camera.json");
     let (ok, stdout, stderr) = flowfilter(&[
-        "track", "--frames", tmp.path().to_str().unwrap(), "--camera", camera.to_str().unwrap(),
-        "--json", json.to_str().unwrap(),
+        "track",
+        "--frames",
+        tmp.path().to_str().unwrap(),
+        "--camera",
+        camera.to_str().unwrap(),
+        "--json",
+        json.to_str().unwrap(),
     ]);
     assert!(ok, "{stderr}");
     let rows: Vec<serde_json::Value> =
@@ -94,4 +110,16 @@ fn bad_arguments_are_reported() {
     assert!(!ok && stderr.contains("no RGB-D frames"), "{stderr}");
     let (ok, _, stderr) = flowfilter(&["track", "--frames", empty, "--camera", camera.to_str().unwrap(), "--fps", "0"]);
     assert!(!ok && stderr.contains("--fps"), "{stderr}");
+    let rrd = tmp.path().join("t.rrd");
+    let (ok, _, stderr) = flowfilter(&[
+        "track",
+        "--frames",
+        empty,
+        "--camera",
+        camera.to_str().unwrap(),
+        "--rerun",
+        rrd.to_str().unwrap(),
+    ]);
+    let expected = if cfg!(feature = "rerun") { "no RGB-D frames" } else { "--features rerun" };
+    assert!(!ok && stderr.contains(expected), "{stderr}");
 }

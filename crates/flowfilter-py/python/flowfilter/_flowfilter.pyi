@@ -197,12 +197,43 @@ class Estimate:
         """The true transform and the errors against it, when `gt` was given."""
     def to_dict(self) -> Dict[str, Any]:
         """The estimate as `flowfilter estimate --json` prints it."""
+    @property
+    def state(self) -> Optional[str]:
+        """For `Tracker.update`'s estimates: the track's state (`tracking`, `uncertain`, `lost`,
+        `recovered`); None for a pairwise estimate."""
+    @property
+    def reason(self) -> Optional[str]:
+        """For `Tracker.update`'s estimates: why the state is not `tracking` (or what the estimate warned of)."""
+    @property
+    def reference(self) -> Optional[int]:
+        """For `Tracker.update`'s estimates: the stream index of the frame measured against."""
+    @property
+    def keyframe(self) -> Optional[bool]:
+        """For `Tracker.update`'s estimates: whether this frame became a keyframe."""
+    @property
+    def frame_index(self) -> Optional[int]:
+        """For `Tracker.update`'s estimates: the frame's index in the stream (0: the first)."""
     def log_to_rerun(
         self, model: Optional[Frame] = None, target: Optional[Frame] = None, recording: Any = None, step: int = 0
     ) -> None:
         """Log the estimate to Rerun (needs rerun-sdk) at the entity paths of `flowfilter estimate
         --rerun` (docs/rerun.md), at step `step` of the `pair` timeline; with `model`/`target`, their
         colour, depth and masks too. `recording`: a `rerun.RecordingStream` (None: the current one)."""
+
+class Tracker:
+    """Tracks an object through a stream of RGB-D frames from its mask in the first frame (without
+    one, the whole scene); `update(frame)` returns the motion from the first frame as an
+    `Estimate` with the track's `state`, `reason`, `reference`, `keyframe`, `frame_index`."""
+
+    def __init__(
+        self, camera: Optional[CameraLike], frame: Union[Frame, Any], mask: Optional[ArrayLike] = None, config: ConfigLike = None
+    ) -> None:
+        """Start on `frame`; `mask` ((H, W) bool, or the frame's own) is the object's."""
+    def update(self, frame: Union[Frame, Any]) -> Estimate:
+        """The next frame: the object's motion from the first frame, with the track's state. A frame
+        that cannot be used is `lost` with the reason, not an exception."""
+    def keyframes(self) -> List[int]:
+        """Stream indices of the keyframes held now."""
 
 class Correspondences:
     """Flow correspondences: model points and where the flow puts them in the target frame."""

@@ -1,0 +1,123 @@
+//! `flowfilter.Tracker`: an RGB-D stream, one frame at a time, the object's motion from the
+//! first frame out (`flowfilter track`).
+
+use crate::estimate::Estimate;
+use crate::frame::{camera_arg, frame_arg};
+use crate::{arrays, params, threads};
+use flowfilter_pipeline::{Pipeline, RgbdFrame};
+use flowfilter_track::{TrackState, TrackedFrame, TrackerConfig};
+use pyo3::prelude::*;
+use serde::Serialize;
+use std::sync::Mutex;
+
+/// The tracker's report on one frame.
+#[derive(Debug, Clone, Serialize)]
+pub struct TrackInfo {
+    pub index: usize,
+    pub state: &'static str,
+    pub reason: Option<String>,
+    pub reference: Option<usize>,
+    pub keyframe: bool,
+    pub mask_px: usize,
+}
+
+fn state_name(s: TrackState) -> &'static str {
+    match s {
+        TrackState::Tracking => "tracking",
+        TrackState::Uncertain => "uncertain",
+        TrackState::Lost => "lost",
+        TrackState::Recovered => "recovered",
+    }
+}
+
+/// Tracks an object through a stream of RGB-D frames of one camera from its mask in the first
+/// frame (without a mask, the whole scene): `Tracker(camera, frame, mask=None, config=None)`,
+/// then `update(frame)` for each later frame (no mask needed), which returns an `Estimate` of
+/// the object's motion from the first frame with the track's `state`, `reason`, `reference`,
+/// `keyframe` and `frame_index`. Frames are `Frame`s or `open3d.geometry.RGBDImage`s; calls
+/// release the GIL.
+#[pyclass(module = "flowfilter")]
+pub struct Tracker {
+    inner: Mutex<flowfilter_track::Tracker>,
+    camera: Option<flowfilter_pipeline::CameraFile>,
+    first: String,
+    method: String,
+}
+
+impl Tracker {
+    fn rgbd(&self, frame: &Bound<'_, PyAny>, name: &str) -> PyResult<RgbdFrame> {
+        frame_arg(frame, name)?.rgbd(self.camera.as_ref())
+    }
+}
+
+#[pymethods]
+impl Tracker {
+    /// Start on `frame` (a `Frame`): `mask` ((H, W) bool, or the frame's own) is the object's;
+    /// without one the whole scene is tracked. `camera`: as `estimate`'s (None for frames read
+    /// from a dataset). `config`: a pipeline configuration (TOML path or dict).
+    ///
+    /// Raises InputError for a frame that cannot be used (no depth in the mask), ConfigError
+    /// for a bad configuration.
+    #[new]
+    #[pyo3(signature = (camera, frame, mask = None, config = None))]
+    fn new(
+        py: Python<'_>,
+        camera: Option<&Bound<'_, PyAny>>,
+        frame: &Bound<'_, PyAny>,
+        mask: Option<&Bound<'_, PyAny>>,
+        config: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<Self> {
+        let config = params::pipeline_config(config)?;
+        let method = config.method.clone();
+        let pipeline = Pipeline::from_config(config).map_err(|e| crate::errors::pipeline(&e))?;
+        let camera = camera.filter(|c| !c.is_none()).map(camera_arg).transpose()?;
+        let mut first = frame_arg(frame, "frame")?.rgbd(camera.as_ref())?;
+        if let Some(m) = mask.filter(|m| !m.is_none()) {
+            let m = arrays::mask(&crate::open3d::image(m, "mask")?, "mask")?;
+            if m.dims() != first.mask.dims() {
+                let ((w, h), (fw, fh)) = (m.dims(), first.mask.dims());
+                return Err(crate::errors::input(format!("mask: {w}x{h}, but the frame is {fw}x{fh}")));
+            }
+            first.mask = m;
+        }
+        let label = first.label.clone();
+        let tracker = threads::run(py, || flowfilter_track::Tracker::new(pipeline, TrackerConfig::default(), &first))?
+            .map_err(|e| crate::errors::input(crate::errors::message(&e)))?;
+        Ok(Self { inner: Mutex::new(tracker), camera, first: label, method })
+    }
+
+    /// The next frame of the stream: the object's motion from the first frame, as an
+    /// `Estimate` with the track's state. A frame that cannot be used (another size, no depth)
+    /// is `lost` with the reason, not an exception.
+    fn update(&self, py: Python<'_>, frame: &Bound<'_, PyAny>) -> PyResult<Estimate> {
+        let rgbd = self.rgbd(frame, "frame").map_err(|e| e.to_string());
+        let mut inner = self.inner.lock().map_err(|_| crate::errors::input("the tracker failed in an earlier call"))?;
+        let tracker: &mut flowfilter_track::Tracker = &mut inner;
+        let tracked: TrackedFrame = threads::run(py, || tracker.update(rgbd))?;
+        Ok(estimate_of(&tracked, &self.first, &self.method))
+    }
+
+    /// Stream indices of the keyframes held now.
+    fn keyframes(&self) -> PyResult<Vec<usize>> {
+        let inner = self.inner.lock().map_err(|_| crate::errors::input("the tracker failed in an earlier call"))?;
+        Ok(inner.keyframes())
+    }
+
+    fn __repr__(&self) -> String {
+        format!("Tracker(first='{}', method='{}')", self.first, self.method)
+    }
+}
+
+fn estimate_of(t: &TrackedFrame, first: &str, method: &str) -> Estimate {
+    Estimate {
+        estimate: t.from_first(first, method),
+        track: Some(TrackInfo {
+            index: t.index,
+            state: state_name(t.state),
+            reason: t.reason.clone(),
+            reference: t.reference,
+            keyframe: t.keyframe,
+            mask_px: t.mask_px,
+        }),
+    }
+}

@@ -1,0 +1,68 @@
+"""`flowfilter.Tracker`: a stream from one mask, the motion from the first frame with a state per
+frame, lost frames as states (not exceptions), and the same poses as `flowfilter track`."""
+
+import json
+
+import numpy as np
+import pytest
+
+import flowfilter
+from conftest import SHARED
+
+SHELF = SHARED / "realsense-shelf" / "shelf-D"
+
+
+def rotation_deg(a, b):
+    d = a[:3, :3] @ b[:3, :3].T
+    return float(np.degrees(np.arccos(np.clip((np.trace(d) - 1) / 2, -1, 1))))
+
+
+def test_an_object_is_tracked_from_its_first_mask(bop_scene):
+    frames = [flowfilter.read_bop_frame(bop_scene, im, 1) for im in (0, 1, 2)]
+    k = np.asarray(frames[0].K)
+    h, w = np.asarray(frames[0].depth).shape
+    camera = flowfilter.Camera(k, width=w, height=h, depth_unit=frames[0].depth_unit)
+    # Later frames without a mask: arrays of colour and depth only.
+    plain = [flowfilter.Frame(np.asarray(f.color), np.asarray(f.depth), name=f"im{i}") for i, f in enumerate(frames)]
+    tracker = flowfilter.Tracker(camera, plain[0], mask=np.asarray(frames[0].mask))
+    for im in (1, 2):
+        e = tracker.update(plain[im])
+        assert isinstance(e, flowfilter.Estimate)
+        assert e.state == "tracking", e.reason
+        assert e.frame_index == im and e.reference is not None and e.model == "im0"
+        truth = flowfilter.bop_motion(bop_scene, 0, im, 1)
+        assert rotation_deg(e.transform, truth) < 1.0, im
+        assert e.to_dict()["track"]["state"] == "tracking"
+    assert tracker.keyframes()[0] == 0
+    # A pairwise estimate has no track.
+    assert flowfilter.estimate(frames[0], frames[1]).state is None
+
+
+def test_a_frame_of_another_size_is_lost_not_an_exception(bop_scene):
+    a = flowfilter.read_bop_frame(bop_scene, 0, 1)
+    tracker = flowfilter.Tracker(None, a)
+    small = flowfilter.Frame(np.asarray(a.color)[:100, :100].copy(), np.asarray(a.depth)[:100, :100].copy())
+    k = np.asarray(a.K)
+    tracker_cam = flowfilter.Tracker(flowfilter.Camera(k, depth_unit=a.depth_unit), a)
+    e = tracker_cam.update(small)
+    assert e.state == "lost" and not e.registration["converged"], e.reason
+    assert "another size" in e.reason or "size" in e.reason
+    assert np.array_equal(e.transform, np.eye(4))
+    with pytest.raises(flowfilter.InputError, match="mask"):
+        flowfilter.Tracker(None, a, mask=np.ones((3, 3), bool))
+    assert tracker is not None
+
+
+def test_the_same_poses_as_the_cli(cli, tmp_path):
+    if not SHELF.is_dir():
+        pytest.skip(f"{SHELF} is absent: the real-frame tests need ../shared beside the repository")
+    json_path = tmp_path / "t.jsonl"
+    cli("track", "--frames", SHELF, "--camera", SHELF / "camera.json", "--max-frames", "3", "--json", json_path)
+    rows = [json.loads(l) for l in json_path.read_text().splitlines()]
+    frames = [flowfilter.read_frame(SHELF / f"frame-{i:06d}.color.png", SHELF / f"frame-{i:06d}.depth.png",
+                                    SHELF / "camera.json") for i in range(3)]
+    tracker = flowfilter.Tracker(None, frames[0])
+    for i in (1, 2):
+        e = tracker.update(frames[i])
+        assert e.state == rows[i]["state"]
+        assert np.abs(e.transform - np.array(rows[i]["pose_from_first"])).max() < 1e-9
