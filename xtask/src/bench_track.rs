@@ -34,6 +34,9 @@ pub struct TrackBenchArgs {
     /// Synthetic turntable objects (procedural), comma separated.
     #[arg(long, value_delimiter = ',', default_value = "box,can,bottle")]
     pub objects: Vec<String>,
+    /// Leave the synthetic loops out (the real sequences only).
+    #[arg(long)]
+    pub real_only: bool,
     /// Turntable steps of the synthetic loops, degrees.
     #[arg(long, value_delimiter = ',', default_value = "3")]
     pub steps: Vec<u32>,
@@ -89,21 +92,31 @@ pub fn run(args: &TrackBenchArgs) -> anyhow::Result<()> {
     let pipeline = Pipeline::from_config(config.clone()).context("--pipeline")?;
     let started = Instant::now();
     let mut streams: Vec<Stream> = vec![];
-    let objects: Vec<String> = if args.quick { vec!["box".into()] } else { args.objects.clone() };
+    let objects: Vec<String> = match (args.real_only, args.quick) {
+        (true, _) => vec![],
+        (false, true) => vec!["box".into()],
+        (false, false) => args.objects.clone(),
+    };
     for object in &objects {
         for &step in &args.steps {
             streams.push(turntable(object, step, if args.quick { 30 } else { 360 })?);
         }
     }
     streams.extend(real_streams(args)?);
+    let dir = args.out.join(crate::report::timestamp());
+    std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
+    // Each stream's rows as they finish (a long run stopped early keeps what it measured).
+    let mut partial = std::fs::File::create(dir.join("streams.jsonl"))?;
     let mut results = vec![];
     for s in &streams {
         println!("{} ({} frames)", s.name, s.frames.len());
-        results.push(track(Pipeline::from_config(config.clone())?, s));
-        results.push(chain(&pipeline, s));
+        for r in [track(Pipeline::from_config(config.clone())?, s), chain(&pipeline, s)] {
+            use std::io::Write as _;
+            writeln!(partial, "{}", serde_json::to_string(&r)?)?;
+            println!("  {}", summary_row(&r));
+            results.push(r);
+        }
     }
-    let dir = args.out.join(crate::report::timestamp());
-    std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
     std::fs::write(dir.join("results.json"), serde_json::to_string_pretty(&results)?)?;
     let summary = summary(&results, started.elapsed().as_secs_f64());
     std::fs::write(dir.join("summary.md"), &summary)?;
@@ -312,23 +325,27 @@ fn summary(results: &[StreamResult], seconds: f64) -> String {
         results.len()
     );
     for r in results {
-        let e = r.errors.map_or("- | - | -".into(), |e| {
-            format!(
-                "{:.1} | {:.1} / {:.2} | {:.2} / {:.1}",
-                e.ate_rmse_m * 1e3,
-                e.rpe_rmse_m * 1e3,
-                e.rpe_mean_deg,
-                e.final_rotation_deg,
-                e.final_translation_m * 1e3
-            )
-        });
-        let _ = writeln!(
-            out,
-            "| {} | {} | {} | {} / {} / {} / {} | {e} | {:.2} |",
-            r.stream, r.method, r.frames, r.tracking, r.uncertain, r.lost, r.recovered, r.frames_per_second
-        );
+        let _ = writeln!(out, "{}", summary_row(r));
     }
     out
+}
+
+/// One stream run as a row of the summary's table.
+fn summary_row(r: &StreamResult) -> String {
+    let e = r.errors.map_or("- | - | -".into(), |e| {
+        format!(
+            "{:.1} | {:.1} / {:.2} | {:.2} / {:.1}",
+            e.ate_rmse_m * 1e3,
+            e.rpe_rmse_m * 1e3,
+            e.rpe_mean_deg,
+            e.final_rotation_deg,
+            e.final_translation_m * 1e3
+        )
+    });
+    format!(
+        "| {} | {} | {} | {} / {} / {} / {} | {e} | {:.2} |",
+        r.stream, r.method, r.frames, r.tracking, r.uncertain, r.lost, r.recovered, r.frames_per_second
+    )
 }
 
 fn check(results: &[StreamResult]) -> anyhow::Result<()> {

@@ -28,6 +28,9 @@ pub struct TrackerConfig {
     pub min_mask_px: usize,
     /// Consecutive uncertain frames after which the track is lost.
     pub max_uncertain: usize,
+    /// After a loss, the keyframes tried per frame (nearest to the last pose first): a lost
+    /// frame's cost stays bounded however many keyframes are held.
+    pub recovery_tries: usize,
     /// Keep what each kept estimate weighed ([`TrackedFrame::traced`]: the frames and the
     /// pipeline's trace), for recordings.
     pub trace: bool,
@@ -43,6 +46,7 @@ impl Default for TrackerConfig {
             depth_tolerance_m: 0.03,
             min_mask_px: 300,
             max_uncertain: 3,
+            recovery_tries: 3,
             trace: false,
         }
     }
@@ -365,14 +369,15 @@ impl Tracker {
     /// The frames to estimate against, in order: the keyframes nearest to the predicted pose
     /// (constant velocity; the
     /// smallest motions, and the oldest measurements when the object comes back: drift stays
-    /// bounded), then the current keyframe and the previous frame; after a loss every keyframe,
-    /// nearest first.
+    /// bounded), then the current keyframe and the previous frame; after a loss the
+    /// [`TrackerConfig::recovery_tries`] keyframes nearest to the last pose.
     fn candidates(&self) -> Vec<(usize, &PreparedFrame, Pose)> {
         let predicted = if self.lost { self.last_pose } else { self.velocity * self.last_pose };
         let mut keyframes: Vec<&Keyframe> = self.keyframes.iter().collect();
         keyframes.sort_by(|a, b| pose_distance(&a.pose, &predicted).total_cmp(&pose_distance(&b.pose, &predicted)));
         if self.lost {
-            return keyframes.into_iter().map(|k| (k.index, &k.frame, k.pose)).collect();
+            let tries = self.config.recovery_tries.max(1);
+            return keyframes.into_iter().take(tries).map(|k| (k.index, &k.frame, k.pose)).collect();
         }
         let mut out: Vec<(usize, &PreparedFrame, Pose)> = vec![];
         let current = &self.keyframes[self.current];
