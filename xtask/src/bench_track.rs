@@ -138,7 +138,9 @@ fn turntable(object: &str, step: u32, span: u32) -> anyhow::Result<Stream> {
     let angles: Vec<u32> = (0..=span / step.max(1)).map(|k| k * step.max(1)).collect();
     let (mut frames, mut masked, mut truth) = (vec![], vec![], vec![]);
     for &a in &angles {
-        let f = render_frame(&scene, &rig, sensor, a % 360, Some(&noise), 7);
+        // A frame of the next lap gets its own sensor noise: the loop closes on a new image,
+        // not on a copy of the first.
+        let f = render_frame(&scene, &rig, sensor, a % 360, Some(&noise), 7 + u64::from(a / 360));
         let frame = RgbdFrame {
             label: format!("{object}_{a}"),
             color: f.color,
