@@ -283,6 +283,11 @@ impl Tracker {
         TrackedFrame { label, ..result }
     }
 
+    /// The first frame as prepared (its cloud is the object's, or the scene's).
+    pub fn first_frame(&self) -> &PreparedFrame {
+        &self.keyframes[0].frame
+    }
+
     /// Keyframes held now (stream indices).
     pub fn keyframes(&self) -> Vec<usize> {
         self.keyframes.iter().map(|k| k.index).collect()

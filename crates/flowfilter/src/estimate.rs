@@ -278,11 +278,21 @@ fn save_clouds(dir: &Path, a: &PreparedFrame, b: &PreparedFrame, e: &Estimate) -
 /// The target image, dimmed, with the model cloud projected before (red) and after (green)
 /// alignment.
 fn overlay(target_color: &RgbImage, a: &PreparedFrame, b: &PreparedFrame, e: &Estimate) -> RgbImage {
+    overlay_cloud(target_color, &b.sensor.color, &a.cloud.points, &e.pose)
+}
+
+/// The target image darkened, `model` projected over it where it was (red) and moved by `pose`
+/// (green): what `estimate --viz` and `track --viz` draw.
+pub fn overlay_cloud(
+    target_color: &RgbImage,
+    camera: &flowfilter_pipeline::camera::CameraModel,
+    model: &[flowfilter_geometry::Point3],
+    pose: &flowfilter_geometry::Pose,
+) -> RgbImage {
     let mut img = RgbImage::from_fn(target_color.width(), target_color.height(), |x, y| {
         let p = target_color.get_pixel(x, y).0;
         Rgb(p.map(|c| c / 2))
     });
-    let camera = &b.sensor.color;
     let mut dot = |p: &flowfilter_geometry::Point3, colour: [u8; 3]| {
         if let Some(px) = camera.project(p) {
             let (cx, cy) = (px.x.round() as i64, px.y.round() as i64);
@@ -296,11 +306,11 @@ fn overlay(target_color: &RgbImage, a: &PreparedFrame, b: &PreparedFrame, e: &Es
             }
         }
     };
-    for p in &a.cloud.points {
+    for p in model {
         dot(p, [220, 40, 40]);
     }
-    for p in &a.cloud.points {
-        dot(&(e.pose * p), [40, 230, 60]);
+    for p in model {
+        dot(&(pose * p), [40, 230, 60]);
     }
     img
 }

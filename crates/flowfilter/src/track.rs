@@ -6,7 +6,7 @@ use clap::Args;
 use flowfilter_eval::trajectory::trajectory_errors;
 use flowfilter_eval::{geodesic_error_deg, translation_error_m};
 use flowfilter_geometry::Pose;
-use flowfilter_geometry::atomic::{check_writable_file, write_atomic_with};
+use flowfilter_geometry::atomic::{check_writable_dir, check_writable_file, write_atomic_with};
 use flowfilter_pipeline::{CameraFile, FrameFiles, MaskSource, RgbdFrame, matrix_rows};
 use flowfilter_rerun::{FrameInput, PairScene, Recorder};
 use flowfilter_track::{FrameEntry, FrameFolder, TrackState, TrackedFrame, Tracker, TrackerConfig, tum};
@@ -55,6 +55,10 @@ pub struct TrackArgs {
     /// frame's index on the `pair` timeline (docs/rerun.md). Needs `--features rerun`.
     #[arg(long)]
     pub rerun: Option<PathBuf>,
+    /// Write an overlay per frame to this folder (`frame-NNNNNN.png`): the frame darkened, the
+    /// first frame's object cloud where it was (red) and moved by the frame's pose (green).
+    #[arg(long)]
+    pub viz: Option<PathBuf>,
 }
 
 /// Run `track`.
@@ -63,6 +67,9 @@ pub fn run(args: &TrackArgs) -> anyhow::Result<ExitCode> {
         if let Some(p) = path {
             check_writable_file(p).context(flag)?;
         }
+    }
+    if let Some(dir) = &args.viz {
+        check_writable_dir(dir).context("--viz")?;
     }
     if let Some(path) = args.rerun.as_ref().filter(|_| !flowfilter_rerun::CAN_RECORD) {
         return Err(flowfilter_rerun::RecordError::NotBuilt { path: path.clone() }).context("--rerun");
@@ -84,6 +91,11 @@ pub fn run(args: &TrackArgs) -> anyhow::Result<ExitCode> {
     let mut tracker = Tracker::new(pipeline, config, &first)?;
     let recording = args.rerun.as_deref().map(|p| Recorder::create(p, "flowfilter track")).transpose()?;
     let mut colours: Vec<Option<RgbImage>> = vec![recording.as_ref().map(|_| first.color.clone())];
+    if let Some(dir) = &args.viz {
+        let f = tracker.first_frame();
+        let image = crate::estimate::overlay_cloud(&first.color, &f.sensor.color, &f.cloud.points, &Pose::identity());
+        crate::save_image(&image, &dir.join(format!("{}.png", folder.frames[0].label())))?;
+    }
     let bar = crate::progress::bar(folder.frames.len(), "frames");
     bar.set_message("track");
     let mut out: Vec<TrackedFrame> = vec![tracker.first()];
@@ -91,7 +103,14 @@ pub fn run(args: &TrackArgs) -> anyhow::Result<ExitCode> {
     for (i, entry) in folder.frames.iter().enumerate().skip(1) {
         let frame = load(entry, &camera, MaskSource::None).map_err(|e| format!("{e:#}"));
         colours.push(recording.as_ref().and_then(|_| frame.as_ref().ok().map(|f| f.color.clone())));
+        let colour = frame.as_ref().ok().filter(|_| args.viz.is_some()).map(|f| f.color.clone());
         let mut tracked = tracker.update(frame);
+        if let (Some(dir), Some(colour)) = (&args.viz, colour) {
+            let first = tracker.first_frame();
+            let image =
+                crate::estimate::overlay_cloud(&colour, &first.sensor.color, &first.cloud.points, &tracked.pose);
+            crate::save_image(&image, &dir.join(format!("{}.png", entry.label())))?;
+        }
         if let Some(recorder) = &recording {
             record(recorder, &mut tracked, &colours, &folder.frames, truth.as_ref())?;
         }

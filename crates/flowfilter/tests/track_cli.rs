@@ -23,7 +23,7 @@ fn shelf() -> Option<PathBuf> {
 fn a_real_sequence_is_tracked_with_json_lines_and_a_tum_trajectory() {
     let Some(dir) = shelf() else { return };
     let tmp = tempfile::tempdir().unwrap();
-    let (json, tum) = (tmp.path().join("track.jsonl"), tmp.path().join("track.tum"));
+    let (json, tum, viz) = (tmp.path().join("track.jsonl"), tmp.path().join("track.tum"), tmp.path().join("viz"));
     let d = dir.to_str().unwrap();
     let camera = format!("{d}/camera.json");
     let gt = format!("{d}/poses.json");
@@ -41,6 +41,8 @@ fn a_real_sequence_is_tracked_with_json_lines_and_a_tum_trajectory() {
         json.to_str().unwrap(),
         "--tum",
         tum.to_str().unwrap(),
+        "--viz",
+        viz.to_str().unwrap(),
     ]);
     assert!(ok, "{stderr}");
     assert!(stdout.contains("5 frames: ") && stdout.contains("vs ground truth (5 frames): ATE"), "{stdout}");
@@ -62,6 +64,10 @@ fn a_real_sequence_is_tracked_with_json_lines_and_a_tum_trajectory() {
     assert_eq!(first, vec![0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]);
     let last: Vec<f64> = lines[5].split_whitespace().map(|v| v.parse().unwrap()).collect();
     assert!((last[0] - 4.0 / 30.0).abs() < 1e-6, "timestamps are frame number / fps");
+    // An overlay per frame, the moved cloud drawn in green.
+    let overlay = image::open(viz.join("frame-000004.png")).unwrap().to_rgb8();
+    assert!(overlay.pixels().filter(|p| p.0 == [40, 230, 60]).count() > 500);
+    assert_eq!(std::fs::read_dir(&viz).unwrap().count(), 5);
     let q = (last[4] * last[4] + last[5] * last[5] + last[6] * last[6] + last[7] * last[7]).sqrt();
     assert!((q - 1.0).abs() < 1e-6);
 }
