@@ -31,10 +31,16 @@ pub struct TrajectoryErrors {
 /// use flowfilter_eval::trajectory::trajectory_errors;
 /// use flowfilter_geometry::{Pose, Vector3};
 ///
-/// let truth: Vec<Pose> = (0..10).map(|k| Pose::new(Vector3::new(0.01 * k as f64, 0.0, 0.0), Vector3::zeros())).collect();
+/// // A camera on a curve, turning as it goes.
+/// let truth: Vec<Pose> = (0..10)
+///     .map(|k| {
+///         let k = k as f64;
+///         Pose::new(Vector3::new(0.01 * k, 0.05 * (0.5 * k).sin(), 0.02 * (0.3 * k).cos()), Vector3::new(0.0, 0.02 * k, 0.0))
+///     })
+///     .collect();
 /// let shifted: Vec<Pose> = truth.iter().map(|p| Pose::translation(0.0, 0.0, 0.05) * p).collect();
 /// let e = trajectory_errors(&shifted, &truth).unwrap();
-/// assert!(e.ate_rmse_m < 1e-9 && e.rpe_rmse_m < 1e-9);       // a rigid offset aligns away
+/// assert!(e.ate_rmse_m < 1e-9 && e.rpe_rmse_m < 1e-9, "{e:?}"); // a rigid offset aligns away
 /// assert!((e.final_translation_m - 0.05).abs() < 1e-9);        // the last frame's error does not
 /// ```
 pub fn trajectory_errors(estimate: &[Pose], truth: &[Pose]) -> Option<TrajectoryErrors> {
