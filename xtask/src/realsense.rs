@@ -10,10 +10,8 @@
 //! region.
 
 use flowfilter_pipeline::camera::RgbdSensor;
-use flowfilter_pipeline::geometry::rigid_from_matrix;
 use flowfilter_pipeline::{CameraFile, FrameFiles, Mask, MaskSource, Point3, Pose, RgbdFrame};
 use flowfilter_synth::{NetworkMaskModel, grown};
-use nalgebra::Matrix4;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::collections::BTreeMap;
@@ -66,20 +64,11 @@ impl PosedFrames {
     /// A message naming the file and the field.
     pub fn open(dir: &Path) -> Result<Self, String> {
         let camera = CameraFile::from_file(&dir.join("camera.json")).map_err(|e| e.to_string())?;
-        let path = dir.join("poses.json");
-        let text = std::fs::read_to_string(&path).map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
-        let v: serde_json::Value =
-            serde_json::from_str(&text).map_err(|e| format!("{}: not JSON: {e}", path.display()))?;
-        let table = v["camera_to_world_calibrated"]
-            .as_object()
-            .ok_or_else(|| format!("{}: no 'camera_to_world_calibrated' object", path.display()))?;
+        let cameras =
+            flowfilter_track::tum::read_calibrated_poses(&dir.join("poses.json")).map_err(|e| e.to_string())?;
         let mut poses = BTreeMap::new();
-        for (id, m) in table {
-            let bad = |what: &str| format!("{}: camera_to_world_calibrated.{id}: {what}", path.display());
-            let im: u32 = id.parse().map_err(|_| bad("the key must be a frame number"))?;
-            let values: Option<Vec<f64>> = (0..16).map(|k| m[k / 4][k % 4].as_f64()).collect();
-            let values = values.ok_or_else(|| bad("expected 4 rows of 4 numbers"))?;
-            let pose = rigid_from_matrix(&Matrix4::from_row_slice(&values)).map_err(|e| bad(&e.to_string()))?;
+        for (id, pose) in cameras {
+            let im = u32::try_from(id).map_err(|_| format!("{}: frame number {id} is too large", dir.display()))?;
             let frames = Self::files_of(dir, im);
             if frames.color.is_file() && frames.depth.is_file() {
                 poses.insert(im, pose);

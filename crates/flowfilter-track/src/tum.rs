@@ -29,6 +29,31 @@ pub struct TruthError {
     pub message: String,
 }
 
+/// The camera-to-world poses of a `poses.json` (`camera_to_world_calibrated`: frame number ->
+/// 4x4 row-major, metres), as the shared RealSense sequences ship them.
+///
+/// # Errors
+/// [`TruthError`] naming the key that cannot be read.
+pub fn read_calibrated_poses(path: &Path) -> Result<BTreeMap<u64, Pose>, TruthError> {
+    let err = |message: String| TruthError { path: path.to_path_buf(), message };
+    let text = std::fs::read_to_string(path).map_err(|e| err(format!("cannot read: {e}")))?;
+    let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| err(format!("not JSON: {e}")))?;
+    let table = v["camera_to_world_calibrated"]
+        .as_object()
+        .ok_or_else(|| err("expected a `camera_to_world_calibrated` object (frame number -> 4x4)".into()))?;
+    let mut cameras = BTreeMap::new();
+    for (key, m) in table {
+        let bad = |what: String| err(format!("camera_to_world_calibrated.{key}: {what}"));
+        let n: u64 = key.parse().map_err(|_| bad("the key must be a frame number".into()))?;
+        let values: Option<Vec<f64>> = (0..16).map(|k| m[k / 4][k % 4].as_f64()).collect();
+        let values = values.ok_or_else(|| bad("expected 4 rows of 4 numbers".into()))?;
+        let pose = flowfilter_geometry::rigid_from_matrix(&Matrix4::from_row_slice(&values))
+            .map_err(|e| bad(e.to_string()))?;
+        cameras.insert(n, pose);
+    }
+    Ok(cameras)
+}
+
 /// The true motion of the tracked object from the first frame, by frame number.
 ///
 /// - A TUM file: each line's timestamp is the frame number (or the frames' times: the lines are
@@ -44,21 +69,7 @@ pub fn read_truth(path: &Path, numbers: &[u64]) -> Result<BTreeMap<u64, Pose>, T
     let text = std::fs::read_to_string(path).map_err(|e| err(format!("cannot read: {e}")))?;
     let first = *numbers.first().ok_or_else(|| err("no frames to match".into()))?;
     if path.extension().is_some_and(|e| e == "json") {
-        let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| err(format!("not JSON: {e}")))?;
-        let table = v["camera_to_world_calibrated"]
-            .as_object()
-            .ok_or_else(|| err("expected a `camera_to_world_calibrated` object (frame number -> 4x4)".into()))?;
-        let mut cameras = BTreeMap::new();
-        for (key, m) in table {
-            let n: u64 =
-                key.parse().map_err(|_| err(format!("camera_to_world_calibrated.{key}: not a frame number")))?;
-            let values: Option<Vec<f64>> = (0..16).map(|k| m[k / 4][k % 4].as_f64()).collect();
-            let values =
-                values.ok_or_else(|| err(format!("camera_to_world_calibrated.{key}: expected 4 rows of 4 numbers")))?;
-            let pose = flowfilter_geometry::rigid_from_matrix(&Matrix4::from_row_slice(&values))
-                .map_err(|e| err(format!("camera_to_world_calibrated.{key}: {e}")))?;
-            cameras.insert(n, pose);
-        }
+        let cameras = read_calibrated_poses(path)?;
         let c0 = *cameras.get(&first).ok_or_else(|| err(format!("no pose of the first frame ({first})")))?;
         return Ok(cameras.into_iter().map(|(n, c)| (n, c.inverse() * c0)).collect());
     }
