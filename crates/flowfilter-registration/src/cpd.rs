@@ -107,7 +107,7 @@ pub struct CpdConfig {
     /// steps, from the first step that changes sigma^2 by less than 5%; 0 runs plain EM (the
     /// reference implementations' iteration). A mixed step whose fixed-point residual grew is
     /// replaced by the plain step. Same fixed points, several times fewer iterations where EM
-    /// crawls (points sliding along a smooth surface). Not with `estimate_scale`.
+    /// crawls (points sliding along a smooth surface). Ignored with `estimate_scale`.
     pub anderson_depth: usize,
     /// Coarse-to-fine settling: clouds with at least twice this many points are first
     /// registered on even subsets (every k-th point in spatial order) of a quarter, a sixteenth,
@@ -125,21 +125,23 @@ impl Default for CpdConfig {
             w: 0.0,
             max_iterations: 150,
             tolerance: 1e-5,
-            pose_tolerance: 1e-9,
+            pose_tolerance: 1e-8,
             estimate_scale: false,
-            e_step: CpdEStep::Auto { max_pairs: 4_000_000 },
+            e_step: CpdEStep::Fast { max_pairs: 4_000_000, max_neighbours: 256 },
             init_sigma2: None,
             evaluation_distance: 0.01,
             max_points: DEFAULT_MAX_POINTS,
-            anderson_depth: 0,
-            settling_points: 0,
+            anderson_depth: 5,
+            settling_points: 2000,
         }
     }
 }
 
-/// [`CpdConfig::max_points`]'s default: above every cloud of the benchmarks (at most about 6k
-/// points after their voxel grid), at about 0.5 s per iteration on 2 cores.
-pub const DEFAULT_MAX_POINTS: usize = 10_000;
+/// [`CpdConfig::max_points`]'s default: twice a full 640x480 sensor cloud's valid points (about
+/// 50-60k), so that a sensor's cloud is registered whole. With the default fast E-step an
+/// iteration costs O(M + N) (1 s for a 60k-point pair on 2 cores, docs/benchmarks.md); the limit
+/// bounds a merged or scanned cloud's cost.
+pub const DEFAULT_MAX_POINTS: usize = 120_000;
 
 /// Rigid CPD as a [`Registrar`].
 #[derive(Debug, Clone)]
