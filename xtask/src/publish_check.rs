@@ -17,7 +17,7 @@ pub struct PublishCheckArgs {
 }
 
 /// The crates that are published, in dependency order.
-pub const PUBLISHED: [&str; 12] = [
+pub const PUBLISHED: [&str; 13] = [
     "flowfilter-geometry",
     "flowfilter-camera",
     "flowfilter-eval",
@@ -26,6 +26,7 @@ pub const PUBLISHED: [&str; 12] = [
     "flowfilter-depth",
     "flowfilter-flow",
     "flowfilter-registration",
+    "flowfilter-photometric",
     "flowfilter-pipeline",
     "flowfilter-rerun",
     "flowfilter-track",

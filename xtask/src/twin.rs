@@ -268,7 +268,8 @@ mod tests {
                 let (a, b) = (1, 2);
                 let prepare = |im| pipeline.prepare(&frames.frame(im, id).unwrap()).unwrap();
                 let (model, target) = (prepare(a), prepare(b));
-                let aligner = Aligner::new(&model, &target, &align, 0).expect("texture and depth");
+                let aligner =
+                    Aligner::new(&model.image_view(), &target.image_view(), &align, 0).expect("texture and depth");
                 aligner.noise(&frames.relative_motion(a, b, id).unwrap()).expect("visible in both")
             };
             let (ours, theirs) = (scales(&twin), scales(&real));

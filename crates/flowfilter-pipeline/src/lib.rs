@@ -8,9 +8,9 @@
 //!   pairs between the two prepared frames;
 //! - any [`flowfilter_registration::Registrar`], chosen by name, aligns the clouds.
 //!
-//! After a registration that used flow, the photometric [`judge`] weighs turned poses against
-//! the target image, and the direct image alignment ([`align`]) refines the pose on the two
-//! images themselves.
+//! After a registration that used flow, the photometric stage ([`flowfilter_photometric`]) runs:
+//! its [`judge`] weighs turned poses against the target image, and the direct image alignment
+//! ([`align()`]) refines the pose on the two images themselves.
 //!
 //! Frames come from the BigBIRD layout ([`load_bigbird_frame`]) or, for any camera whose depth is
 //! registered to colour, from image files and a camera file ([`FrameFiles`]).
@@ -21,7 +21,6 @@
 
 #![warn(missing_docs)]
 
-pub mod align;
 pub mod batch;
 pub mod bop;
 mod config;
@@ -29,7 +28,6 @@ mod error;
 mod estimate;
 mod frame;
 pub mod frame_checks;
-pub mod judge;
 mod pipeline;
 mod propagate;
 mod source;
@@ -38,15 +36,14 @@ mod trace;
 mod warning;
 mod wide;
 
-pub use align::{AlignConfig, AlignReport};
 pub use config::{CloudPrepConfig, FlowStageConfig, PipelineConfig, ReportConfig, WideBaselineConfig};
 pub use error::PipelineError;
 pub use estimate::{
     CorrespondenceSummary, ESTIMATE_SCHEMA, Estimate, GroundTruth, REGISTER_SCHEMA, RegisterReport, RegisterTimes,
     RegistrationSummary, StageTimes, matrix_rows,
 };
+pub use flowfilter_photometric::{AlignConfig, AlignReport, ImageView, JudgeConfig, JudgeReport, align, judge};
 pub use frame::{ImagesError, RgbdFrame, load_bigbird_frame};
-pub use judge::{JudgeConfig, JudgeReport};
 pub use pipeline::Pipeline;
 pub use source::{FrameFiles, MaskSource};
 pub use stages::{CorrespondenceFinder, DepthPreparer, FlowCorrespondenceFinder, FramePreparer, PreparedFrame};
@@ -71,6 +68,7 @@ pub use flowfilter_depth as depth;
 pub use flowfilter_eval as eval;
 pub use flowfilter_flow as flow;
 pub use flowfilter_geometry as geometry;
+pub use flowfilter_photometric as photometric;
 pub use flowfilter_registration as registration;
 
 /// The README's examples, compiled and run as doctests.

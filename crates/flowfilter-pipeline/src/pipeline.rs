@@ -1,18 +1,18 @@
 //! [`Pipeline`]: the stages composed, timed, and every degradation reported.
 
-use crate::align::{AlignConfig, AlignReport, Alignment};
 use crate::config::PipelineConfig;
 use crate::error::PipelineError;
 use crate::estimate::{CorrespondenceSummary, ESTIMATE_SCHEMA, Estimate, RegistrationSummary, StageTimes, matrix_rows};
 use crate::frame::RgbdFrame;
-use crate::judge::{self, JudgeReport};
 use crate::stages::{CorrespondenceFinder, DepthPreparer, FlowCorrespondenceFinder, FramePreparer, PreparedFrame};
 use crate::trace::{PairTrace, TracedCandidate, TracedSet};
 use crate::warning::PipelineWarning;
 use crate::wide::CoarseView;
 use flowfilter_flow::correspondences::FlowPairs;
 use flowfilter_geometry::Pose;
-use flowfilter_registration::judge::{TurnCandidate, TurnHypotheses};
+use flowfilter_photometric::align::{self, AlignConfig, AlignReport, Alignment};
+use flowfilter_photometric::judge::{self, JudgeReport};
+use flowfilter_photometric::{TurnCandidate, TurnHypotheses};
 use flowfilter_registration::{Registrar, Registration, RegistrationProblem, registrar_by_name};
 use std::time::Instant;
 
@@ -376,7 +376,7 @@ impl Pipeline {
         Ok(found)
     }
 
-    /// The photometric judge ([`crate::judge`]) on the registration's answer: when a turned
+    /// The photometric judge ([`flowfilter_photometric::judge`]) on the registration's answer: when a turned
     /// candidate agrees clearly better with the target image, the flow is tracked again from it
     /// and the registration re-run; that result replaces the answer when it agrees better.
     fn judge(
@@ -389,7 +389,7 @@ impl Pipeline {
         let cfg = &self.config.judge;
         let Some(finder) = self.finder().filter(|_| cfg.enabled) else { return Ok((reg, None)) };
         let Some(hypotheses) = TurnHypotheses::new(problem, reg.transform, &cfg.sweep) else { return Ok((reg, None)) };
-        let images = judge::Textures::new(model, target, cfg);
+        let images = judge::Textures::new(&model.image_view(), &target.image_view(), cfg);
         let answer_score = judge::photometric_score(&images, &reg.transform, cfg);
         let sweep = judge::sweep(&hypotheses, &images, cfg);
         let candidates: Vec<TracedCandidate> = sweep
@@ -421,8 +421,10 @@ impl Pipeline {
         };
         // The candidates and the answer aligned on the images (`judge.align_candidates`).
         let quick = self.candidate_alignment();
-        let alignment =
-            (cfg.align_candidates && !sweep.coarse.is_empty()).then(|| Alignment::new(model, target, &quick)).flatten();
+        let target_view = target.image_view();
+        let alignment = (cfg.align_candidates && !sweep.coarse.is_empty())
+            .then(|| Alignment::new(&model.image_view(), &target_view, &quick))
+            .flatten();
         let aligned_score = |pose: &Pose| {
             let aligned = alignment.as_ref()?.run(pose).map_or(*pose, |(p, _)| p);
             judge::photometric_score(&images, &aligned, cfg).map(|s| (s, aligned))
@@ -503,7 +505,7 @@ impl Pipeline {
         }
     }
 
-    /// The registration's pose refined by the direct alignment ([`crate::align`]), when it is
+    /// The registration's pose refined by the direct alignment ([`flowfilter_photometric::align()`]), when it is
     /// enabled and the images can be aligned; its error bounds widened by the alignment's move.
     fn aligned(
         &self,
@@ -515,7 +517,9 @@ impl Pipeline {
         if !cfg.enabled {
             return (reg, None);
         }
-        let Some((pose, report)) = crate::align::align(model, target, &reg.transform, cfg) else { return (reg, None) };
+        let Some((pose, report)) = align::align(&model.image_view(), &target.image_view(), &reg.transform, cfg) else {
+            return (reg, None);
+        };
         // The registration's bounds hold for its own pose: widened by the alignment's move, they
         // hold for the aligned one.
         (moved_to(reg, pose), Some(report))

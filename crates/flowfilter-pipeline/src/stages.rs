@@ -13,6 +13,7 @@ use flowfilter_flow::correspondences::{
 };
 use flowfilter_flow::lk::{Gray, to_gray};
 use flowfilter_geometry::{DepthMap, Mask, PointCloud, Pose};
+use flowfilter_photometric::ImageView;
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -68,6 +69,17 @@ impl PreparedFrame {
             rays: self.rays.clone(),
             seconds: self.seconds,
             unmasked: false,
+        }
+    }
+
+    /// The frame as the photometric stage (judge, alignment) reads it.
+    pub fn image_view(&self) -> ImageView<'_> {
+        ImageView {
+            gray: &self.gray,
+            depth: &self.depth,
+            mask: &self.mask,
+            rays: &self.rays,
+            camera: &self.sensor.color,
         }
     }
 

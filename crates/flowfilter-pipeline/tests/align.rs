@@ -40,7 +40,8 @@ fn the_alignment_resolves_a_turn_about_a_cans_axis() {
     let (a, b, t) = can_pair(15, |_| {});
     let start = off_by(&t, &a, 1.5, Vector3::new(0.003, -0.002, 0.002));
     let before = PoseErrors::new(&start, &t, None);
-    let (pose, report) = align(&a, &b, &start, &AlignConfig::default()).expect("the can has texture");
+    let (pose, report) =
+        align(&a.image_view(), &b.image_view(), &start, &AlignConfig::default()).expect("the can has texture");
     let after = PoseErrors::new(&pose, &t, None);
     println!("{before:?}\n{after:?}\n{report:?}");
     assert!(before.geodesic_error_deg > 1.4, "{before:?}");
@@ -60,7 +61,8 @@ fn an_exposure_change_does_not_move_the_aligned_pose() {
     };
     let (a, b, t) = can_pair(15, darker);
     let start = off_by(&t, &a, -1.0, Vector3::new(-0.002, 0.0, 0.003));
-    let (pose, report) = align(&a, &b, &start, &AlignConfig::default()).expect("the can has texture");
+    let (pose, report) =
+        align(&a.image_view(), &b.image_view(), &start, &AlignConfig::default()).expect("the can has texture");
     let after = PoseErrors::new(&pose, &t, None);
     assert!(after.geodesic_error_deg < 0.1 && after.translation_error_m < 0.0015, "{after:?} {report:?}");
 }
@@ -72,7 +74,7 @@ fn the_alignment_stays_within_its_reach() {
     let (a, b, t) = can_pair(15, |_| {});
     let start = off_by(&t, &a, 20.0, Vector3::zeros());
     let cfg = AlignConfig::default();
-    let (pose, report) = align(&a, &b, &start, &cfg).expect("the can has texture");
+    let (pose, report) = align(&a.image_view(), &b.image_view(), &start, &cfg).expect("the can has texture");
     let moved = (pose * start.inverse()).rotation.angle().to_degrees();
     assert!(moved <= cfg.max_turn_deg + 1e-9, "moved {moved} deg: {report:?}");
     assert!(pose.translation.vector.iter().all(|v| v.is_finite()));
@@ -88,7 +90,7 @@ fn flat_images_are_left_alone() {
         }
     };
     let (a, b, t) = can_pair(15, flat);
-    assert!(align(&a, &b, &t, &AlignConfig::default()).is_none());
+    assert!(align(&a.image_view(), &b.image_view(), &t, &AlignConfig::default()).is_none());
 }
 
 /// The pipeline aligns Flow Filter's pose, reports it, and can be told not to.
@@ -140,8 +142,9 @@ fn a_rolling_shutter_shear_is_estimated_and_kept_out_of_the_pose() {
     let start = off_by(&t, &a, 0.5, Vector3::zeros());
     let sheared = AlignConfig::default();
     let rigid = AlignConfig { row_shear_sd: 0.0, ..AlignConfig::default() };
-    let (pose, report) = align(&a, &b, &start, &sheared).expect("the can has texture");
-    let (rigid_pose, rigid_report) = align(&a, &b, &start, &rigid).expect("the can has texture");
+    let (pose, report) = align(&a.image_view(), &b.image_view(), &start, &sheared).expect("the can has texture");
+    let (rigid_pose, rigid_report) =
+        align(&a.image_view(), &b.image_view(), &start, &rigid).expect("the can has texture");
     let (with, without) = (PoseErrors::new(&pose, &t, None), PoseErrors::new(&rigid_pose, &t, None));
     println!("sheared {with:?} {report:?}\nrigid {without:?} {rigid_report:?}");
     assert!((report.row_shear_px_per_row[0] - 0.008).abs() < 0.002, "{report:?}");
@@ -150,6 +153,7 @@ fn a_rolling_shutter_shear_is_estimated_and_kept_out_of_the_pose() {
     assert_eq!(rigid_report.row_shear_px_per_row, [0.0; 2]);
 
     let (a, b, t) = can_pair(15, |_| {});
-    let (_, report) = align(&a, &b, &off_by(&t, &a, 0.5, Vector3::zeros()), &sheared).expect("the can has texture");
+    let (_, report) = align(&a.image_view(), &b.image_view(), &off_by(&t, &a, 0.5, Vector3::zeros()), &sheared)
+        .expect("the can has texture");
     assert_eq!(report.row_shear_px_per_row, [0.0; 2], "a shear found on frames without one: {report:?}");
 }

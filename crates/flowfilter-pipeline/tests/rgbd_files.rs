@@ -112,7 +112,8 @@ fn real_frames_flow_filter_beats_no_motion_and_filterreg_at_every_gap_and_its_bo
             let gap = (b - a) as usize;
             let e = flow_filter.estimate_prepared(model, target).unwrap();
             let errors = PoseErrors::new(&e.pose, &truth, None);
-            let images = Aligner::new(model, target, &align, 0).expect("the objects have texture and depth");
+            let images = Aligner::new(&model.image_view(), &target.image_view(), &align, 0)
+                .expect("the objects have texture and depth");
             let at_truth = images.scales(&truth).expect("visible in both");
             let cost = |pose: &Pose| images.cost(pose, at_truth);
             let (estimate, annotated, still) = (cost(&e.pose), cost(&truth), cost(&Pose::identity()));

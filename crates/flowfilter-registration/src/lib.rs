@@ -13,7 +13,6 @@ mod filterreg;
 mod flowfilter;
 mod gmm;
 mod icp;
-pub mod judge;
 pub mod lattice;
 pub mod plausibility;
 mod problem;
@@ -25,7 +24,7 @@ mod warning;
 
 pub use cpd::{Cpd, CpdConfig, CpdEStep, MIN_LATTICE_NEIGHBOURS};
 pub use error::RegistrationError;
-pub use evaluate::{RobustKernel, correspondence_set, evaluate};
+pub use evaluate::{RobustKernel, correspondence_set, evaluate, visible_residual};
 pub use filterreg::{FilterReg, FilterRegConfig, FilterRegEStep, FilterRegVariant, SigmaSchedule};
 pub use flowfilter::{FlowFilter, FlowFilterConfig, FlowFilterMode, ransac_kabsch};
 pub use gmm::mean_pair_distance2;
