@@ -25,3 +25,8 @@ pub use judge::{JudgeConfig, JudgeReport, Sweep, Textures, ambiguity, photometri
 pub use texture::{Texture, high_pass};
 pub use turns::{TurnAxis, TurnCandidate, TurnHypotheses, TurnSweepConfig};
 pub use view::ImageView;
+
+/// The README's example, compiled and run as a doctest.
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+pub struct ReadmeDoctests;
