@@ -4,12 +4,16 @@
 //! - `frame-NNNNNN.color.png|jpg` + `frame-NNNNNN.depth.png` (the shared RealSense sequences,
 //!   7-Scenes);
 //! - `NNNNNN-color.png|jpg` + `NNNNNN-depth.png` (YCB-Video).
+//!
+//! Or an image list ([`FrameFolder::from_list`]): a text file of `COLOR DEPTH` lines, or the TUM
+//! RGB-D benchmark's associated lists (`T_COLOR COLOR T_DEPTH DEPTH`, as `associate.py` writes
+//! them), paths relative to the list's folder.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 /// One frame's files.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct FrameEntry {
     /// The frame's number in its file name.
     pub number: u64,
@@ -17,6 +21,8 @@ pub struct FrameEntry {
     pub color: PathBuf,
     /// Depth image (16-bit PNG).
     pub depth: PathBuf,
+    /// The colour image's timestamp (seconds), when the input gives one (a TUM list).
+    pub timestamp: Option<f64>,
 }
 
 impl FrameEntry {
@@ -36,6 +42,16 @@ pub enum FolderError {
         dir: PathBuf,
         /// The I/O error.
         source: std::io::Error,
+    },
+    /// A line of an image list is neither `COLOR DEPTH` nor `T_COLOR COLOR T_DEPTH DEPTH`.
+    #[error("{file}:{line}: expected `COLOR DEPTH` or `T_COLOR COLOR T_DEPTH DEPTH` (TUM), found {found:?}")]
+    ListLine {
+        /// The list.
+        file: PathBuf,
+        /// The line's number (from 1).
+        line: usize,
+        /// The line.
+        found: String,
     },
     /// No file matches a known layout.
     #[error(
@@ -117,11 +133,63 @@ impl FrameFolder {
             })
         };
         let frames: Vec<FrameEntry> =
-            colour.into_iter().map(|(number, color)| FrameEntry { number, color, depth: depth_path(number) }).collect();
+            colour.into_iter().map(|(number, color)| FrameEntry { number, color, depth: depth_path(number), timestamp: None }).collect();
         if frames.is_empty() {
             return Err(FolderError::Empty { dir: dir.to_path_buf() });
         }
         Ok(Self { dir: dir.to_path_buf(), frames })
+    }
+
+    /// The frames of an image list: one frame per line, `COLOR DEPTH` or the TUM RGB-D
+    /// benchmark's `T_COLOR COLOR T_DEPTH DEPTH` (the colour timestamp kept), paths relative to
+    /// the list's folder; blank lines and `#` comments skipped. Frames are numbered by their
+    /// order in the list, from 0.
+    ///
+    /// # Errors
+    /// [`FolderError::Unreadable`] when the list cannot be read, [`FolderError::ListLine`] for a
+    /// line of another shape, [`FolderError::Empty`] for a list without frames.
+    ///
+    /// ```
+    /// let dir = tempfile::tempdir()?;
+    /// let list = dir.path().join("associate.txt");
+    /// std::fs::write(&list, "# TUM\n1305031102.175 rgb/a.png 1305031102.160 depth/a.png\n1305031102.211 rgb/b.png 1305031102.194 depth/b.png\n")?;
+    /// let folder = flowfilter_track::FrameFolder::from_list(&list)?;
+    /// assert_eq!(folder.frames.len(), 2);
+    /// assert_eq!(folder.frames[1].color, dir.path().join("rgb/b.png"));
+    /// assert_eq!(folder.frames[1].timestamp, Some(1305031102.211));
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
+    pub fn from_list(file: &Path) -> Result<Self, FolderError> {
+        let text = std::fs::read_to_string(file).map_err(|source| FolderError::Unreadable { dir: file.to_path_buf(), source })?;
+        let dir = file.parent().unwrap_or(Path::new(".")).to_path_buf();
+        let mut frames = vec![];
+        for (i, line) in text.lines().enumerate() {
+            let line = line.trim();
+            if line.is_empty() || line.starts_with('#') {
+                continue;
+            }
+            let bad = || FolderError::ListLine { file: file.to_path_buf(), line: i + 1, found: line.to_string() };
+            let fields: Vec<&str> = line.split_whitespace().collect();
+            let (color, depth, timestamp) = match fields[..] {
+                [color, depth] => (color, depth, None),
+                [t, color, _, depth] => (color, depth, Some(t.parse::<f64>().ok().filter(|t| t.is_finite()).ok_or_else(bad)?)),
+                _ => return Err(bad()),
+            };
+            let number = frames.len() as u64;
+            frames.push(FrameEntry { number, color: dir.join(color), depth: dir.join(depth), timestamp });
+        }
+        if frames.is_empty() {
+            return Err(FolderError::Empty { dir: file.to_path_buf() });
+        }
+        Ok(Self { dir, frames })
+    }
+
+    /// [`FrameFolder::open`] for a folder, [`FrameFolder::from_list`] for a file.
+    ///
+    /// # Errors
+    /// As those.
+    pub fn open_any(path: &Path) -> Result<Self, FolderError> {
+        if path.is_file() { Self::from_list(path) } else { Self::open(path) }
     }
 }
 

@@ -15,6 +15,7 @@
 
 #![warn(missing_docs)]
 
+pub mod boxed;
 pub mod carry;
 mod folder;
 mod tracker;

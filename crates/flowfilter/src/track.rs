@@ -7,8 +7,10 @@ use flowfilter_eval::trajectory::trajectory_errors;
 use flowfilter_eval::{geodesic_error_deg, translation_error_m};
 use flowfilter_geometry::Pose;
 use flowfilter_geometry::atomic::{check_writable_dir, check_writable_file, write_atomic_with};
-use flowfilter_pipeline::{CameraFile, FrameFiles, MaskSource, RgbdFrame, matrix_rows};
+use flowfilter_geometry::Mask;
+use flowfilter_pipeline::{CameraFile, FrameFiles, MaskSource, Pipeline, RgbdFrame, matrix_rows};
 use flowfilter_rerun::{FrameInput, PairScene, Recorder};
+use flowfilter_track::boxed::{self, PixelBox};
 use flowfilter_track::{FrameEntry, FrameFolder, TrackState, TrackedFrame, Tracker, TrackerConfig, tum};
 use image::RgbImage;
 use std::collections::BTreeMap;
@@ -20,15 +22,23 @@ use std::process::ExitCode;
 #[derive(Args)]
 pub struct TrackArgs {
     /// A folder of frames: `frame-NNNNNN.color.png|jpg` + `frame-NNNNNN.depth.png`, or
-    /// YCB-Video's `NNNNNN-color.png` + `NNNNNN-depth.png` (other files are ignored).
+    /// YCB-Video's `NNNNNN-color.png` + `NNNNNN-depth.png` (other files are ignored); or an image
+    /// list: a text file of `COLOR DEPTH` lines or TUM's associated `T_COLOR COLOR T_DEPTH DEPTH`
+    /// lines, paths relative to the list (frames numbered in list order).
     #[arg(long)]
     pub frames: PathBuf,
     /// The camera file (JSON: ours, BOP's, Open3D's PinholeCameraIntrinsic).
     #[arg(long)]
     pub camera: PathBuf,
-    /// The object's mask in the first frame (binary PNG). Without it the whole scene is tracked.
-    #[arg(long)]
+    /// The object's mask in the first frame (binary PNG). Without it (and without --box) the
+    /// whole scene is tracked.
+    #[arg(long, conflicts_with = "bbox")]
     pub mask: Option<PathBuf>,
+    /// A box around the object in the first frame instead of a mask: `X,Y,W,H` (pixels: left,
+    /// top, width, height). The object is the box's pixels within 5 cm of the depth of the
+    /// box's central half (the background behind it is left out).
+    #[arg(long = "box", id = "bbox", value_name = "X,Y,W,H")]
+    pub bbox: Option<String>,
     /// Frames to use: at most this many, from the first.
     #[arg(long)]
     pub max_frames: Option<usize>,
@@ -43,7 +53,8 @@ pub struct TrackArgs {
     /// motion from the first frame, `P_k = T_0k P_0`), for `evo` and the TUM tools.
     #[arg(long)]
     pub tum: Option<PathBuf>,
-    /// Frames per second of the stream: TUM timestamps are frame number / fps.
+    /// Frames per second of the stream: TUM timestamps are frame number / fps (a TUM image
+    /// list's own timestamps are kept).
     #[arg(long, default_value_t = 30.0)]
     pub fps: f64,
     /// The true motion, for the errors: a TUM file of `T_0k`, or a `poses.json` of calibrated
@@ -78,7 +89,7 @@ pub fn run(args: &TrackArgs) -> anyhow::Result<ExitCode> {
         anyhow::bail!("--fps: expected a positive number of frames per second, found {}", args.fps);
     }
     let camera = CameraFile::from_file(&args.camera)?;
-    let mut folder = FrameFolder::open(&args.frames)?;
+    let mut folder = FrameFolder::open_any(&args.frames)?;
     if let Some(n) = args.max_frames {
         folder.frames.truncate(n.max(1));
     }
@@ -86,7 +97,10 @@ pub fn run(args: &TrackArgs) -> anyhow::Result<ExitCode> {
     let truth = args.gt.as_deref().map(|p| tum::read_truth(p, &numbers)).transpose()?;
     let pipeline = crate::estimate::pipeline(args.config.as_deref(), None)?;
     let first_mask = args.mask.clone().map_or(MaskSource::None, MaskSource::Binary);
-    let first = load(&folder.frames[0], &camera, first_mask).context("the first frame")?;
+    let mut first = load(&folder.frames[0], &camera, first_mask).context("the first frame")?;
+    if let Some(text) = &args.bbox {
+        first.mask = object_in_box(&pipeline, &first, parse_box(text)?)?;
+    }
     let config = TrackerConfig { trace: args.rerun.is_some(), ..TrackerConfig::default() };
     let mut tracker = Tracker::new(pipeline, config, &first)?;
     let recording = args.rerun.as_deref().map(|p| Recorder::create(p, "flowfilter track")).transpose()?;
@@ -130,7 +144,10 @@ pub fn run(args: &TrackArgs) -> anyhow::Result<ExitCode> {
         let header = std::iter::once(
             "# timestamp tx ty tz qx qy qz qw (flowfilter track: the object's motion from the first frame)".to_string(),
         );
-        let lines = out.iter().zip(&folder.frames).map(|(t, f)| tum::line(f.number as f64 / args.fps, &t.pose));
+        let lines = out
+            .iter()
+            .zip(&folder.frames)
+            .map(|(t, f)| tum::line(f.timestamp.unwrap_or(f.number as f64 / args.fps), &t.pose));
         write_lines(path, header.chain(lines))?;
     }
     print_summary(&out, &folder.frames, truth.as_ref());
@@ -167,6 +184,36 @@ fn record(
     recorder.log_pair(step, &PairScene::new(model, target, &e, &pair.trace, pair_truth.as_ref()))?;
     Ok(())
 }
+
+/// `X,Y,W,H` of `--box`.
+fn parse_box(text: &str) -> anyhow::Result<PixelBox> {
+    let v: Vec<usize> = text.split(',').map(|s| s.trim().parse()).collect::<Result<_, _>>().map_err(|_| {
+        anyhow::anyhow!("--box: expected X,Y,W,H (pixels: left, top, width, height), found {text:?}")
+    })?;
+    match v[..] {
+        [x, y, width, height] if width > 0 && height > 0 => Ok(PixelBox { x, y, width, height }),
+        _ => anyhow::bail!("--box: expected X,Y,W,H with a positive width and height, found {text:?}"),
+    }
+}
+
+/// The object's mask in `first` from a box: the frame prepared without a mask, the box's
+/// pixels at the object's depth ([`flowfilter_track::boxed::object_in_box`]).
+fn object_in_box(pipeline: &Pipeline, first: &RgbdFrame, rect: PixelBox) -> anyhow::Result<Mask> {
+    let prepared = pipeline.prepare(first).context("the first frame")?;
+    let (w, h) = prepared.depth.dims();
+    boxed::object_in_box(&prepared.depth, rect, BOX_DEPTH_BAND_M).ok_or_else(|| {
+        anyhow::anyhow!(
+            "--box {},{},{},{}: the box must lie inside the {w}x{h} image and have depth in its central half",
+            rect.x,
+            rect.y,
+            rect.width,
+            rect.height
+        )
+    })
+}
+
+/// `--box`: the object is the box's pixels within this of the depth of its central half (metres).
+const BOX_DEPTH_BAND_M: f64 = 0.05;
 
 /// One frame from its files (the mask only for the first).
 fn load(entry: &FrameEntry, camera: &CameraFile, mask: MaskSource) -> anyhow::Result<RgbdFrame> {

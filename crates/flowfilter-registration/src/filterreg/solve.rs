@@ -16,6 +16,11 @@ use crate::problem::{IterationRecord, Registration, RegistrationProblem, validat
 use crate::warning::RegistrationWarning;
 use flowfilter_geometry::{KnnIndex, Point3, Pose, Vector3, spatial_order};
 
+/// The exact E-step's cost per point relative to the lattice's beyond which a registration in
+/// its exact phase goes back to the lattice (sigma twice the switch's: four times the
+/// neighbours; see `use_lattice`).
+const EXACT_EXIT_COST: f64 = 4.0;
+
 /// The clouds in a spatially coherent order (the neighbours of a point, and the points queried
 /// one after the other, then sit close together in memory), with what every iteration reads.
 struct Prepared {
@@ -186,16 +191,23 @@ impl EmState {
             FilterRegEStep::Lattice => true,
             FilterRegEStep::Exact => false,
             FilterRegEStep::Auto => {
-                // Once exact, stay exact (sigma rarely grows back; no flip-flopping). The exact
-                // sums cost the kernel's neighbour count, (4 sigma / r)^2 * AUTO_NEIGHBOURS
-                // on a surface, per source point visited; the lattice costs about as much per
-                // point of both clouds: the source points visited and the target (taken as
-                // large as the whole source). With every point visited the switch comes at
-                // (4 sigma / r)^2 = 1; visiting a share s of the source moves it to
-                // (4 sigma / r)^2 = (s + 1) / (2 s), wider kernels.
+                // The exact sums cost the kernel's neighbour count, (4 sigma / r)^2 *
+                // AUTO_NEIGHBOURS on a surface, per source point visited; the lattice costs
+                // about as much per point of both clouds: the source points visited and the
+                // target (taken as large as the whole source). With every point visited the
+                // switch comes at (4 sigma / r)^2 = 1; visiting a share s of the source moves it
+                // to (4 sigma / r)^2 = (s + 1) / (2 s), wider kernels. Once exact, stay exact
+                // (no flip-flopping) unless sigma grows back far past the switch
+                // (`EXACT_EXIT_COST` times its cost per point): a registration that lost the
+                // overlap (a scene 30-80 deg away) widens its kernel to centimetres, where every
+                // point has thousands of neighbours (280 ms per iteration on 17k points).
                 let share = self.subset.as_ref().map_or(1.0, |(pts, _)| pts.len() as f64 / prep.source.len() as f64);
-                self.exact_phase |=
-                    prep.exact_below.is_some_and(|r| (4.0 * sigma / r).powi(2) * share < 0.5 * (share + 1.0));
+                let cost = prep.exact_below.map(|r| (4.0 * sigma / r).powi(2) * share / (0.5 * (share + 1.0)));
+                self.exact_phase = match (self.exact_phase, cost) {
+                    (_, None) => false,
+                    (true, Some(c)) => c <= EXACT_EXIT_COST,
+                    (false, Some(c)) => c < 1.0,
+                };
                 !self.exact_phase
             }
         }
