@@ -253,8 +253,9 @@ impl Pipeline {
         // A target without a mask, for a model with one: the model's mask is propagated.
         let propagate = target.unmasked && !model.unmasked;
         let wide = &self.config.flow.wide;
-        let coarse =
-            (propagate || (wide.enabled && self.finder().is_some())).then(|| CoarseView::new(model, target, wide));
+        // The coarse search runs here when the mask must be propagated; else only when the
+        // correspondence stage finds the pyramid's own flow split (`flow.wide.settled_*`).
+        let coarse = propagate.then(|| CoarseView::new(model, target, wide));
         let propagated = coarse.as_ref().filter(|_| propagate).map(|view| {
             let placed = view.found.is_some();
             warnings.push(PipelineWarning::MaskPropagated { frame: target.label.clone(), placed });
@@ -353,8 +354,19 @@ impl Pipeline {
         let mut sets = vec![finder.find(model, target)?];
         let mut sources = vec!["plain"];
         // The region tracked again from where a coarse search finds it, when it moved beyond
-        // the pyramid's reach: one more candidate set for the registration's RANSAC.
-        if let Some(guide) = coarse.and_then(|view| crate::wide::wide_guide(model, view, &self.config.flow.wide)) {
+        // the pyramid's reach (its flow split): one more candidate set for the registration's
+        // RANSAC.
+        let wide = &self.config.flow.wide;
+        let searched;
+        let view = match coarse {
+            _ if !wide.enabled || crate::wide::settled(&sets[0].pairs, wide) => None,
+            Some(view) => Some(view),
+            None => {
+                searched = CoarseView::new(model, target, wide);
+                Some(&searched)
+            }
+        };
+        if let Some(guide) = view.and_then(|view| crate::wide::wide_guide(model, view, wide)) {
             sets.push(finder.find_guided(model, target, &guide)?);
             sources.push("wide");
         }

@@ -5,7 +5,8 @@ use crate::config::WideBaselineConfig;
 use crate::stages::PreparedFrame;
 use flowfilter_camera::{CameraModel, Pixel};
 use flowfilter_flow::coarse_search::{CoarseMatch, SearchImages, coarse_search, search_hypotheses};
-use flowfilter_geometry::Pose;
+use flowfilter_geometry::{Correspondences, Pose};
+use flowfilter_registration::ransac_kabsch;
 use nalgebra::{Rotation3, Translation3, Unit, UnitQuaternion, Vector3};
 
 /// The coarse search of one pair, run once: its pyramid levels and where it placed the model's
@@ -44,6 +45,26 @@ pub(crate) fn wide_guide(model: &PreparedFrame, view: &CoarseView, cfg: &WideBas
     let guide = orbit.unwrap_or(flat);
     (mean_motion_px(&guide, model) >= cfg.min_motion_px).then_some(guide)
 }
+
+/// Whether the pyramid's flow pairs already agree on one rigid motion (see
+/// [`WideBaselineConfig::settled_min_pairs`]): the coarse search is then not needed. The RANSAC
+/// is seeded, so the answer is the same on every run.
+pub(crate) fn settled(pairs: &Correspondences, cfg: &WideBaselineConfig) -> bool {
+    if cfg.settled_min_pairs == 0 {
+        return false;
+    }
+    let usable = pairs.weights.iter().filter(|w| **w > 0.0).count();
+    let Some((_, inliers)) =
+        ransac_kabsch(pairs, SETTLED_RANSAC_ITERATIONS, cfg.settled_distance_m, cfg.settled_min_pairs, 0)
+    else {
+        return false;
+    };
+    let agreeing = inliers.iter().filter(|b| **b).count();
+    agreeing >= cfg.settled_min_pairs && agreeing as f64 >= cfg.settled_fraction * usable as f64
+}
+
+/// RANSAC hypotheses of [`settled`].
+const SETTLED_RANSAC_ITERATIONS: usize = 200;
 
 /// Largest turn of the orbit hypotheses about either axis, degrees.
 pub const ORBIT_MAX_DEG: f64 = 30.0;
@@ -150,5 +171,38 @@ mod tests {
             let e = (q.x - want[0]).hypot(q.y - want[1]);
             assert!(e < 3.0, "({x}, {y}) -> ({}, {}), want {want:?}", q.x, q.y);
         }
+    }
+
+    /// `agreeing` pairs moved by one rigid motion and `scattered` pairs each moved its own way
+    /// (by 3-12 cm).
+    fn pairs(agreeing: usize, scattered: usize) -> Correspondences {
+        let motion = Pose::new(Vector3::new(0.05, 0.01, -0.02), Vector3::new(0.0, 0.2, 0.05));
+        let point = |i: usize| flowfilter_geometry::Point3::new((i % 10) as f64 * 0.01, (i / 10) as f64 * 0.01, 0.6);
+        let mut c = Correspondences { source: vec![], target: vec![], weights: vec![] };
+        for i in 0..agreeing + scattered {
+            let p = point(i);
+            let q = if i < agreeing {
+                motion * p
+            } else {
+                let k = i as f64;
+                p + Vector3::new(0.03 + 0.09 * (k * 0.7).sin().abs(), 0.05 * (k * 1.3).cos(), 0.04 * (k * 0.9).sin())
+            };
+            c.source.push(p);
+            c.target.push(q);
+            c.weights.push(1.0);
+        }
+        c
+    }
+
+    #[test]
+    fn the_search_is_skipped_only_when_the_pyramids_flow_agrees() {
+        let cfg = WideBaselineConfig::default();
+        // 60 pairs on one motion, 20 scattered: settled.
+        assert!(settled(&pairs(60, 20), &cfg));
+        // Too few agree (20 < 30), or too small a share (50 of 100): split, the search runs.
+        assert!(!settled(&pairs(20, 0), &cfg));
+        assert!(!settled(&pairs(50, 50), &cfg));
+        // 0 pairs asks for the search on every pair.
+        assert!(!settled(&pairs(60, 0), &WideBaselineConfig { settled_min_pairs: 0, ..cfg }));
     }
 }

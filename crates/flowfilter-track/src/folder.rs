@@ -132,8 +132,10 @@ impl FrameFolder {
                 dir.join(if style_frame { format!("frame-{n:06}.depth.png") } else { format!("{n:06}-depth.png") })
             })
         };
-        let frames: Vec<FrameEntry> =
-            colour.into_iter().map(|(number, color)| FrameEntry { number, color, depth: depth_path(number), timestamp: None }).collect();
+        let frames: Vec<FrameEntry> = colour
+            .into_iter()
+            .map(|(number, color)| FrameEntry { number, color, depth: depth_path(number), timestamp: None })
+            .collect();
         if frames.is_empty() {
             return Err(FolderError::Empty { dir: dir.to_path_buf() });
         }
@@ -160,7 +162,8 @@ impl FrameFolder {
     /// # Ok::<(), Box<dyn std::error::Error>>(())
     /// ```
     pub fn from_list(file: &Path) -> Result<Self, FolderError> {
-        let text = std::fs::read_to_string(file).map_err(|source| FolderError::Unreadable { dir: file.to_path_buf(), source })?;
+        let text = std::fs::read_to_string(file)
+            .map_err(|source| FolderError::Unreadable { dir: file.to_path_buf(), source })?;
         let dir = file.parent().unwrap_or(Path::new(".")).to_path_buf();
         let mut frames = vec![];
         for (i, line) in text.lines().enumerate() {
@@ -172,7 +175,9 @@ impl FrameFolder {
             let fields: Vec<&str> = line.split_whitespace().collect();
             let (color, depth, timestamp) = match fields[..] {
                 [color, depth] => (color, depth, None),
-                [t, color, _, depth] => (color, depth, Some(t.parse::<f64>().ok().filter(|t| t.is_finite()).ok_or_else(bad)?)),
+                [t, color, _, depth] => {
+                    (color, depth, Some(t.parse::<f64>().ok().filter(|t| t.is_finite()).ok_or_else(bad)?))
+                }
                 _ => return Err(bad()),
             };
             let number = frames.len() as u64;

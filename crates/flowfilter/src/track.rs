@@ -5,9 +5,9 @@ use anyhow::Context;
 use clap::Args;
 use flowfilter_eval::trajectory::trajectory_errors;
 use flowfilter_eval::{geodesic_error_deg, translation_error_m};
+use flowfilter_geometry::Mask;
 use flowfilter_geometry::Pose;
 use flowfilter_geometry::atomic::{check_writable_dir, check_writable_file, write_atomic_with};
-use flowfilter_geometry::Mask;
 use flowfilter_pipeline::{CameraFile, FrameFiles, MaskSource, Pipeline, RgbdFrame, matrix_rows};
 use flowfilter_rerun::{FrameInput, PairScene, Recorder};
 use flowfilter_track::boxed::{self, PixelBox};
@@ -187,9 +187,10 @@ fn record(
 
 /// `X,Y,W,H` of `--box`.
 fn parse_box(text: &str) -> anyhow::Result<PixelBox> {
-    let v: Vec<usize> = text.split(',').map(|s| s.trim().parse()).collect::<Result<_, _>>().map_err(|_| {
-        anyhow::anyhow!("--box: expected X,Y,W,H (pixels: left, top, width, height), found {text:?}")
-    })?;
+    let v: Vec<usize> =
+        text.split(',').map(|s| s.trim().parse()).collect::<Result<_, _>>().map_err(|_| {
+            anyhow::anyhow!("--box: expected X,Y,W,H (pixels: left, top, width, height), found {text:?}")
+        })?;
     match v[..] {
         [x, y, width, height] if width > 0 && height > 0 => Ok(PixelBox { x, y, width, height }),
         _ => anyhow::bail!("--box: expected X,Y,W,H with a positive width and height, found {text:?}"),

@@ -183,7 +183,8 @@ fn an_image_list_with_a_box_around_the_object() {
     assert_eq!(stamps, vec![100.0, 100.5, 101.0]);
     // A box outside the image, and a malformed one.
     for (bad, expected) in [("600,400,100,100", "inside the 640x480 image"), ("1,2,3", "X,Y,W,H")] {
-        let (ok, _, stderr) = flowfilter(&["track", "--frames", list.to_str().unwrap(), "--camera", &camera, "--box", bad]);
+        let (ok, _, stderr) =
+            flowfilter(&["track", "--frames", list.to_str().unwrap(), "--camera", &camera, "--box", bad]);
         assert!(!ok && stderr.contains(expected), "{stderr}");
     }
     // A list line of another shape is named.

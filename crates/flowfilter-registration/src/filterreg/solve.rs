@@ -21,6 +21,17 @@ use flowfilter_geometry::{KnnIndex, Point3, Pose, Vector3, spatial_order};
 /// neighbours; see `use_lattice`).
 const EXACT_EXIT_COST: f64 = 4.0;
 
+/// Whether the next iteration's E-step is exact, given whether this one's was and the exact
+/// sums' cost per point relative to the lattice's (`None`: no exact phase): entered below 1,
+/// left above [`EXACT_EXIT_COST`].
+fn exact_next(exact: bool, cost: Option<f64>) -> bool {
+    match (exact, cost) {
+        (_, None) => false,
+        (true, Some(c)) => c <= EXACT_EXIT_COST,
+        (false, Some(c)) => c < 1.0,
+    }
+}
+
 /// The clouds in a spatially coherent order (the neighbours of a point, and the points queried
 /// one after the other, then sit close together in memory), with what every iteration reads.
 struct Prepared {
@@ -203,11 +214,7 @@ impl EmState {
                 // point has thousands of neighbours (280 ms per iteration on 17k points).
                 let share = self.subset.as_ref().map_or(1.0, |(pts, _)| pts.len() as f64 / prep.source.len() as f64);
                 let cost = prep.exact_below.map(|r| (4.0 * sigma / r).powi(2) * share / (0.5 * (share + 1.0)));
-                self.exact_phase = match (self.exact_phase, cost) {
-                    (_, None) => false,
-                    (true, Some(c)) => c <= EXACT_EXIT_COST,
-                    (false, Some(c)) => c < 1.0,
-                };
+                self.exact_phase = exact_next(self.exact_phase, cost);
                 !self.exact_phase
             }
         }
@@ -378,5 +385,32 @@ fn finish(
         warnings: em.warnings,
         correspondence_set: None,
         uncertainty: None,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::exact_next;
+
+    /// The phases over a run of costs, starting on the lattice.
+    fn phases(costs: &[f64]) -> Vec<bool> {
+        let mut exact = false;
+        costs
+            .iter()
+            .map(|c| {
+                exact = exact_next(exact, Some(*c));
+                exact
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_exact_phase_is_entered_below_the_switch_and_left_far_above_it() {
+        // Sigma shrinking: lattice, then exact at the switch.
+        assert_eq!(phases(&[9.0, 3.0, 1.5, 0.9, 0.5, 0.3]), [false, false, false, true, true, true]);
+        // Sigma growing back: exact up to four times the switch's cost, then the lattice, and
+        // exact again only below the switch (no flip-flopping in between).
+        assert_eq!(phases(&[0.5, 2.0, 3.9, 4.5, 3.0, 1.2, 0.8]), [true, true, true, false, false, false, true]);
+        assert!(!exact_next(true, None));
     }
 }
