@@ -80,6 +80,11 @@ pub struct WideBaselineConfig {
     pub settled_fraction: f64,
     /// See `settled_min_pairs` (metres).
     pub settled_distance_m: f64,
+    /// The search's pyramid level (`search.level`) is raised until the searched image's longer
+    /// side is at most this many pixels, so that the search's cost (every shift of the region
+    /// over the image) does not grow with the image: a 640x480 frame is searched at 1/8
+    /// resolution, a 1280x1024 one at 1/16. 0: always `search.level`.
+    pub max_search_side_px: usize,
     /// The search's parameters.
     pub search: CoarseSearchParams,
 }
@@ -93,6 +98,7 @@ impl Default for WideBaselineConfig {
             settled_min_pairs: 30,
             settled_fraction: 0.7,
             settled_distance_m: 0.005,
+            max_search_side_px: 80,
             search: CoarseSearchParams::default(),
         }
     }

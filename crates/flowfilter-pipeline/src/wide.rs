@@ -20,7 +20,7 @@ pub(crate) struct CoarseView {
 impl CoarseView {
     /// The search of `model`'s region in `target`.
     pub(crate) fn new(model: &PreparedFrame, target: &PreparedFrame, cfg: &WideBaselineConfig) -> Self {
-        let images = SearchImages::new(&model.gray, &target.gray, cfg.search.level);
+        let images = SearchImages::new(&model.gray, &target.gray, search_level(model.gray.dims(), cfg));
         let found = coarse_search(&images, &model.mask, &cfg.search);
         Self { images, found }
     }
@@ -44,6 +44,16 @@ pub(crate) fn wide_guide(model: &PreparedFrame, view: &CoarseView, cfg: &WideBas
     let orbit = cfg.orbit.then(|| orbit_guide(model, view, cfg, &found)).flatten();
     let guide = orbit.unwrap_or(flat);
     (mean_motion_px(&guide, model) >= cfg.min_motion_px).then_some(guide)
+}
+
+/// The coarse search's pyramid level for images of `(w, h)`: `cfg.search.level`, raised (up to
+/// 6) while the searched image's longer side exceeds `cfg.max_search_side_px`.
+pub(crate) fn search_level((w, h): (usize, usize), cfg: &WideBaselineConfig) -> usize {
+    let mut level = cfg.search.level.max(1);
+    while cfg.max_search_side_px > 0 && (w.max(h) >> level) > cfg.max_search_side_px && level < 6 {
+        level += 1;
+    }
+    level
 }
 
 /// Whether the pyramid's flow pairs already agree on one rigid motion (see
@@ -192,6 +202,16 @@ mod tests {
             c.weights.push(1.0);
         }
         c
+    }
+
+    #[test]
+    fn the_search_level_keeps_the_searched_image_small() {
+        let cfg = WideBaselineConfig::default();
+        assert_eq!(search_level((640, 480), &cfg), 3);
+        assert_eq!(search_level((1280, 1024), &cfg), 4);
+        assert_eq!(search_level((1920, 1080), &cfg), 5);
+        assert_eq!(search_level((320, 240), &cfg), 3, "never below the configured level");
+        assert_eq!(search_level((1280, 1024), &WideBaselineConfig { max_search_side_px: 0, ..cfg }), 3);
     }
 
     #[test]
