@@ -5,6 +5,7 @@ use crate::estimate::Estimate;
 use crate::frame::{camera_arg, frame_arg};
 use crate::{arrays, params, threads};
 use flowfilter_pipeline::{Pipeline, RgbdFrame};
+use flowfilter_track::boxed::{DEPTH_BAND_M, PixelBox, object_in_box};
 use flowfilter_track::{TrackState, TrackedFrame, TrackerConfig};
 use pyo3::prelude::*;
 use serde::Serialize;
@@ -53,19 +54,22 @@ impl Tracker {
 #[pymethods]
 impl Tracker {
     /// Start on `frame` (a `Frame`): `mask` ((H, W) bool, or the frame's own) is the object's;
-    /// without one the whole scene is tracked. `camera`: as `estimate`'s (None for frames read
-    /// from a dataset). `config`: a pipeline configuration (TOML path or dict).
+    /// or `bbox = (x, y, w, h)` (pixels: left, top, width, height), a box around it: the
+    /// object is the box's pixels within 5 cm of the depth of the box's central half. Without
+    /// either the whole scene is tracked. `camera`: as `estimate`'s (None for frames read from a
+    /// dataset). `config`: a pipeline configuration (TOML path or dict).
     ///
-    /// Raises InputError for a frame that cannot be used (no depth in the mask), ConfigError
-    /// for a bad configuration.
+    /// Raises InputError for a frame that cannot be used (no depth in the mask), a box outside
+    /// the image or given with a mask, ConfigError for a bad configuration.
     #[new]
-    #[pyo3(signature = (camera, frame, mask = None, config = None))]
+    #[pyo3(signature = (camera, frame, mask = None, config = None, bbox = None))]
     fn new(
         py: Python<'_>,
         camera: Option<&Bound<'_, PyAny>>,
         frame: &Bound<'_, PyAny>,
         mask: Option<&Bound<'_, PyAny>>,
         config: Option<&Bound<'_, PyAny>>,
+        bbox: Option<(usize, usize, usize, usize)>,
     ) -> PyResult<Self> {
         let config = params::pipeline_config(config)?;
         let method = config.method.clone();
@@ -79,6 +83,20 @@ impl Tracker {
                 return Err(crate::errors::input(format!("mask: {w}x{h}, but the frame is {fw}x{fh}")));
             }
             first.mask = m;
+        }
+        if let Some((x, y, width, height)) = bbox {
+            if mask.is_some_and(|m| !m.is_none()) {
+                return Err(crate::errors::input("give a mask or a bbox, not both"));
+            }
+            let prepared = threads::run(py, || pipeline.prepare(&first))?.map_err(|e| crate::errors::pipeline(&e))?;
+            let rect = PixelBox { x, y, width, height };
+            let (w, h) = prepared.depth.dims();
+            first.mask = object_in_box(&prepared.depth, rect, DEPTH_BAND_M).ok_or_else(|| {
+                crate::errors::input(format!(
+                    "bbox ({x}, {y}, {width}, {height}): the box must lie inside the {w}x{h} image, have a positive \
+                     size and depth in its central half"
+                ))
+            })?;
         }
         let label = first.label.clone();
         let tracker = threads::run(py, || flowfilter_track::Tracker::new(pipeline, TrackerConfig::default(), &first))?

@@ -38,6 +38,24 @@ def test_an_object_is_tracked_from_its_first_mask(bop_scene):
     assert flowfilter.estimate(frames[0], frames[1]).state is None
 
 
+def test_a_box_around_the_object_instead_of_a_mask(bop_scene):
+    frames = [flowfilter.read_bop_frame(bop_scene, im, 1) for im in (0, 1)]
+    k = np.asarray(frames[0].K)
+    h, w = np.asarray(frames[0].depth).shape
+    camera = flowfilter.Camera(k, width=w, height=h, depth_unit=frames[0].depth_unit)
+    plain = [flowfilter.Frame(np.asarray(f.color), np.asarray(f.depth), name=f"im{i}") for i, f in enumerate(frames)]
+    ys, xs = np.nonzero(np.asarray(frames[0].mask))
+    box = (int(xs.min()) - 4, int(ys.min()) - 4, int(xs.max() - xs.min()) + 9, int(ys.max() - ys.min()) + 9)
+    tracker = flowfilter.Tracker(camera, plain[0], bbox=box)
+    e = tracker.update(plain[1])
+    assert e.state == "tracking", e.reason
+    assert rotation_deg(e.transform, flowfilter.bop_motion(bop_scene, 0, 1, 1)) < 1.0
+    with pytest.raises(flowfilter.InputError, match="inside"):
+        flowfilter.Tracker(camera, plain[0], bbox=(w - 10, 0, 50, 50))
+    with pytest.raises(flowfilter.InputError, match="not both"):
+        flowfilter.Tracker(camera, plain[0], mask=np.asarray(frames[0].mask), bbox=box)
+
+
 def test_a_frame_of_another_size_is_lost_not_an_exception(bop_scene):
     a = flowfilter.read_bop_frame(bop_scene, 0, 1)
     tracker = flowfilter.Tracker(None, a)

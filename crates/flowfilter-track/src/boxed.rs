@@ -2,6 +2,10 @@
 
 use flowfilter_geometry::{DepthMap, Mask};
 
+/// How far from the depth of a box's central half an object pixel may lie (metres): what
+/// `flowfilter track --box` and Python's `Tracker(..., bbox=...)` give [`object_in_box`].
+pub const DEPTH_BAND_M: f64 = 0.05;
+
 /// A box in pixels: left, top, width, height.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct PixelBox {

@@ -202,7 +202,7 @@ fn parse_box(text: &str) -> anyhow::Result<PixelBox> {
 fn object_in_box(pipeline: &Pipeline, first: &RgbdFrame, rect: PixelBox) -> anyhow::Result<Mask> {
     let prepared = pipeline.prepare(first).context("the first frame")?;
     let (w, h) = prepared.depth.dims();
-    boxed::object_in_box(&prepared.depth, rect, BOX_DEPTH_BAND_M).ok_or_else(|| {
+    boxed::object_in_box(&prepared.depth, rect, boxed::DEPTH_BAND_M).ok_or_else(|| {
         anyhow::anyhow!(
             "--box {},{},{},{}: the box must lie inside the {w}x{h} image and have depth in its central half",
             rect.x,
@@ -212,9 +212,6 @@ fn object_in_box(pipeline: &Pipeline, first: &RgbdFrame, rect: PixelBox) -> anyh
         )
     })
 }
-
-/// `--box`: the object is the box's pixels within this of the depth of its central half (metres).
-const BOX_DEPTH_BAND_M: f64 = 0.05;
 
 /// One frame from its files (the mask only for the first).
 fn load(entry: &FrameEntry, camera: &CameraFile, mask: MaskSource) -> anyhow::Result<RgbdFrame> {
