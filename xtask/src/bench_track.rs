@@ -5,11 +5,13 @@
 //! Streams: synthetic turntable loops (a full turn at `--steps` degrees, the synth's Carmine
 //! sensor effects, the object's first mask only), and the shared real RealSense sequences as
 //! whole frames and as a region "object" with a segmentation network's mask in the first frame
-//! (the regions and masks of `bench-real`). Errors as the TUM benchmark defines them (ATE, RPE
+//! (the regions and masks of `bench-real`), and each object of the real YCB-Video sample
+//! (`--ycb-video`) from its first label mask. Errors as the TUM benchmark defines them (ATE, RPE
 //! over one frame) and the last frame's rotation error (a loop's closure error).
 
 use crate::bench_real::seed_of;
 use crate::realsense::{PosedFrames, is_posed_folder, network_mask};
+use crate::sequence::{Sequence, YcbVideoFrames};
 use anyhow::Context;
 use clap::Args;
 use flowfilter_bigbird::SensorId;
@@ -31,6 +33,11 @@ pub struct TrackBenchArgs {
     /// Real sequences to run, comma separated; default: all.
     #[arg(long, value_delimiter = ',')]
     pub sequences: Option<Vec<String>>,
+    /// A folder of real YCB-Video frames (`NNNNNN-color|depth|label.png`, `-gt.json`): each
+    /// annotated object seen in every frame is a stream from its first label mask (skipped when
+    /// absent, and with --quick).
+    #[arg(long, default_value = "../shared/data/ycb-video/0001")]
+    pub ycb_video: PathBuf,
     /// Synthetic turntable objects (procedural), comma separated.
     #[arg(long, value_delimiter = ',', default_value = "box,can,bottle")]
     pub objects: Vec<String>,
@@ -103,6 +110,9 @@ pub fn run(args: &TrackBenchArgs) -> anyhow::Result<()> {
         }
     }
     streams.extend(real_streams(args)?);
+    if !args.quick {
+        streams.extend(ycb_video_streams(&args.ycb_video)?);
+    }
     let dir = args.out.join(crate::report::timestamp());
     std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
     // Each stream's rows as they finish (a long run stopped early keeps what it measured).
@@ -213,6 +223,46 @@ fn real_streams(args: &TrackBenchArgs) -> anyhow::Result<Vec<Stream>> {
         if let Some(region_stream) = region_stream(&seq, &label, &ids, &frames, &truth, args.seed) {
             out.push(region_stream);
         }
+    }
+    Ok(out)
+}
+
+/// Each object of a folder of YCB-Video frames seen in every frame: tracked from its label mask
+/// in the first frame (later frames whole); chaining gets its label mask in every frame. The
+/// truth is the annotation's motion of the object in the camera.
+fn ycb_video_streams(dir: &std::path::Path) -> anyhow::Result<Vec<Stream>> {
+    if !dir.is_dir() {
+        println!("skipping the YCB-Video streams: {} is absent", dir.display());
+        return Ok(vec![]);
+    }
+    let seq = YcbVideoFrames::open(dir).map_err(anyhow::Error::msg)?;
+    let ids = seq.image_ids();
+    let label = dir.file_name().map_or_else(String::new, |n| n.to_string_lossy().into_owned());
+    let mut out = vec![];
+    for obj in seq.object_ids() {
+        let everywhere = ids.iter().all(|&im| seq.instances(im).iter().any(|(o, _)| *o == obj));
+        if ids.len() < 2 || !everywhere {
+            continue;
+        }
+        let masked: Vec<RgbdFrame> =
+            ids.iter().map(|&im| seq.frame(im, obj)).collect::<Result<_, _>>().map_err(anyhow::Error::msg)?;
+        let truth: Vec<Pose> = ids
+            .iter()
+            .map(|&im| seq.relative_motion(ids[0], im, obj))
+            .collect::<Result<_, _>>()
+            .map_err(anyhow::Error::msg)?;
+        let mut frames = masked.clone();
+        for f in frames.iter_mut().skip(1) {
+            f.mask.as_mut_slice().fill(true);
+        }
+        let name = seq.object_name(obj).unwrap_or_else(|| format!("class {obj}"));
+        out.push(Stream {
+            name: format!("YCB-Video {label} {name}"),
+            kind: "real, YCB-Video object",
+            frames,
+            masked,
+            truth,
+        });
     }
     Ok(out)
 }
@@ -357,4 +407,34 @@ fn check(results: &[StreamResult]) -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The YCB-Video sample's objects as streams: the first frame masked, the later ones whole,
+    /// the annotation's motion as the truth.
+    #[test]
+    fn ycb_video_objects_are_streams_from_their_first_mask() {
+        let dir = crate::repo_root().join("../shared/data/ycb-video/0001");
+        if !dir.is_dir() {
+            eprintln!("skipping: {} is absent (the real-frame tests need ../shared)", dir.display());
+            return;
+        }
+        let streams = ycb_video_streams(&dir).unwrap();
+        assert!(streams.len() >= 3, "{}", streams.len());
+        for s in &streams {
+            let count = |f: &RgbdFrame| f.mask.as_slice().iter().filter(|m| **m).count();
+            let area = s.frames[0].mask.as_slice().len();
+            assert!(s.frames.len() == 5 && s.masked.len() == 5 && s.truth.len() == 5, "{}", s.name);
+            assert!(count(&s.frames[0]) < area / 4, "{}: the first frame carries the object's mask", s.name);
+            assert!(s.frames[1..].iter().all(|f| count(f) == area), "{}: later frames are whole", s.name);
+            assert!(s.masked.iter().all(|f| count(f) < area / 4), "{}", s.name);
+            assert!(s.truth[0].rotation.angle() < 1e-12 && s.truth[0].translation.vector.norm() < 1e-12);
+            assert!(s.truth[4].translation.vector.norm() > 1e-4, "{}: the camera moves", s.name);
+        }
+        // An absent folder is skipped, not an error.
+        assert!(ycb_video_streams(&dir.join("absent")).unwrap().is_empty());
+    }
 }
