@@ -8,6 +8,7 @@ use flowfilter_eval::{geodesic_error_deg, translation_error_m};
 use flowfilter_geometry::Mask;
 use flowfilter_geometry::Pose;
 use flowfilter_geometry::atomic::{check_writable_dir, check_writable_file, write_atomic_with};
+use flowfilter_pipeline::bop::BopScene;
 use flowfilter_pipeline::{CameraFile, FrameFiles, MaskSource, Pipeline, RgbdFrame, matrix_rows};
 use flowfilter_rerun::{FrameInput, PairScene, Recorder};
 use flowfilter_track::boxed::{self, PixelBox};
@@ -25,11 +26,20 @@ pub struct TrackArgs {
     /// YCB-Video's `NNNNNN-color.png` + `NNNNNN-depth.png` (other files are ignored); or an image
     /// list: a text file of `COLOR DEPTH` lines or TUM's associated `T_COLOR COLOR T_DEPTH DEPTH`
     /// lines, paths relative to the list (frames numbered in list order).
-    #[arg(long)]
-    pub frames: PathBuf,
-    /// The camera file (JSON: ours, BOP's, Open3D's PinholeCameraIntrinsic).
-    #[arg(long)]
-    pub camera: PathBuf,
+    #[arg(long, required_unless_present = "bop", conflicts_with = "bop")]
+    pub frames: Option<PathBuf>,
+    /// The camera file (JSON: ours, BOP's, Open3D's PinholeCameraIntrinsic); with --bop, the
+    /// scene's own.
+    #[arg(long, required_unless_present = "bop")]
+    pub camera: Option<PathBuf>,
+    /// A BOP scene folder (`scene_camera.json`, `scene_gt.json`, `rgb/`, `depth/`,
+    /// `mask_visib/`) instead of --frames: the images where `--object` is annotated, in order;
+    /// its visible mask in the first one; the annotations as the truth (unless --gt).
+    #[arg(long, requires = "object")]
+    pub bop: Option<PathBuf>,
+    /// With --bop: the object's id (`obj_id`).
+    #[arg(long, requires = "bop")]
+    pub object: Option<u32>,
     /// The object's mask in the first frame (binary PNG). Without it (and without --box) the
     /// whole scene is tracked.
     #[arg(long, conflicts_with = "bbox")]
@@ -88,16 +98,23 @@ pub fn run(args: &TrackArgs) -> anyhow::Result<ExitCode> {
     if !(args.fps.is_finite() && args.fps > 0.0) {
         anyhow::bail!("--fps: expected a positive number of frames per second, found {}", args.fps);
     }
-    let camera = CameraFile::from_file(&args.camera)?;
-    let mut folder = FrameFolder::open_any(&args.frames)?;
+    let (mut folder, camera, bop) = open_input(args)?;
     if let Some(n) = args.max_frames {
         folder.frames.truncate(n.max(1));
     }
     let numbers: Vec<u64> = folder.frames.iter().map(|f| f.number).collect();
-    let truth = args.gt.as_deref().map(|p| tum::read_truth(p, &numbers)).transpose()?;
+    let truth = match (&args.gt, &bop) {
+        (Some(p), _) => Some(tum::read_truth(p, &numbers)?),
+        (None, Some((scene, obj))) => Some(bop_truth(scene, *obj, &numbers)?),
+        (None, None) => None,
+    };
     let pipeline = crate::estimate::pipeline(args.config.as_deref(), None)?;
     let first_mask = args.mask.clone().map_or(MaskSource::None, MaskSource::Binary);
-    let mut first = load(&folder.frames[0], &camera, first_mask).context("the first frame")?;
+    let load = |entry: &FrameEntry, mask: MaskSource, first: bool| match &bop {
+        Some((scene, obj)) => bop_frame(scene, *obj, entry, mask, first),
+        None => load(entry, &camera, mask),
+    };
+    let mut first = load(&folder.frames[0], first_mask, true).context("the first frame")?;
     if let Some(text) = &args.bbox {
         first.mask = object_in_box(&pipeline, &first, parse_box(text)?)?;
     }
@@ -115,7 +132,7 @@ pub fn run(args: &TrackArgs) -> anyhow::Result<ExitCode> {
     let mut out: Vec<TrackedFrame> = vec![tracker.first()];
     crate::progress::advance(&bar, 1);
     for (i, entry) in folder.frames.iter().enumerate().skip(1) {
-        let frame = load(entry, &camera, MaskSource::None).map_err(|e| format!("{e:#}"));
+        let frame = load(entry, MaskSource::None, false).map_err(|e| format!("{e:#}"));
         colours.push(recording.as_ref().and_then(|_| frame.as_ref().ok().map(|f| f.color.clone())));
         let colour = frame.as_ref().ok().filter(|_| args.viz.is_some()).map(|f| f.color.clone());
         let mut tracked = tracker.update(frame);
@@ -183,6 +200,77 @@ fn record(
     let step = i64::try_from(tracked.index).unwrap_or(i64::MAX);
     recorder.log_pair(step, &PairScene::new(model, target, &e, &pair.trace, pair_truth.as_ref()))?;
     Ok(())
+}
+
+/// A BOP scene and the tracked object's id.
+type BopObject = (BopScene, u32);
+
+/// The frames, the camera and, with --bop, the scene and the object.
+fn open_input(args: &TrackArgs) -> anyhow::Result<(FrameFolder, CameraFile, Option<BopObject>)> {
+    let (Some(dir), Some(obj)) = (&args.bop, args.object) else {
+        let (frames, camera) = (args.frames.as_deref(), args.camera.as_deref());
+        let (Some(frames), Some(camera)) = (frames, camera) else {
+            anyhow::bail!("--frames and --camera are needed without --bop");
+        };
+        return Ok((FrameFolder::open_any(frames)?, CameraFile::from_file(camera)?, None));
+    };
+    let scene = BopScene::open(dir)?;
+    let ids: Vec<u32> = scene.image_ids().into_iter().filter(|&im| scene.instance(im, obj).is_ok()).collect();
+    let Some(&first) = ids.first() else {
+        anyhow::bail!("--bop {}: object {obj} is annotated in none of its images", dir.display());
+    };
+    let camera = match &args.camera {
+        Some(path) => CameraFile::from_file(path)?,
+        None => scene.camera(first)?,
+    };
+    // The entries name the frames; the images are read by the scene (`bop_frame`).
+    let frames = ids
+        .iter()
+        .map(|&im| FrameEntry {
+            number: u64::from(im),
+            color: dir.join("rgb").join(format!("{im:06}.png")),
+            depth: dir.join("depth").join(format!("{im:06}.png")),
+            timestamp: None,
+        })
+        .collect();
+    Ok((FrameFolder { dir: dir.clone(), frames }, camera, Some((scene, obj))))
+}
+
+/// Image `entry.number` of a BOP scene: the first frame with the object's visible mask (or the
+/// `--mask` file), later frames whole (`MaskSource::None`).
+fn bop_frame(
+    scene: &BopScene,
+    obj: u32,
+    entry: &FrameEntry,
+    mask: MaskSource,
+    first: bool,
+) -> anyhow::Result<RgbdFrame> {
+    let im = u32::try_from(entry.number)?;
+    let mut frame = scene.frame(im, obj)?;
+    match mask {
+        MaskSource::None if !first => frame.mask.as_mut_slice().fill(true),
+        MaskSource::Binary(path) => {
+            let image = image::open(&path).with_context(|| path.display().to_string())?.to_luma16();
+            let (w, h) = frame.mask.dims();
+            if (image.width() as usize, image.height() as usize) != (w, h) {
+                anyhow::bail!(
+                    "{}: the mask is {}x{}, the scene's images {w}x{h}",
+                    path.display(),
+                    image.width(),
+                    image.height()
+                );
+            }
+            frame.mask = Mask::from_fn(w, h, |x, y| image.get_pixel(x as u32, y as u32).0[0] > 0);
+        }
+        _ => {}
+    }
+    Ok(frame)
+}
+
+/// The object's annotated motion from the first image, by image number.
+fn bop_truth(scene: &BopScene, obj: u32, numbers: &[u64]) -> anyhow::Result<BTreeMap<u64, Pose>> {
+    let first = u32::try_from(numbers[0])?;
+    numbers.iter().map(|&n| Ok((n, scene.relative_motion(first, u32::try_from(n)?, obj)?))).collect()
 }
 
 /// `X,Y,W,H` of `--box`.

@@ -192,3 +192,26 @@ fn an_image_list_with_a_box_around_the_object() {
     let (ok, _, stderr) = flowfilter(&["track", "--frames", list.to_str().unwrap(), "--camera", &camera]);
     assert!(!ok && stderr.contains("associate.txt:1") && stderr.contains("COLOR DEPTH"), "{stderr}");
 }
+
+#[test]
+fn a_bop_scene_object_is_tracked_with_its_annotations_as_the_truth() {
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/bop/000001");
+    let tmp = tempfile::tempdir().unwrap();
+    let json = tmp.path().join("track.jsonl");
+    let (ok, stdout, stderr) =
+        flowfilter(&["track", "--bop", scene.to_str().unwrap(), "--object", "7", "--json", json.to_str().unwrap()]);
+    assert!(ok, "{stderr}");
+    assert!(stdout.contains("vs ground truth (3 frames)"), "{stdout}");
+    let rows: Vec<serde_json::Value> =
+        std::fs::read_to_string(&json).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert_eq!(rows.iter().map(|r| r["frame"].as_u64().unwrap()).collect::<Vec<_>>(), [0, 1, 2]);
+    for r in &rows[1..] {
+        assert_eq!(r["state"], "tracking", "{r}");
+        assert!(r["errors"]["rotation_deg"].as_f64().unwrap() < 1.0, "{r}");
+    }
+    // An object the scene does not annotate, and --bop without --object.
+    let (ok, _, stderr) = flowfilter(&["track", "--bop", scene.to_str().unwrap(), "--object", "1"]);
+    assert!(!ok && stderr.contains("object 1 is annotated in none"), "{stderr}");
+    let (ok, _, stderr) = flowfilter(&["track", "--bop", scene.to_str().unwrap()]);
+    assert!(!ok && stderr.contains("--object"), "{stderr}");
+}
