@@ -178,24 +178,33 @@ impl BopScene {
         Ok(CameraFile::from_json_value(entry, &format!("{} (image {im_id})", path.display()))?)
     }
 
-    /// Image `im_id` with the visible mask of the first instance of `obj_id`.
+    /// The files of image `im_id`: its colour image, its depth and the visible mask of the
+    /// first instance of `obj_id`.
     ///
     /// # Errors
-    /// As [`BopScene::instance`], [`BopScene::camera`] and [`FrameFiles::load`].
-    pub fn frame(&self, im_id: u32, obj_id: u32) -> Result<RgbdFrame, PipelineError> {
+    /// As [`BopScene::instance`]; [`PipelineError::Input`] when the colour image is missing.
+    pub fn files(&self, im_id: u32, obj_id: u32) -> Result<FrameFiles, PipelineError> {
         let instance = self.instance(im_id, obj_id)?;
         let color = ["png", "jpg"]
             .iter()
             .map(|ext| self.dir.join(self.color_dir).join(format!("{im_id:06}.{ext}")))
             .find(|p| p.is_file())
             .ok_or_else(|| input_error(&self.dir.join(self.color_dir), format!("no image {im_id:06}.png or .jpg")))?;
-        let files = FrameFiles {
+        Ok(FrameFiles {
             color,
             depth: self.dir.join("depth").join(format!("{im_id:06}.png")),
             mask: MaskSource::Binary(
                 self.dir.join(self.mask_dir).join(format!("{im_id:06}_{:06}.png", instance.gt_id)),
             ),
-        };
+        })
+    }
+
+    /// Image `im_id` with the visible mask of the first instance of `obj_id`.
+    ///
+    /// # Errors
+    /// As [`BopScene::files`], [`BopScene::camera`] and [`FrameFiles::load`].
+    pub fn frame(&self, im_id: u32, obj_id: u32) -> Result<RgbdFrame, PipelineError> {
+        let files = self.files(im_id, obj_id)?;
         let scene = self.dir.file_name().map_or_else(String::new, |n| n.to_string_lossy().into_owned());
         files.load(&self.camera(im_id)?, &format!("{scene}/{im_id:06}/obj_{obj_id:06}"))
     }

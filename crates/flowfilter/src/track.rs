@@ -98,23 +98,17 @@ pub fn run(args: &TrackArgs) -> anyhow::Result<ExitCode> {
     if !(args.fps.is_finite() && args.fps > 0.0) {
         anyhow::bail!("--fps: expected a positive number of frames per second, found {}", args.fps);
     }
-    let (mut folder, camera, bop) = open_input(args)?;
+    let Input { mut folder, camera, first_mask, bop_truth } = open_input(args)?;
     if let Some(n) = args.max_frames {
         folder.frames.truncate(n.max(1));
     }
     let numbers: Vec<u64> = folder.frames.iter().map(|f| f.number).collect();
-    let truth = match (&args.gt, &bop) {
-        (Some(p), _) => Some(tum::read_truth(p, &numbers)?),
-        (None, Some((scene, obj))) => Some(bop_truth(scene, *obj, &numbers)?),
-        (None, None) => None,
+    let truth = match &args.gt {
+        Some(p) => Some(tum::read_truth(p, &numbers)?),
+        None => bop_truth,
     };
     let pipeline = crate::estimate::pipeline(args.config.as_deref(), None)?;
-    let first_mask = args.mask.clone().map_or(MaskSource::None, MaskSource::Binary);
-    let load = |entry: &FrameEntry, mask: MaskSource, first: bool| match &bop {
-        Some((scene, obj)) => bop_frame(scene, *obj, entry, mask, first),
-        None => load(entry, &camera, mask),
-    };
-    let mut first = load(&folder.frames[0], first_mask, true).context("the first frame")?;
+    let mut first = load(&folder.frames[0], &camera, first_mask).context("the first frame")?;
     if let Some(text) = &args.bbox {
         first.mask = object_in_box(&pipeline, &first, parse_box(text)?)?;
     }
@@ -132,7 +126,7 @@ pub fn run(args: &TrackArgs) -> anyhow::Result<ExitCode> {
     let mut out: Vec<TrackedFrame> = vec![tracker.first()];
     crate::progress::advance(&bar, 1);
     for (i, entry) in folder.frames.iter().enumerate().skip(1) {
-        let frame = load(entry, MaskSource::None, false).map_err(|e| format!("{e:#}"));
+        let frame = load(entry, &camera, MaskSource::None).map_err(|e| format!("{e:#}"));
         colours.push(recording.as_ref().and_then(|_| frame.as_ref().ok().map(|f| f.color.clone())));
         let colour = frame.as_ref().ok().filter(|_| args.viz.is_some()).map(|f| f.color.clone());
         let mut tracked = tracker.update(frame);
@@ -202,17 +196,25 @@ fn record(
     Ok(())
 }
 
-/// A BOP scene and the tracked object's id.
-type BopObject = (BopScene, u32);
+/// The frames, the camera and the first frame's mask: from --frames and --camera (the mask
+/// from --mask, if any), or from a --bop scene (the object's visible mask unless --mask) with
+/// its annotations as the truth.
+struct Input {
+    folder: FrameFolder,
+    camera: CameraFile,
+    first_mask: MaskSource,
+    /// With --bop: the object's annotated motion from the first image, by image number.
+    bop_truth: Option<BTreeMap<u64, Pose>>,
+}
 
-/// The frames, the camera and, with --bop, the scene and the object.
-fn open_input(args: &TrackArgs) -> anyhow::Result<(FrameFolder, CameraFile, Option<BopObject>)> {
+fn open_input(args: &TrackArgs) -> anyhow::Result<Input> {
+    let given_mask = args.mask.clone().map(MaskSource::Binary);
     let (Some(dir), Some(obj)) = (&args.bop, args.object) else {
-        let (frames, camera) = (args.frames.as_deref(), args.camera.as_deref());
-        let (Some(frames), Some(camera)) = (frames, camera) else {
+        let (Some(frames), Some(camera)) = (args.frames.as_deref(), args.camera.as_deref()) else {
             anyhow::bail!("--frames and --camera are needed without --bop");
         };
-        return Ok((FrameFolder::open_any(frames)?, CameraFile::from_file(camera)?, None));
+        let (folder, camera) = (FrameFolder::open_any(frames)?, CameraFile::from_file(camera)?);
+        return Ok(Input { folder, camera, first_mask: given_mask.unwrap_or(MaskSource::None), bop_truth: None });
     };
     let scene = BopScene::open(dir)?;
     let ids: Vec<u32> = scene.image_ids().into_iter().filter(|&im| scene.instance(im, obj).is_ok()).collect();
@@ -223,54 +225,19 @@ fn open_input(args: &TrackArgs) -> anyhow::Result<(FrameFolder, CameraFile, Opti
         Some(path) => CameraFile::from_file(path)?,
         None => scene.camera(first)?,
     };
-    // The entries name the frames; the images are read by the scene (`bop_frame`).
-    let frames = ids
-        .iter()
-        .map(|&im| FrameEntry {
-            number: u64::from(im),
-            color: dir.join("rgb").join(format!("{im:06}.png")),
-            depth: dir.join("depth").join(format!("{im:06}.png")),
-            timestamp: None,
-        })
-        .collect();
-    Ok((FrameFolder { dir: dir.clone(), frames }, camera, Some((scene, obj))))
-}
-
-/// Image `entry.number` of a BOP scene: the first frame with the object's visible mask (or the
-/// `--mask` file), later frames whole (`MaskSource::None`).
-fn bop_frame(
-    scene: &BopScene,
-    obj: u32,
-    entry: &FrameEntry,
-    mask: MaskSource,
-    first: bool,
-) -> anyhow::Result<RgbdFrame> {
-    let im = u32::try_from(entry.number)?;
-    let mut frame = scene.frame(im, obj)?;
-    match mask {
-        MaskSource::None if !first => frame.mask.as_mut_slice().fill(true),
-        MaskSource::Binary(path) => {
-            let image = image::open(&path).with_context(|| path.display().to_string())?.to_luma16();
-            let (w, h) = frame.mask.dims();
-            if (image.width() as usize, image.height() as usize) != (w, h) {
-                anyhow::bail!(
-                    "{}: the mask is {}x{}, the scene's images {w}x{h}",
-                    path.display(),
-                    image.width(),
-                    image.height()
-                );
-            }
-            frame.mask = Mask::from_fn(w, h, |x, y| image.get_pixel(x as u32, y as u32).0[0] > 0);
+    let mut first_mask = MaskSource::None;
+    let mut frames = vec![];
+    let mut truth = BTreeMap::new();
+    for &im in &ids {
+        let files = scene.files(im, obj)?;
+        if im == first {
+            first_mask = files.mask;
         }
-        _ => {}
+        frames.push(FrameEntry { number: u64::from(im), color: files.color, depth: files.depth, timestamp: None });
+        truth.insert(u64::from(im), scene.relative_motion(first, im, obj)?);
     }
-    Ok(frame)
-}
-
-/// The object's annotated motion from the first image, by image number.
-fn bop_truth(scene: &BopScene, obj: u32, numbers: &[u64]) -> anyhow::Result<BTreeMap<u64, Pose>> {
-    let first = u32::try_from(numbers[0])?;
-    numbers.iter().map(|&n| Ok((n, scene.relative_motion(first, u32::try_from(n)?, obj)?))).collect()
+    let folder = FrameFolder { dir: dir.clone(), frames };
+    Ok(Input { folder, camera, first_mask: given_mask.unwrap_or(first_mask), bop_truth: Some(truth) })
 }
 
 /// `X,Y,W,H` of `--box`.
