@@ -5,7 +5,7 @@ use crate::estimate::Estimate;
 use crate::frame::{camera_arg, frame_arg};
 use crate::{arrays, params, threads};
 use flowfilter_pipeline::{Pipeline, RgbdFrame};
-use flowfilter_track::boxed::{DEPTH_BAND_M, PixelBox, object_in_box};
+use flowfilter_track::boxed::{BoxError, PixelBox, first_mask};
 use flowfilter_track::{TrackState, TrackedFrame, TrackerConfig};
 use pyo3::prelude::*;
 use serde::Serialize;
@@ -88,14 +88,10 @@ impl Tracker {
             if mask.is_some_and(|m| !m.is_none()) {
                 return Err(crate::errors::input("give a mask or a bbox, not both"));
             }
-            let prepared = threads::run(py, || pipeline.prepare(&first))?.map_err(|e| crate::errors::pipeline(&e))?;
             let rect = PixelBox { x, y, width, height };
-            let (w, h) = prepared.depth.dims();
-            first.mask = object_in_box(&prepared.depth, rect, DEPTH_BAND_M).ok_or_else(|| {
-                crate::errors::input(format!(
-                    "bbox ({x}, {y}, {width}, {height}): the box must lie inside the {w}x{h} image, have a positive \
-                     size and depth in its central half"
-                ))
+            first.mask = threads::run(py, || first_mask(&pipeline, &first, rect))?.map_err(|e| match e {
+                BoxError::Frame(e) => crate::errors::pipeline(&e),
+                unusable => crate::errors::input(format!("bbox: {unusable}")),
             })?;
         }
         let label = first.label.clone();

@@ -1,6 +1,7 @@
 //! The object's first mask from a box around it: the box's pixels at the object's depth.
 
 use flowfilter_geometry::{DepthMap, Mask};
+use flowfilter_pipeline::{Pipeline, PipelineError, RgbdFrame};
 
 /// How far from the depth of a box's central half an object pixel may lie (metres): what
 /// `flowfilter track --box` and Python's `Tracker(..., bbox=...)` give [`object_in_box`].
@@ -60,4 +61,51 @@ pub fn object_in_box(depth_map: &DepthMap, rect: PixelBox, band_m: f64) -> Optio
             && (rect.y..y1).contains(&y)
             && depth(x, y).is_none_or(|z| (f64::from(z) - median).abs() <= band_m)
     }))
+}
+
+/// Why a box gives no first mask.
+#[derive(Debug, thiserror::Error)]
+pub enum BoxError {
+    /// The frame cannot be prepared.
+    #[error("the first frame: {0}")]
+    Frame(#[from] PipelineError),
+    /// The box leaves the image, is empty, or has no depth in its central half.
+    #[error(
+        "the box ({x}, {y}, {width}, {height}) must lie inside the {image_width}x{image_height} image, have a \
+         positive size and depth in its central half"
+    )]
+    Unusable {
+        /// Left column.
+        x: usize,
+        /// Top row.
+        y: usize,
+        /// Width.
+        width: usize,
+        /// Height.
+        height: usize,
+        /// The image's width.
+        image_width: usize,
+        /// The image's height.
+        image_height: usize,
+    },
+}
+
+/// The object's mask in `first` from a box around it, as `flowfilter track --box` and Python's
+/// `Tracker(..., bbox=...)` take it: the frame prepared without a mask, then [`object_in_box`]
+/// on its depth with [`DEPTH_BAND_M`].
+///
+/// # Errors
+/// [`BoxError::Frame`] when the frame cannot be prepared, [`BoxError::Unusable`] for a box
+/// outside the image or without depth.
+pub fn first_mask(pipeline: &Pipeline, first: &RgbdFrame, rect: PixelBox) -> Result<Mask, BoxError> {
+    let prepared = pipeline.prepare(first)?;
+    let (image_width, image_height) = prepared.depth.dims();
+    object_in_box(&prepared.depth, rect, DEPTH_BAND_M).ok_or(BoxError::Unusable {
+        x: rect.x,
+        y: rect.y,
+        width: rect.width,
+        height: rect.height,
+        image_width,
+        image_height,
+    })
 }

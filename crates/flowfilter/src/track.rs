@@ -5,11 +5,10 @@ use anyhow::Context;
 use clap::Args;
 use flowfilter_eval::trajectory::trajectory_errors;
 use flowfilter_eval::{geodesic_error_deg, translation_error_m};
-use flowfilter_geometry::Mask;
 use flowfilter_geometry::Pose;
 use flowfilter_geometry::atomic::{check_writable_dir, check_writable_file, write_atomic_with};
 use flowfilter_pipeline::bop::BopScene;
-use flowfilter_pipeline::{CameraFile, FrameFiles, MaskSource, Pipeline, RgbdFrame, matrix_rows};
+use flowfilter_pipeline::{CameraFile, FrameFiles, MaskSource, RgbdFrame, matrix_rows};
 use flowfilter_rerun::{FrameInput, PairScene, Recorder};
 use flowfilter_track::boxed::{self, PixelBox};
 use flowfilter_track::{FrameEntry, FrameFolder, TrackState, TrackedFrame, Tracker, TrackerConfig, tum};
@@ -110,7 +109,7 @@ pub fn run(args: &TrackArgs) -> anyhow::Result<ExitCode> {
     let pipeline = crate::estimate::pipeline(args.config.as_deref(), None)?;
     let mut first = load(&folder.frames[0], &camera, first_mask).context("the first frame")?;
     if let Some(text) = &args.bbox {
-        first.mask = object_in_box(&pipeline, &first, parse_box(text)?)?;
+        first.mask = boxed::first_mask(&pipeline, &first, parse_box(text)?).context("--box")?;
     }
     let config = TrackerConfig { trace: args.rerun.is_some(), ..TrackerConfig::default() };
     let mut tracker = Tracker::new(pipeline, config, &first)?;
@@ -250,22 +249,6 @@ fn parse_box(text: &str) -> anyhow::Result<PixelBox> {
         [x, y, width, height] if width > 0 && height > 0 => Ok(PixelBox { x, y, width, height }),
         _ => anyhow::bail!("--box: expected X,Y,W,H with a positive width and height, found {text:?}"),
     }
-}
-
-/// The object's mask in `first` from a box: the frame prepared without a mask, the box's
-/// pixels at the object's depth ([`flowfilter_track::boxed::object_in_box`]).
-fn object_in_box(pipeline: &Pipeline, first: &RgbdFrame, rect: PixelBox) -> anyhow::Result<Mask> {
-    let prepared = pipeline.prepare(first).context("the first frame")?;
-    let (w, h) = prepared.depth.dims();
-    boxed::object_in_box(&prepared.depth, rect, boxed::DEPTH_BAND_M).ok_or_else(|| {
-        anyhow::anyhow!(
-            "--box {},{},{},{}: the box must lie inside the {w}x{h} image and have depth in its central half",
-            rect.x,
-            rect.y,
-            rect.width,
-            rect.height
-        )
-    })
 }
 
 /// One frame from its files (the mask only for the first).
