@@ -256,7 +256,7 @@ impl Pipeline {
         // The coarse search runs here when the mask must be propagated; else only when the
         // correspondence stage finds the pyramid's own flow split (`flow.wide.settled_*`).
         let coarse = propagate.then(|| CoarseView::new(model, target, wide));
-        let propagated = coarse.as_ref().filter(|_| propagate).map(|view| {
+        let propagated = coarse.as_ref().map(|view| {
             let placed = view.found.is_some();
             warnings.push(PipelineWarning::MaskPropagated { frame: target.label.clone(), placed });
             crate::propagate::with_propagated_mask(model, target, view.found.as_ref())
@@ -388,9 +388,10 @@ impl Pipeline {
         Ok(found)
     }
 
-    /// The photometric judge ([`flowfilter_photometric::judge`]) on the registration's answer: when a turned
-    /// candidate agrees clearly better with the target image, the flow is tracked again from it
-    /// and the registration re-run; that result replaces the answer when it agrees better.
+    /// The photometric judge ([`flowfilter_photometric::judge`]) on the registration's answer:
+    /// when a turned candidate agrees clearly better with the target image, the flow is tracked
+    /// again from it and the registration re-run; that result replaces the answer when it
+    /// agrees better.
     fn judge(
         &self,
         model: &PreparedFrame,
@@ -517,8 +518,9 @@ impl Pipeline {
         }
     }
 
-    /// The registration's pose refined by the direct alignment ([`flowfilter_photometric::align()`]), when it is
-    /// enabled and the images can be aligned; its error bounds widened by the alignment's move.
+    /// The registration's pose refined by the direct alignment
+    /// ([`flowfilter_photometric::align()`]), when it is enabled and the images can be aligned;
+    /// its error bounds widened by the alignment's move.
     fn aligned(
         &self,
         model: &PreparedFrame,
