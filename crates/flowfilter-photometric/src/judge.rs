@@ -12,6 +12,7 @@
 //! than the answer, the flow is tracked again from it and the registration re-run; the result
 //! replaces the answer if its own photometric score is the better one.
 
+use crate::gate::JudgeGate;
 use crate::texture::{ObjectSample, Texture, object_samples};
 use crate::turns::{TurnCandidate, TurnHypotheses, TurnSweepConfig};
 use crate::view::ImageView;
@@ -24,6 +25,8 @@ use serde::{Deserialize, Serialize};
 pub struct JudgeConfig {
     /// Run the judge after methods that use flow correspondences.
     pub enabled: bool,
+    /// When the judge is skipped: the flow settled on a small answer ([`crate::gate`]).
+    pub gate: JudgeGate,
     /// The candidate sweep.
     pub sweep: TurnSweepConfig,
     /// The fine sweep around the best coarse candidate: step (degrees).
@@ -69,6 +72,7 @@ impl Default for JudgeConfig {
     fn default() -> Self {
         Self {
             enabled: true,
+            gate: JudgeGate::default(),
             sweep: TurnSweepConfig::default(),
             fine_step_deg: 1.0,
             fine_reach_deg: 4.0,
@@ -104,6 +108,7 @@ impl JudgeConfig {
         params::non_negative("ambiguity_min_turn_deg", self.ambiguity_min_turn_deg)?;
         params::count_positive("candidate_pixels", self.candidate_pixels)?;
         params::count_positive("candidate_iterations", self.candidate_iterations)?;
+        self.gate.validate().map_err(|e| e.within("gate"))?;
         self.sweep.validate().map_err(|e| e.within("sweep"))
     }
 }

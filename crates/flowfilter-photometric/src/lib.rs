@@ -4,6 +4,7 @@
 //!   object's rectangle, so that shading and exposure do not count;
 //! - [`turns`]: the poses the clouds allow beside the registration's answer (turns about the
 //!   model's axes), for motions the flow could not follow;
+//! - [`gate`]: whether the judge is needed at all (the flow split, or a large motion);
 //! - [`judge`]: those poses scored against the target image ([`photometric_score`], [`sweep`])
 //!   and the ambiguity they leave;
 //! - [`align()`]: direct RGB-D image alignment of the final pose, with a rolling shutter's row
@@ -15,12 +16,14 @@
 #![warn(missing_docs)]
 
 pub mod align;
+pub mod gate;
 pub mod judge;
 pub mod texture;
 pub mod turns;
 mod view;
 
 pub use align::{AlignConfig, AlignReport, Aligner, Alignment, Scales, align};
+pub use gate::{JudgeGate, evidence_settled};
 pub use judge::{JudgeConfig, JudgeReport, Sweep, Textures, ambiguity, photometric_score, sweep};
 pub use texture::{Texture, high_pass};
 pub use turns::{TurnAxis, TurnCandidate, TurnHypotheses, TurnSweepConfig};

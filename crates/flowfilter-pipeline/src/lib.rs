@@ -42,7 +42,9 @@ pub use estimate::{
     CorrespondenceSummary, ESTIMATE_SCHEMA, Estimate, GroundTruth, REGISTER_SCHEMA, RegisterReport, RegisterTimes,
     RegistrationSummary, StageTimes, matrix_rows,
 };
-pub use flowfilter_photometric::{AlignConfig, AlignReport, ImageView, JudgeConfig, JudgeReport, align, judge};
+pub use flowfilter_photometric::{
+    AlignConfig, AlignReport, ImageView, JudgeConfig, JudgeGate, JudgeReport, align, judge,
+};
 pub use frame::{ImagesError, RgbdFrame, load_bigbird_frame};
 pub use pipeline::Pipeline;
 pub use source::{FrameFiles, MaskSource};

@@ -11,6 +11,7 @@ use crate::wide::CoarseView;
 use flowfilter_flow::correspondences::FlowPairs;
 use flowfilter_geometry::Pose;
 use flowfilter_photometric::align::{self, AlignConfig, AlignReport, Alignment};
+use flowfilter_photometric::gate::evidence_settled;
 use flowfilter_photometric::judge::{self, JudgeReport};
 use flowfilter_photometric::{TurnCandidate, TurnHypotheses};
 use flowfilter_registration::{Registrar, Registration, RegistrationProblem, registrar_by_name};
@@ -401,6 +402,12 @@ impl Pipeline {
     ) -> Result<(Registration, Option<Judged>), PipelineError> {
         let cfg = &self.config.judge;
         let Some(finder) = self.finder().filter(|_| cfg.enabled) else { return Ok((reg, None)) };
+        // Skipped when the flow settled on a small answer: every candidate would contradict it.
+        let settled =
+            problem.correspondences.as_ref().is_some_and(|plain| evidence_settled(plain, &reg.transform, &cfg.gate));
+        if settled {
+            return Ok((reg, None));
+        }
         let Some(hypotheses) = TurnHypotheses::new(problem, reg.transform, &cfg.sweep) else { return Ok((reg, None)) };
         let images = judge::Textures::new(&model.image_view(), &target.image_view(), cfg);
         let answer_score = judge::photometric_score(&images, &reg.transform, cfg);

@@ -4,7 +4,7 @@ mod common;
 
 use common::{frame, truth};
 use flowfilter_eval::PoseErrors;
-use flowfilter_pipeline::{JudgeConfig, Pipeline, PipelineConfig};
+use flowfilter_pipeline::{JudgeConfig, JudgeGate, Pipeline, PipelineConfig};
 use flowfilter_synth::{Rig, Scene, procedural};
 
 fn pipeline(judge: bool) -> Pipeline {
@@ -51,6 +51,31 @@ fn the_judge_keeps_an_answer_the_flow_followed() {
     let report = with.judge.as_ref().expect("the judge ran");
     assert!(!report.replaced, "{report:?}");
     assert_eq!(with.pose, without.pose);
+}
+
+/// The judge's gate: a box turned 3 degrees, whose flow agrees with the answer on hundreds of
+/// pairs, is not judged (nothing is left to decide) and keeps the pose the judge would have
+/// kept; turned 15 degrees it is judged; with the gate off, both are.
+#[test]
+fn the_judge_runs_only_where_the_evidence_is_split() {
+    let (rig, scene) = (Rig::bigbird_like(), common::box_scene());
+    let gated = pipeline(true);
+    let always = Pipeline::from_config(PipelineConfig {
+        judge: JudgeConfig { gate: JudgeGate { enabled: false, ..JudgeGate::default() }, ..JudgeConfig::default() },
+        ..PipelineConfig::default()
+    })
+    .unwrap();
+    let (a, small, large) = (frame(&scene, &rig, 3, 0), frame(&scene, &rig, 3, 3), frame(&scene, &rig, 3, 15));
+    let skipped = gated.estimate(&a, &small).unwrap();
+    assert!(skipped.judge.is_none(), "{:?}", skipped.judge);
+    assert!(skipped.stage_ms.judge < 1.0, "{:?}", skipped.stage_ms);
+    let judged = always.estimate(&a, &small).unwrap();
+    let report = judged.judge.as_ref().expect("the judge ran with the gate off");
+    assert!(!report.replaced, "{report:?}");
+    assert_eq!(skipped.pose, judged.pose);
+    let errors = PoseErrors::new(&skipped.pose, &truth(&rig, 3, 0, 3), None);
+    assert!(errors.angle_error_deg < 0.5, "{errors:?}");
+    assert!(gated.estimate(&a, &large).unwrap().judge.is_some(), "a 15-degree answer is judged");
 }
 
 /// The textured can turned 30 degrees seen from the top camera: the lid fills the view and the
