@@ -45,6 +45,10 @@ pub struct FlowStageConfig {
     /// clouds) and keep whichever set of pairs agrees on a rigid motion more widely: reaches
     /// displacements the pyramid alone cannot bridge.
     pub guided: bool,
+    /// The guided pass is skipped when the plain pairs agree on one rigid motion (`[flow.wide]
+    /// settled_*`) that turns less than this (degrees): a small motion the pyramid followed,
+    /// not one beyond its reach. 0 runs it on every pair.
+    pub unguided_below_deg: f64,
     /// Lucas-Kanade parameters (default: a 9-pixel window, otherwise the tracker's defaults).
     pub lk: LucasKanade,
     /// Dense inverse search parameters (default: the medium preset with central-difference
@@ -134,6 +138,7 @@ impl Default for FlowStageConfig {
         Self {
             estimator: "lk".into(),
             guided: true,
+            unguided_below_deg: 10.0,
             // A 9-pixel window (see `LucasKanade::turntable`). A `[flow.lk]` table's omitted
             // keys take the tracker's own defaults.
             lk: LucasKanade::turntable(),
@@ -241,6 +246,9 @@ impl PipelineConfig {
         self.depth.validate().map_err(|e| format!("table [depth]: {e}"))?;
         if !(self.cloud.voxel_m >= 0.0 && self.cloud.voxel_m.is_finite()) {
             return Err(format!("key 'cloud.voxel_m' must be >= 0, found {}", self.cloud.voxel_m));
+        }
+        if !(self.flow.unguided_below_deg >= 0.0 && self.flow.unguided_below_deg.is_finite()) {
+            return Err(format!("key 'flow.unguided_below_deg' must be >= 0, found {}", self.flow.unguided_below_deg));
         }
         self.flow.lk.validate().map_err(|e| format!("table [flow.lk]: {e}"))?;
         self.flow.dis.validate().map_err(|e| format!("table [flow.dis]: {e}"))?;

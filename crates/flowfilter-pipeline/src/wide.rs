@@ -56,21 +56,18 @@ pub(crate) fn search_level((w, h): (usize, usize), cfg: &WideBaselineConfig) -> 
     level
 }
 
-/// Whether the pyramid's flow pairs already agree on one rigid motion (see
+/// The rigid motion the pyramid's flow pairs already agree on, if they do (see
 /// [`WideBaselineConfig::settled_min_pairs`]): the coarse search is then not needed. The RANSAC
 /// is seeded, so the answer is the same on every run.
-pub(crate) fn settled(pairs: &Correspondences, cfg: &WideBaselineConfig) -> bool {
+pub(crate) fn settled(pairs: &Correspondences, cfg: &WideBaselineConfig) -> Option<Pose> {
     if cfg.settled_min_pairs == 0 {
-        return false;
+        return None;
     }
     let usable = pairs.weights.iter().filter(|w| **w > 0.0).count();
-    let Some((_, inliers)) =
-        ransac_kabsch(pairs, SETTLED_RANSAC_ITERATIONS, cfg.settled_distance_m, cfg.settled_min_pairs, 0)
-    else {
-        return false;
-    };
+    let (pose, inliers) =
+        ransac_kabsch(pairs, SETTLED_RANSAC_ITERATIONS, cfg.settled_distance_m, cfg.settled_min_pairs, 0)?;
     let agreeing = inliers.iter().filter(|b| **b).count();
-    agreeing >= cfg.settled_min_pairs && agreeing as f64 >= cfg.settled_fraction * usable as f64
+    (agreeing >= cfg.settled_min_pairs && agreeing as f64 >= cfg.settled_fraction * usable as f64).then_some(pose)
 }
 
 /// RANSAC hypotheses of [`settled`].
@@ -218,11 +215,11 @@ mod tests {
     fn the_search_is_skipped_only_when_the_pyramids_flow_agrees() {
         let cfg = WideBaselineConfig::default();
         // 60 pairs on one motion, 20 scattered: settled.
-        assert!(settled(&pairs(60, 20), &cfg));
+        assert!(settled(&pairs(60, 20), &cfg).is_some());
         // Too few agree (20 < 30), or too small a share (50 of 100): split, the search runs.
-        assert!(!settled(&pairs(20, 0), &cfg));
-        assert!(!settled(&pairs(50, 50), &cfg));
+        assert!(settled(&pairs(20, 0), &cfg).is_none());
+        assert!(settled(&pairs(50, 50), &cfg).is_none());
         // 0 pairs asks for the search on every pair.
-        assert!(!settled(&pairs(60, 0), &WideBaselineConfig { settled_min_pairs: 0, ..cfg }));
+        assert!(settled(&pairs(60, 0), &WideBaselineConfig { settled_min_pairs: 0, ..cfg }).is_none());
     }
 }

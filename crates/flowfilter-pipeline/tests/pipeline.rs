@@ -125,3 +125,30 @@ fn the_fast_preset_recovers_turntable_steps() {
         assert!(!e.correspondences.expect("flow ran").guided, "one flow pass");
     }
 }
+
+/// The guided pass runs only where the pyramid's own pairs leave the motion open: a box turned
+/// 3 degrees is followed by the plain pass alone, a box turned 30 degrees gets the guided pass
+/// too, and `[flow] unguided_below_deg = 0` guides every pair. Both ways the small turn is found.
+#[test]
+fn the_guided_pass_is_skipped_where_the_plain_flow_settled_on_a_small_motion() {
+    let (rig, scene) = (Rig::bigbird_like(), box_scene());
+    let sources = |p: &Pipeline, angle: u32| {
+        let (a, b) =
+            (p.prepare(&frame(&scene, &rig, 3, 0)).unwrap(), p.prepare(&frame(&scene, &rig, 3, angle)).unwrap());
+        let (estimate, trace) = p.estimate_traced(&a, &b).unwrap();
+        let errors = PoseErrors::new(&estimate.pose, &truth(&rig, 3, 0, angle), None);
+        (trace.sets.iter().map(|s| s.source).collect::<Vec<_>>(), errors)
+    };
+    let default = pipeline("flowfilter");
+    let (small, errors) = sources(&default, 3);
+    assert_eq!(small, ["plain"]);
+    assert!(errors.angle_error_deg < 0.5, "{errors:?}");
+    let (large, _) = sources(&default, 30);
+    assert!(large.contains(&"guided"), "{large:?}");
+    let mut config = PipelineConfig::default();
+    config.flow.unguided_below_deg = 0.0;
+    let always = Pipeline::from_config(config).unwrap();
+    let (small, errors) = sources(&always, 3);
+    assert_eq!(small, ["plain", "guided"]);
+    assert!(errors.angle_error_deg < 0.5, "{errors:?}");
+}
