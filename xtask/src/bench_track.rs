@@ -47,9 +47,17 @@ pub struct TrackBenchArgs {
     /// Turntable steps of the synthetic loops, degrees.
     #[arg(long, value_delimiter = ',', default_value = "3")]
     pub steps: Vec<u32>,
+    /// Cameras of the synthetic loops (NP1 level with the turntable ... NP5 above it), comma
+    /// separated.
+    #[arg(long, value_delimiter = ',', default_value = "NP3")]
+    pub cameras: Vec<String>,
     /// Pipeline configuration.
     #[arg(long, default_value = "configs/flowfilter.toml")]
     pub pipeline: PathBuf,
+    /// The tracker's settings (TOML: the keys of `flowfilter_track::TrackerConfig`, e.g.
+    /// `predicted_splat_px = 0`); default: its defaults.
+    #[arg(long)]
+    pub tracker: Option<PathBuf>,
     /// Seed of the regions and masks.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -79,6 +87,18 @@ struct StreamResult {
     seconds: f64,
     frames_per_second: f64,
     errors: Option<TrajectoryErrors>,
+    /// Each frame's state and error against the truth, in stream order.
+    per_frame: Vec<FrameRow>,
+}
+
+/// One frame of a stream's result.
+#[derive(Debug, Clone, Serialize)]
+struct FrameRow {
+    state: TrackState,
+    /// Geodesic rotation error of the pose from the first frame (degrees).
+    rotation_error_deg: f64,
+    /// Its translation error (metres).
+    translation_error_m: f64,
 }
 
 /// A stream: frames (the first with the object's mask, or whole), and each frame's true motion
@@ -97,6 +117,13 @@ struct Stream {
 pub fn run(args: &TrackBenchArgs) -> anyhow::Result<()> {
     let config = PipelineConfig::from_file(&args.pipeline).with_context(|| args.pipeline.display().to_string())?;
     let pipeline = Pipeline::from_config(config.clone()).context("--pipeline")?;
+    let tracker_config = match &args.tracker {
+        Some(path) => {
+            let text = std::fs::read_to_string(path).with_context(|| path.display().to_string())?;
+            toml::from_str::<TrackerConfig>(&text).with_context(|| format!("--tracker {}", path.display()))?
+        }
+        None => TrackerConfig::default(),
+    };
     let started = Instant::now();
     let mut streams: Vec<Stream> = vec![];
     let objects: Vec<String> = match (args.real_only, args.quick) {
@@ -105,8 +132,11 @@ pub fn run(args: &TrackBenchArgs) -> anyhow::Result<()> {
         (false, false) => args.objects.clone(),
     };
     for object in &objects {
-        for &step in &args.steps {
-            streams.push(turntable(object, step, if args.quick { 30 } else { 360 })?);
+        for camera in &args.cameras {
+            let camera = camera.trim().parse::<SensorId>().map_err(|e| anyhow::anyhow!("--cameras: {e}"))?;
+            for &step in &args.steps {
+                streams.push(turntable(object, camera, step, if args.quick { 30 } else { 360 })?);
+            }
         }
     }
     streams.extend(real_streams(args)?);
@@ -120,7 +150,7 @@ pub fn run(args: &TrackBenchArgs) -> anyhow::Result<()> {
     let mut results = vec![];
     for s in &streams {
         println!("{} ({} frames)", s.name, s.frames.len());
-        for r in [track(Pipeline::from_config(config.clone())?, s), chain(&pipeline, s)] {
+        for r in [track(Pipeline::from_config(config.clone())?, &tracker_config, s), chain(&pipeline, s)] {
             use std::io::Write as _;
             writeln!(partial, "{}", serde_json::to_string(&r)?)?;
             println!("  {}", summary_row(&r));
@@ -137,10 +167,10 @@ pub fn run(args: &TrackBenchArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// A synthetic loop: the object on the turntable, NP3, from 0 to `span` degrees at `step`.
-fn turntable(object: &str, step: u32, span: u32) -> anyhow::Result<Stream> {
+/// A synthetic loop: the object on the turntable seen by `sensor`, from 0 to `span` degrees at
+/// `step`.
+fn turntable(object: &str, sensor: SensorId, step: u32, span: u32) -> anyhow::Result<Stream> {
     let rig = Rig::bigbird_like();
-    let sensor = SensorId::new(3).expect("NP3");
     let scene = Scene::new(procedural(object, 1)?.placed_on_table(0.01, -0.005), 1);
     let noise = NoiseProfile::carmine();
     let s = &rig.sensors[&sensor];
@@ -167,7 +197,7 @@ fn turntable(object: &str, step: u32, span: u32) -> anyhow::Result<Stream> {
         truth.push(h(a % 360) * h(0).inverse());
     }
     Ok(Stream {
-        name: format!("{object} turntable {span} deg at {step} deg"),
+        name: format!("{object} turntable {span} deg at {step} deg, {sensor}"),
         kind: "synthetic loop",
         frames,
         masked,
@@ -303,11 +333,11 @@ fn region_stream(
 }
 
 /// The tracker over the stream.
-fn track(pipeline: Pipeline, s: &Stream) -> StreamResult {
+fn track(pipeline: Pipeline, config: &TrackerConfig, s: &Stream) -> StreamResult {
     let t0 = Instant::now();
     let mut poses = vec![Pose::identity()];
     let mut states = vec![TrackState::Tracking];
-    match Tracker::new(pipeline, TrackerConfig::default(), &s.frames[0]) {
+    match Tracker::new(pipeline, config.clone(), &s.frames[0]) {
         Ok(mut tracker) => {
             for f in &s.frames[1..] {
                 let r = tracker.update(Ok(f.clone()));
@@ -366,6 +396,19 @@ fn result(s: &Stream, method: &'static str, poses: &[Pose], states: &[TrackState
         seconds,
         frames_per_second: poses.len() as f64 / seconds.max(1e-9),
         errors: trajectory_errors(poses, &s.truth),
+        per_frame: poses
+            .iter()
+            .zip(&s.truth)
+            .zip(states)
+            .map(|((pose, truth), &state)| {
+                let error = pose * truth.inverse();
+                FrameRow {
+                    state,
+                    rotation_error_deg: error.rotation.angle().to_degrees(),
+                    translation_error_m: (pose.translation.vector - truth.translation.vector).norm(),
+                }
+            })
+            .collect(),
     }
 }
 

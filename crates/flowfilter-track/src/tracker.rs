@@ -26,6 +26,11 @@ pub struct TrackerConfig {
     pub depth_tolerance_m: f64,
     /// A carried mask smaller than this (pixels) means the object left the view or is hidden.
     pub min_mask_px: usize,
+    /// The predicted mask (the previous frame's carried by the constant-velocity motion, each
+    /// moved point covering this many pixels around it) the new frame is first estimated with,
+    /// so that its cloud is the object's and no mask is propagated; without a converged
+    /// estimate the frame is estimated again unmasked. 0: always unmasked.
+    pub predicted_splat_px: usize,
     /// Consecutive uncertain frames after which the track is lost.
     pub max_uncertain: usize,
     /// After a loss, the keyframes tried per frame (nearest to the last pose first): a lost
@@ -45,6 +50,7 @@ impl Default for TrackerConfig {
             splat_px: 2,
             depth_tolerance_m: 0.03,
             min_mask_px: 300,
+            predicted_splat_px: 4,
             max_uncertain: 3,
             recovery_tries: 3,
             trace: false,
@@ -304,21 +310,60 @@ impl Tracker {
         self.pipeline.prepare(frame).map_err(|e| e.to_string())
     }
 
-    /// The frame estimated against its candidates, its state decided, the keyframes updated.
+    /// The frame estimated against its candidates, its state decided, the keyframes updated:
+    /// first with the predicted mask, then (without a converged estimate there) unmasked.
     fn track(&mut self, index: usize, target: PreparedFrame) -> TrackedFrame {
+        if let Some(predicted) = self.predicted_target(&target)
+            && let Some((reference, e, reference_pose, pair)) = self.converged_with(&predicted)
+        {
+            let mut r = self.accept(index, target, reference, e, reference_pose);
+            r.traced = pair;
+            return r;
+        }
+        self.track_unmasked(index, target)
+    }
+
+    /// The new frame with the object's mask predicted from the previous frame by the
+    /// constant-velocity motion ([`TrackerConfig::predicted_splat_px`]); `None` for whole
+    /// frames, after a loss, and when the predicted mask is too small.
+    fn predicted_target(&self, target: &PreparedFrame) -> Option<PreparedFrame> {
+        let splat = self.config.predicted_splat_px;
+        let previous = self.previous.as_ref().filter(|_| self.object && !self.lost && splat > 0)?;
+        let mask = carry_mask(&previous.frame, &self.velocity, target, splat, self.config.depth_tolerance_m);
+        (area(&mask) >= self.config.min_mask_px).then(|| target.with_mask(mask))
+    }
+
+    /// The first converged estimate of `target` against the candidates, if any.
+    fn converged_with(&self, target: &PreparedFrame) -> Option<(usize, Estimate, Pose, Option<Box<TracedPair>>)> {
+        self.candidates().into_iter().find_map(|(reference, model, reference_pose)| {
+            let (e, pair) = self.estimated(model, target).ok()?;
+            e.registration.converged.then_some((reference, e, reference_pose, pair))
+        })
+    }
+
+    /// One estimate, with its trace when [`TrackerConfig::trace`] is set.
+    fn estimated(
+        &self,
+        model: &PreparedFrame,
+        target: &PreparedFrame,
+    ) -> Result<(Estimate, Option<Box<TracedPair>>), PipelineError> {
+        if self.config.trace {
+            self.pipeline.estimate_traced(model, target).map(|(e, trace)| {
+                let pair = TracedPair { model: model.clone(), target: target.clone(), trace };
+                (e, Some(Box::new(pair)))
+            })
+        } else {
+            self.pipeline.estimate_prepared(model, target).map(|e| (e, None))
+        }
+    }
+
+    /// [`Tracker::track`] on the unmasked frame (the pipeline propagates the reference's mask).
+    fn track_unmasked(&mut self, index: usize, target: PreparedFrame) -> TrackedFrame {
         let mut doubtful: Option<(usize, Estimate, Pose)> = None;
         let mut failure: Option<String> = None;
         let mut traced: Option<Box<TracedPair>> = None;
         for (reference, model, reference_pose) in self.candidates() {
-            let estimated = if self.config.trace {
-                self.pipeline.estimate_traced(model, &target).map(|(e, trace)| {
-                    let pair = TracedPair { model: model.clone(), target: target.clone(), trace };
-                    (e, Some(Box::new(pair)))
-                })
-            } else {
-                self.pipeline.estimate_prepared(model, &target).map(|e| (e, None))
-            };
-            match estimated {
+            match self.estimated(model, &target) {
                 Ok((e, pair)) if e.registration.converged => {
                     let mut r = self.accept(index, target, reference, e, reference_pose);
                     r.traced = pair;

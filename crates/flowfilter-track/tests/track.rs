@@ -62,6 +62,33 @@ fn an_object_is_tracked_from_its_first_mask_with_keyframes() {
     assert!(k.len() >= 3 && k[0] == 0, "keyframes {k:?}");
 }
 
+/// Each new frame is estimated with the mask predicted by the constant-velocity motion: no mask is propagated by the pipeline (no `mask_propagated`), the
+/// frame costs less, and the poses are those of the unmasked path to within 0.3 degrees.
+#[test]
+fn the_predicted_mask_replaces_the_propagated_one() {
+    let stream = Stream::new();
+    let pipeline = || Pipeline::from_config(PipelineConfig::default()).unwrap();
+    let first = stream.frame(0, true);
+    let mut predicted = Tracker::new(pipeline(), TrackerConfig::default(), &first).unwrap();
+    let unmasked_config = TrackerConfig { predicted_splat_px: 0, ..TrackerConfig::default() };
+    let mut unmasked = Tracker::new(pipeline(), unmasked_config, &first).unwrap();
+    let propagated = |r: &flowfilter_track::TrackedFrame| {
+        r.estimate.as_ref().is_some_and(|e| e.warnings.iter().any(|w| w.code() == "mask_propagated"))
+    };
+    for angle in (3..=15).step_by(3) {
+        let (a, b) =
+            (predicted.update(Ok(stream.frame(angle, false))), unmasked.update(Ok(stream.frame(angle, false))));
+        assert_eq!(a.state, TrackState::Tracking, "{angle} deg: {:?}", a.reason);
+        assert!(propagated(&b), "{angle} deg: the unmasked path propagates the mask");
+        // The second frame's prediction is the first frame's mask where it was (no motion yet).
+        assert!(!propagated(&a), "{angle} deg: the predicted mask is used");
+        let apart = (a.pose * b.pose.inverse()).rotation.angle().to_degrees();
+        assert!(apart < 0.3, "{angle} deg: {apart} deg between the two paths");
+        let error = (a.pose * stream.truth(angle).inverse()).rotation.angle().to_degrees();
+        assert!(error < 1.0, "{angle} deg: {error} deg off");
+    }
+}
+
 #[test]
 fn a_bad_stream_gives_a_state_and_a_reason_per_frame_and_recovers() {
     let stream = Stream::new();
