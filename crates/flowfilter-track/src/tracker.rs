@@ -333,12 +333,14 @@ impl Tracker {
         (area(&mask) >= self.config.min_mask_px).then(|| target.with_mask(mask))
     }
 
-    /// The first converged estimate of `target` against the candidates, if any.
+    /// The estimate of `target` against the first candidate (the keyframe nearest to the
+    /// predicted pose), if it converged. The others are left to the unmasked pass, so that a
+    /// nearest keyframe the predicted mask does not fit (an old view coming back, where the
+    /// drift has moved the prediction) is tried there before any other.
     fn converged_with(&self, target: &PreparedFrame) -> Option<(usize, Estimate, Pose, Option<Box<TracedPair>>)> {
-        self.candidates().into_iter().find_map(|(reference, model, reference_pose)| {
-            let (e, pair) = self.estimated(model, target).ok()?;
-            e.registration.converged.then_some((reference, e, reference_pose, pair))
-        })
+        let (reference, model, reference_pose) = self.candidates().into_iter().next()?;
+        let (e, pair) = self.estimated(model, target).ok()?;
+        e.registration.converged.then_some((reference, e, reference_pose, pair))
     }
 
     /// One estimate, with its trace when [`TrackerConfig::trace`] is set.

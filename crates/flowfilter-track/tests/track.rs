@@ -62,8 +62,9 @@ fn an_object_is_tracked_from_its_first_mask_with_keyframes() {
     assert!(k.len() >= 3 && k[0] == 0, "keyframes {k:?}");
 }
 
-/// Each new frame is estimated with the mask predicted by the constant-velocity motion: no mask is propagated by the pipeline (no `mask_propagated`), the
-/// frame costs less, and the poses are those of the unmasked path to within 0.3 degrees.
+/// Each new frame is estimated with the mask predicted by the constant-velocity motion: no
+/// mask is propagated by the pipeline (no `mask_propagated`), and the poses are those of the
+/// unmasked path to within 0.3 degrees.
 #[test]
 fn the_predicted_mask_replaces_the_propagated_one() {
     let stream = Stream::new();
