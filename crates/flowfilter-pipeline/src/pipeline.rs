@@ -660,7 +660,6 @@ fn moved_to(mut reg: Registration, pose: Pose) -> Registration {
     reg
 }
 
-/// A search's counts.
 /// Whether the plain pass followed a small motion: its pairs settled on one rigid motion turning
 /// less than `below_deg`, and at least [`FOLLOWED_FRACTION`] of the pixels it tracked survived
 /// its consistency checks (a pyramid that lost most of them can agree on a wrong motion: a
@@ -673,6 +672,7 @@ fn followed_small_motion(plain: &FlowPairs, settled: Option<&Pose>, below_deg: f
 /// See [`followed_small_motion`].
 const FOLLOWED_FRACTION: f64 = 0.5;
 
+/// A search's counts.
 fn search_counts(s: &FlowPairs) -> SearchCounts {
     (s.tracked, s.pairs.len(), s.pairs.usable())
 }

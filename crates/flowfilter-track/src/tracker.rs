@@ -27,9 +27,10 @@ pub struct TrackerConfig {
     /// A carried mask smaller than this (pixels) means the object left the view or is hidden.
     pub min_mask_px: usize,
     /// The predicted mask (the previous frame's carried by the constant-velocity motion, each
-    /// moved point covering this many pixels around it) the new frame is first estimated with,
-    /// so that its cloud is the object's and no mask is propagated; without a converged
-    /// estimate the frame is estimated again unmasked. 0: always unmasked.
+    /// moved point covering this many pixels around it) the new frame is first estimated with
+    /// against the nearest keyframe, so that its cloud is the object's and no mask is
+    /// propagated; when that estimate does not converge, the frame is estimated again unmasked
+    /// against every candidate. 0: always unmasked.
     pub predicted_splat_px: usize,
     /// Consecutive uncertain frames after which the track is lost.
     pub max_uncertain: usize,
