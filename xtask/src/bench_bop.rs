@@ -373,11 +373,7 @@ mod real_frames {
     /// label masks, the frames' own `-gt.json` as camera and ground truth, object names from it.
     #[test]
     fn ycb_video_frames_run_as_a_sequence() {
-        let data = crate::repo_root().join("../shared/data/ycb-video/0001");
-        if !data.is_dir() {
-            eprintln!("skipping: {} is absent (the shared data sits beside the repository)", data.display());
-            return;
-        }
+        let Some(data) = crate::shared_or_skip("data/ycb-video/0001") else { return };
         let tmp = tempfile::tempdir().unwrap();
         let args = BopBenchArgs {
             data: Some(data),

@@ -372,13 +372,7 @@ mod tests {
     /// The shared RealSense shelf sequence, or `None` (with a message) when the shared data is
     /// absent.
     fn shelf(name: &str) -> Option<PathBuf> {
-        let dir = crate::repo_root().join("../shared/data/realsense-shelf").join(name);
-        if dir.is_dir() {
-            Some(dir)
-        } else {
-            eprintln!("skipping: {} is absent (the shared data sits beside the repository)", dir.display());
-            None
-        }
+        crate::shared_or_skip(&format!("data/realsense-shelf/{name}"))
     }
 
     fn args(data: PathBuf, out: PathBuf) -> RealBenchArgs {

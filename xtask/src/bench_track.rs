@@ -16,6 +16,7 @@ use anyhow::Context;
 use clap::Args;
 use flowfilter_bigbird::SensorId;
 use flowfilter_eval::trajectory::{TrajectoryErrors, trajectory_errors};
+use flowfilter_eval::{geodesic_error_deg, translation_error_m};
 use flowfilter_pipeline::{Pipeline, PipelineConfig, Pose, RgbdFrame};
 use flowfilter_synth::{NetworkMaskModel, NoiseProfile, Rig, Scene, procedural, render_frame, world_from_table};
 use flowfilter_track::{TrackState, Tracker, TrackerConfig};
@@ -400,13 +401,10 @@ fn result(s: &Stream, method: &'static str, poses: &[Pose], states: &[TrackState
             .iter()
             .zip(&s.truth)
             .zip(states)
-            .map(|((pose, truth), &state)| {
-                let error = pose * truth.inverse();
-                FrameRow {
-                    state,
-                    rotation_error_deg: error.rotation.angle().to_degrees(),
-                    translation_error_m: (pose.translation.vector - truth.translation.vector).norm(),
-                }
+            .map(|((pose, truth), &state)| FrameRow {
+                state,
+                rotation_error_deg: geodesic_error_deg(pose, truth),
+                translation_error_m: translation_error_m(pose, truth),
             })
             .collect(),
     }
@@ -460,11 +458,7 @@ mod tests {
     /// the annotation's motion as the truth.
     #[test]
     fn ycb_video_objects_are_streams_from_their_first_mask() {
-        let dir = crate::repo_root().join("../shared/data/ycb-video/0001");
-        if !dir.is_dir() {
-            eprintln!("skipping: {} is absent (the real-frame tests need ../shared)", dir.display());
-            return;
-        }
+        let Some(dir) = crate::shared_or_skip("data/ycb-video/0001") else { return };
         let streams = ycb_video_streams(&dir).unwrap();
         assert!(streams.len() >= 3, "{}", streams.len());
         for s in &streams {

@@ -87,6 +87,19 @@ pub(crate) fn repo_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
+/// `../shared/<path>` beside the repository, or `None` with a message when it is absent: the
+/// tests that need the shared data skip without it.
+#[cfg(test)]
+pub(crate) fn shared_or_skip(path: &str) -> Option<PathBuf> {
+    let dir = repo_root().join("../shared").join(path);
+    if dir.exists() {
+        Some(dir)
+    } else {
+        eprintln!("skipping: {} is absent (the shared data sits beside the repository)", dir.display());
+        None
+    }
+}
+
 /// `path` as given when absolute, else under the repository root: what a protocol or a
 /// `--pipeline` option names, and where the embedded datasets are cached, whatever the working
 /// directory (`cargo test -p xtask` runs in `xtask/`).

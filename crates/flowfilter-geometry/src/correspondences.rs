@@ -1,7 +1,7 @@
 //! [`Correspondences`]: weighted 3-D/3-D point pairs, the one pair type every stage speaks
 //! (optical flow produces them, registration consumes them).
 
-use crate::Point3;
+use crate::{Point3, Pose};
 use thiserror::Error;
 
 /// Why a set of correspondences cannot be used.
@@ -37,6 +37,9 @@ pub enum CorrespondenceError {
 /// };
 /// assert_eq!(c.len(), 1);
 /// assert_eq!(c.usable(), 1);
+/// // The pair agrees with a 1 cm shift along x, not with no motion (within 1 mm).
+/// assert_eq!(c.agreeing(&flowfilter_geometry::Pose::translation(0.01, 0.0, 0.0), 0.001), 1);
+/// assert_eq!(c.agreeing(&flowfilter_geometry::Pose::identity(), 0.001), 0);
 /// c.validate().unwrap();
 /// ```
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -63,6 +66,17 @@ impl Correspondences {
     /// Number of pairs with a positive weight.
     pub fn usable(&self) -> usize {
         self.weights.iter().filter(|w| **w > 0.0).count()
+    }
+
+    /// Whether pair `i` is usable and `pose` moves its source point to within `within_m` of
+    /// its target point.
+    pub fn agrees(&self, i: usize, pose: &Pose, within_m: f64) -> bool {
+        self.weights[i] > 0.0 && (pose * self.source[i] - self.target[i]).norm() <= within_m
+    }
+
+    /// Number of pairs that [agree](Correspondences::agrees) with `pose` within `within_m`.
+    pub fn agreeing(&self, pose: &Pose, within_m: f64) -> usize {
+        (0..self.len()).filter(|&i| self.agrees(i, pose, within_m)).count()
     }
 
     /// Check lengths, finiteness and weights.

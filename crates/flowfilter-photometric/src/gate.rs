@@ -71,11 +71,8 @@ pub fn evidence_settled(pairs: &Correspondences, answer: &Pose, gate: &JudgeGate
     if !gate.enabled || answer.rotation.angle().to_degrees() >= gate.max_turn_deg {
         return false;
     }
-    let usable = pairs.usable();
-    let agreeing = (0..pairs.len())
-        .filter(|&i| pairs.weights[i] > 0.0 && (answer * pairs.source[i] - pairs.target[i]).norm() <= gate.distance_m)
-        .count();
-    agreeing >= gate.min_pairs && agreeing as f64 >= gate.fraction * usable as f64
+    let agreeing = pairs.agreeing(answer, gate.distance_m);
+    agreeing >= gate.min_pairs && agreeing as f64 >= gate.fraction * pairs.usable() as f64
 }
 
 #[cfg(test)]

@@ -358,7 +358,9 @@ impl Pipeline {
         // the pyramid's reach (its flow split): one more candidate set for the registration's
         // RANSAC.
         let wide = &self.config.flow.wide;
-        let settled = crate::wide::settled(&sets[0].pairs, wide);
+        // Whether the plain pairs already agree: read by the search and the guided pass alone.
+        let settled =
+            (wide.enabled || self.config.flow.guided).then(|| crate::wide::settled(&sets[0].pairs, wide)).flatten();
         let searched;
         let view = match coarse {
             _ if !wide.enabled || settled.is_some() => None,

@@ -50,6 +50,6 @@ impl PairTrace {
     /// Whether pair `i` of `pairs` agrees with `pose` (within [`PairTrace::inlier_distance_m`];
     /// pairs of weight 0 never do).
     pub fn is_inlier(&self, pairs: &Correspondences, i: usize, pose: &Pose) -> bool {
-        pairs.weights[i] > 0.0 && (pose * pairs.source[i] - pairs.target[i]).norm() <= self.inlier_distance_m
+        pairs.agrees(i, pose, self.inlier_distance_m)
     }
 }

@@ -63,11 +63,11 @@ pub(crate) fn settled(pairs: &Correspondences, cfg: &WideBaselineConfig) -> Opti
     if cfg.settled_min_pairs == 0 {
         return None;
     }
-    let usable = pairs.weights.iter().filter(|w| **w > 0.0).count();
     let (pose, inliers) =
         ransac_kabsch(pairs, SETTLED_RANSAC_ITERATIONS, cfg.settled_distance_m, cfg.settled_min_pairs, 0)?;
     let agreeing = inliers.iter().filter(|b| **b).count();
-    (agreeing >= cfg.settled_min_pairs && agreeing as f64 >= cfg.settled_fraction * usable as f64).then_some(pose)
+    (agreeing >= cfg.settled_min_pairs && agreeing as f64 >= cfg.settled_fraction * pairs.usable() as f64)
+        .then_some(pose)
 }
 
 /// RANSAC hypotheses of [`settled`].

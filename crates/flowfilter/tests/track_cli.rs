@@ -19,6 +19,11 @@ fn shelf() -> Option<PathBuf> {
     }
 }
 
+/// The rows of a `--json` file (one JSON object per line).
+fn json_lines(path: &Path) -> Vec<serde_json::Value> {
+    std::fs::read_to_string(path).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect()
+}
+
 #[test]
 fn a_real_sequence_is_tracked_with_json_lines_and_a_tum_trajectory() {
     let Some(dir) = shelf() else { return };
@@ -46,8 +51,7 @@ fn a_real_sequence_is_tracked_with_json_lines_and_a_tum_trajectory() {
     ]);
     assert!(ok, "{stderr}");
     assert!(stdout.contains("5 frames: ") && stdout.contains("vs ground truth (5 frames): ATE"), "{stdout}");
-    let rows: Vec<serde_json::Value> =
-        std::fs::read_to_string(&json).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    let rows = json_lines(&json);
     assert_eq!(rows.len(), 5);
     assert_eq!(rows[0]["state"], "tracking");
     assert_eq!(rows[0]["keyframe"], true);
@@ -98,8 +102,7 @@ fn a_missing_depth_file_is_a_lost_frame_not_a_crash() {
         json.to_str().unwrap(),
     ]);
     assert!(ok, "{stderr}");
-    let rows: Vec<serde_json::Value> =
-        std::fs::read_to_string(&json).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    let rows = json_lines(&json);
     assert_eq!(rows.len(), 3, "{stdout}");
     assert_eq!(rows[1]["state"], "lost");
     assert!(rows[1]["reason"].as_str().unwrap().contains("frame-000001.depth.png"), "{}", rows[1]);
@@ -162,8 +165,7 @@ fn an_image_list_with_a_box_around_the_object() {
         tum.to_str().unwrap(),
     ]);
     assert!(ok, "{stderr}");
-    let rows: Vec<serde_json::Value> =
-        std::fs::read_to_string(&json).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    let rows = json_lines(&json);
     assert_eq!(rows.len(), 3);
     // The box's pixels at the object's depth: a region, not the whole frame.
     let first_px = rows[0]["mask_px"].as_u64().unwrap();
@@ -202,8 +204,7 @@ fn a_bop_scene_object_is_tracked_with_its_annotations_as_the_truth() {
         flowfilter(&["track", "--bop", scene.to_str().unwrap(), "--object", "7", "--json", json.to_str().unwrap()]);
     assert!(ok, "{stderr}");
     assert!(stdout.contains("vs ground truth (3 frames)"), "{stdout}");
-    let rows: Vec<serde_json::Value> =
-        std::fs::read_to_string(&json).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    let rows = json_lines(&json);
     assert_eq!(rows.iter().map(|r| r["frame"].as_u64().unwrap()).collect::<Vec<_>>(), [0, 1, 2]);
     for r in &rows[1..] {
         assert_eq!(r["state"], "tracking", "{r}");
