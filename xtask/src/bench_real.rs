@@ -12,7 +12,7 @@
 //! and the pipeline then propagates the model's: `mask_propagated`).
 
 use crate::pairs::{Methods, PairJob, PairResult, RunArgs};
-use crate::realsense::{PosedFrames, Region, is_posed_folder, network_mask};
+use crate::realsense::{PosedFrames, Region, Truth, TruthRecord, is_posed_folder, network_mask};
 use crate::report::{ReportSpec, ShardRun, write_outputs};
 use crate::shard::Shard;
 use crate::{dir_name, in_repo};
@@ -48,6 +48,11 @@ pub struct RealBenchArgs {
     /// Masks as they are (no network defects): the regions' true masks.
     #[arg(long)]
     pub exact_masks: bool,
+    /// The pairs' truth: the sequences' calibrated camera poses, or the arm's poses with a
+    /// mount fitted to the calibrated ones over every sequence in `--data` (the regions and
+    /// their masks come from the calibrated poses either way).
+    #[arg(long, value_enum, default_value_t = TruthRecord::Calibrated)]
+    pub truth: TruthRecord,
     /// Seed of the regions and of the masks' defects.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -105,12 +110,13 @@ pub fn run(args: &RealBenchArgs) -> anyhow::Result<()> {
     let mut methods = Methods::new(&args.methods, &configs)?;
     methods.record_failures(args.run.rerun.as_deref(), args.run.rerun_limit)?;
     let started = Instant::now();
-    let (all, dirs) = sequence_dirs(args)?;
+    let (all, dirs, every) = sequence_dirs(args)?;
+    let truth = args.truth.truth(&every).map_err(anyhow::Error::msg)?;
     let mut results: Vec<PairResult> = vec![];
     let mut skipped: Vec<(String, String)> = vec![];
     for dir in &dirs {
         let label = dir_name(dir);
-        let seq = match PosedFrames::open(dir) {
+        let seq = match PosedFrames::open_with_truth(dir, &truth) {
             Ok(s) => s,
             Err(e) => {
                 tracing::warn!(sequence = %label, error = %e, "skipping sequence");
@@ -164,20 +170,22 @@ pub fn run(args: &RealBenchArgs) -> anyhow::Result<()> {
             "whole_frames": !args.no_whole,
             "mask_model": mask_model,
             "seed": args.seed,
+            "truth": truth_json(&truth),
             "quick": args.quick,
             "methods": args.methods,
             "pipeline": args.pipeline,
             "voxel": args.run.voxel,
         }),
         protocol_line: format!(
-            "{} sequence(s), gaps {:?}, {} region(s) per pair{}, masks {}, seed {}, pipeline {}",
+            "{} sequence(s), gaps {:?}, {} region(s) per pair{}, masks {}, seed {}, pipeline {}, truth {}",
             all.len(),
             gaps,
             regions,
             if args.no_whole { "" } else { " and the whole frame" },
             if args.exact_masks { "exact" } else { "with a segmentation network's defects" },
             args.seed,
-            args.pipeline.display()
+            args.pipeline.display(),
+            truth_line(&truth)
         ),
         step_label: "frame gap",
         methods: &args.methods,
@@ -214,8 +222,40 @@ fn confidently_wrong(results: &[PairResult], methods: &[String]) -> String {
     out
 }
 
-/// Every sequence (names, in order) and this shard's folders.
-fn sequence_dirs(args: &RealBenchArgs) -> anyhow::Result<(Vec<String>, Vec<PathBuf>)> {
+/// The truth as `results.json` records it: its record and, for the arm's, the fitted mount.
+fn truth_json(truth: &Truth) -> serde_json::Value {
+    match truth {
+        Truth::Calibrated => serde_json::json!({"record": "calibrated"}),
+        Truth::Arm(fit) => serde_json::json!({
+            "record": "arm",
+            "mount": flowfilter_pipeline::matrix_rows(&fit.mount),
+            "mount_turn_deg": fit.mount.rotation.angle().to_degrees(),
+            "motions": fit.pairs,
+            "median_disagreement_deg": fit.median_rotation_deg,
+            "median_disagreement_m": fit.median_translation_m,
+        }),
+    }
+}
+
+/// The truth in the summary's protocol line.
+fn truth_line(truth: &Truth) -> String {
+    match truth {
+        Truth::Calibrated => "calibrated camera poses".into(),
+        Truth::Arm(fit) => format!(
+            "the arm's poses with a fitted mount (turned {:.2} deg, shifted {:.1} mm from the nominal; {} motions, \
+             median disagreement with the calibrated poses {:.2} deg, {:.1} mm)",
+            fit.mount.rotation.angle().to_degrees(),
+            fit.mount.translation.vector.norm() * 1e3,
+            fit.pairs,
+            fit.median_rotation_deg,
+            fit.median_translation_m * 1e3
+        ),
+    }
+}
+
+/// Every sequence (names, in order), this shard's folders, and every posed folder in `--data`
+/// (whatever `--sequences` picks: the arm's mount is fitted over all of them).
+fn sequence_dirs(args: &RealBenchArgs) -> anyhow::Result<(Vec<String>, Vec<PathBuf>, Vec<PathBuf>)> {
     let root = in_repo(&args.data);
     if !root.is_dir() {
         bail!(
@@ -238,6 +278,7 @@ fn sequence_dirs(args: &RealBenchArgs) -> anyhow::Result<(Vec<String>, Vec<PathB
     if dirs.is_empty() {
         bail!("{}: no sequence folders (frames with poses.json and camera.json)", root.display());
     }
+    let every = dirs.clone();
     if let Some(wanted) = &args.sequences {
         dirs.retain(|d| wanted.contains(&dir_name(d)));
         if dirs.is_empty() {
@@ -245,7 +286,7 @@ fn sequence_dirs(args: &RealBenchArgs) -> anyhow::Result<(Vec<String>, Vec<PathB
         }
     }
     let all = dirs.iter().map(|d| dir_name(d)).collect();
-    Ok((all, args.run.shard.unwrap_or(Shard::ALL).select(&dirs)))
+    Ok((all, args.run.shard.unwrap_or(Shard::ALL).select(&dirs), every))
 }
 
 /// A seed from a run's seed, a sequence's name and `parts` (FNV-1a: stable across platforms
@@ -366,8 +407,9 @@ fn save_mask(mask: &flowfilter_pipeline::Mask, path: &Path) -> Result<(), String
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::realsense::PosedFrames;
-    use flowfilter_pipeline::PipelineConfig;
+    use crate::realsense::{PosedFrames, fit_arm_mount};
+    use flowfilter_eval::hand_eye::MountFit;
+    use flowfilter_pipeline::{PipelineConfig, Pose};
 
     /// The shared RealSense shelf sequence, or `None` (with a message) when the shared data is
     /// absent.
@@ -383,6 +425,7 @@ mod tests {
             regions: 1,
             no_whole: false,
             exact_masks: false,
+            truth: TruthRecord::Calibrated,
             seed: 0,
             methods: vec!["flowfilter".into()],
             pipeline: PathBuf::from("configs/flowfilter.toml"),
@@ -514,6 +557,86 @@ mod tests {
             "{error} deg off, converged {}, {doubtful:?}",
             e.registration.converged
         );
+    }
+
+    /// The arm's mount fitted on two shelves predicts the two others' calibrated motions about
+    /// as well as their own fit does (one rig, one mount; its turn about the axis the camera
+    /// mostly turns about is loosely determined and changes the motions little), and better
+    /// than the raw arm's poses.
+    #[test]
+    fn the_arm_mount_fitted_on_two_shelves_holds_on_the_others() {
+        let (Some(a), Some(d), Some(g), Some(j)) =
+            (shelf("shelf-A"), shelf("shelf-D"), shelf("shelf-G"), shelf("shelf-J"))
+        else {
+            return;
+        };
+        let fitted = fit_arm_mount(&[a, d]).unwrap();
+        let own = fit_arm_mount(&[g.clone(), j.clone()]).unwrap();
+        assert!((1.0..6.0).contains(&fitted.mount.rotation.angle().to_degrees()), "{fitted:?}");
+        let median_apart = |mount: Option<&flowfilter_eval::hand_eye::MountFit>| {
+            let mut angles = vec![];
+            for dir in [&g, &j] {
+                let calibrated = PosedFrames::open(dir).unwrap();
+                let truth =
+                    mount.map_or(Truth::Arm(MountFit { mount: Pose::identity(), ..fitted }), |m| Truth::Arm(*m));
+                let arm = PosedFrames::open_with_truth(dir, &truth).unwrap();
+                for w in arm.ids().windows(2) {
+                    let (x, y) =
+                        (arm.relative_motion(w[0], w[1]).unwrap(), calibrated.relative_motion(w[0], w[1]).unwrap());
+                    angles.push(flowfilter_eval::geodesic_error_deg(&x, &y));
+                }
+            }
+            flowfilter_eval::mean_median(&angles).unwrap().1
+        };
+        let (held_out, own, raw) = (median_apart(Some(&fitted)), median_apart(Some(&own)), median_apart(None));
+        assert!(held_out < own + 0.15, "mount of A and D {held_out} deg, their own {own} deg");
+        assert!(held_out < raw - 0.2, "mount of A and D {held_out} deg, the raw arm {raw} deg");
+    }
+
+    /// A frame the calibration placed badly: whole frames of shelf-G 4 -> 5 (12 degrees apart),
+    /// where Flow Filter's estimate and the arm's corrected motion agree within a degree and both
+    /// differ from the calibrated motion by over 2.
+    #[test]
+    fn the_arm_truth_and_the_images_agree_where_the_calibration_does_not() {
+        let (Some(data), Some(a), Some(d)) = (shelf("shelf-G"), shelf("shelf-A"), shelf("shelf-D")) else { return };
+        let arm = PosedFrames::open_with_truth(&data, &Truth::Arm(fit_arm_mount(&[a, d]).unwrap())).unwrap();
+        let calibrated = PosedFrames::open(&data).unwrap();
+        let (model, target) = (calibrated.frame(4).unwrap(), calibrated.frame(5).unwrap());
+        let e =
+            flowfilter_pipeline::Pipeline::from_config(default_config()).unwrap().estimate(&model, &target).unwrap();
+        let off =
+            |truth: &PosedFrames| flowfilter_eval::geodesic_error_deg(&e.pose, &truth.relative_motion(4, 5).unwrap());
+        let (to_arm, to_calibrated) = (off(&arm), off(&calibrated));
+        assert!(to_arm < 1.0 && to_calibrated > 2.0, "arm {to_arm} deg, calibrated {to_calibrated} deg");
+    }
+
+    /// Feature matches reach a region the pyramid cannot follow (shelf-A 1 -> 3, 25 degrees,
+    /// the bench's region 4): with `[flow.wide.features]` on, the trace holds their set, and
+    /// nearly all of its pairs agree with the true motion within 1 cm.
+    #[test]
+    fn feature_matches_of_a_region_25_degrees_away_agree_with_the_truth() {
+        let Some(data) = shelf("shelf-A") else { return };
+        let seq = PosedFrames::open(&data).unwrap();
+        let (a, b) = (1u32, 3u32);
+        let (mut model, mut target) = (seq.frame(a).unwrap(), seq.frame(b).unwrap());
+        let region = seq.draw_region((&model, &target), (a, b), seed_of("shelf-A", 0, &[1, 3, 1])).unwrap();
+        let network = NetworkMaskModel::SHELF_NETWORK;
+        let mask = |frame: &RgbdFrame, im: u32, is_model| {
+            let seed = seed_of("shelf-A", 0, &[im.into(), 4, 1]);
+            network_mask(&seq.true_mask(frame, im, &region), &network, seed, is_model)
+        };
+        model.mask = mask(&model, a, true).unwrap();
+        target.mask = mask(&target, b, false).unwrap_or_else(|| target.mask.clone());
+        let mut config = default_config();
+        config.flow.wide.features.enabled = true;
+        let pipeline = flowfilter_pipeline::Pipeline::from_config(config).unwrap();
+        let (pm, pt) = (pipeline.prepare(&model).unwrap(), pipeline.prepare(&target).unwrap());
+        let (_, trace) = pipeline.estimate_traced(&pm, &pt).unwrap();
+        let truth = seq.relative_motion(a, b).unwrap();
+        let sources: Vec<&str> = trace.sets.iter().map(|s| s.source).collect();
+        let features = trace.sets.iter().find(|s| s.source == "features").expect("a feature set");
+        let (usable, right) = (features.pairs.usable(), features.pairs.agreeing(&truth, 0.01));
+        assert!(usable >= 20 && right * 10 >= usable * 8, "{right} of {usable} right; sets {sources:?}");
     }
 
     /// A region's true mask covers the ball's visible surface in both frames of a pair, and its

@@ -10,7 +10,7 @@
 //! over one frame) and the last frame's rotation error (a loop's closure error).
 
 use crate::bench_real::seed_of;
-use crate::realsense::{PosedFrames, is_posed_folder, network_mask};
+use crate::realsense::{PosedFrames, TruthRecord, is_posed_folder, network_mask};
 use crate::sequence::{Sequence, YcbVideoFrames};
 use anyhow::Context;
 use clap::Args;
@@ -59,6 +59,11 @@ pub struct TrackBenchArgs {
     /// `predicted_splat_px = 0`); default: its defaults.
     #[arg(long)]
     pub tracker: Option<PathBuf>,
+    /// The real sequences' truth: their calibrated camera poses, or the arm's poses with a
+    /// mount fitted to the calibrated ones over every sequence in `--data` (as `bench-real
+    /// --truth`).
+    #[arg(long, value_enum, default_value_t = TruthRecord::Calibrated)]
+    pub truth: TruthRecord,
     /// Seed of the regions and masks.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -220,6 +225,7 @@ fn real_streams(args: &TrackBenchArgs) -> anyhow::Result<Vec<Stream>> {
         d.sort();
         d
     };
+    let truth = args.truth.truth(&dirs).map_err(anyhow::Error::msg)?;
     if let Some(names) = &args.sequences {
         dirs.retain(|d| names.iter().any(|n| d.file_name().is_some_and(|f| f == n.as_str())));
     }
@@ -229,7 +235,7 @@ fn real_streams(args: &TrackBenchArgs) -> anyhow::Result<Vec<Stream>> {
     let mut out = vec![];
     for dir in dirs {
         let label = dir.file_name().map_or_else(String::new, |n| n.to_string_lossy().into_owned());
-        let seq = PosedFrames::open(&dir).map_err(anyhow::Error::msg)?;
+        let seq = PosedFrames::open_with_truth(&dir, &truth).map_err(anyhow::Error::msg)?;
         let mut ids = seq.ids();
         if args.quick {
             ids.truncate(4);

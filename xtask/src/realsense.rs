@@ -1,7 +1,14 @@
 //! Folders of RGB-D frames with calibrated camera poses, as `../shared/data/realsense-shelf`
 //! ships them: `frame-NNNNNN.color.png`, `frame-NNNNNN.depth.png` (raw depth of the depth
 //! camera, or depth registered to colour), `camera.json` (this project's camera file) and
-//! `poses.json` (`camera_to_world_calibrated`: frame id -> 4x4 camera-to-world, metres).
+//! `poses.json` (`camera_to_world_calibrated`: frame id -> 4x4 camera-to-world, metres; and
+//! `camera_to_world_robot`, the arm's kinematics with its nominal mount).
+//!
+//! The truth of a pair is the calibrated poses' camera motion ([`Truth::Calibrated`]) or the
+//! arm's corrected by a mount fitted to the calibrated poses of every sequence
+//! ([`Truth::Arm`], [`fit_arm_mount`]): a second truth without the calibration's per-frame
+//! errors. The regions and their masks come from the calibrated poses either way, so the two
+//! truths score the same estimates.
 //!
 //! The scene is static, so any region of it is an "object" with exact truth: a region is a ball
 //! of the scene ([`Region`]), its true mask in a frame the colour pixels its depth points cover
@@ -9,6 +16,7 @@
 //! segmentation network's defects ([`NetworkMaskModel`]), drawn from a seed per frame and
 //! region.
 
+use flowfilter_eval::hand_eye::{MotionPair, MountFit, fit_mount};
 use flowfilter_pipeline::camera::RgbdSensor;
 use flowfilter_pipeline::{CameraFile, FrameFiles, Mask, MaskSource, Point3, Pose, RgbdFrame};
 use flowfilter_synth::{NetworkMaskModel, grown};
@@ -26,12 +34,81 @@ pub struct Region {
     pub radius: f64,
 }
 
+/// Which record of the camera's poses gives a pair's truth.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Truth {
+    /// The calibrated poses (`camera_to_world_calibrated`).
+    Calibrated,
+    /// The arm's poses (`camera_to_world_robot`) with the fitted mount: a pair's motion is
+    /// `X^-1 * inv(A_j) * A_i * X`.
+    Arm(MountFit),
+}
+
+/// The record of camera poses a pair's truth is made of (`--truth` of `bench-real` and
+/// `bench-track`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum TruthRecord {
+    /// `camera_to_world_calibrated`.
+    Calibrated,
+    /// `camera_to_world_robot` with the mount fitted by [`fit_arm_mount`].
+    Arm,
+}
+
+impl TruthRecord {
+    /// The truth of this record; for the arm's, the mount fitted over every folder in `dirs`.
+    ///
+    /// # Errors
+    /// As [`fit_arm_mount`].
+    pub fn truth(self, dirs: &[PathBuf]) -> Result<Truth, String> {
+        match self {
+            Self::Calibrated => Ok(Truth::Calibrated),
+            Self::Arm => fit_arm_mount(dirs).map(Truth::Arm),
+        }
+    }
+}
+
 /// A folder of frames with calibrated camera poses.
 pub struct PosedFrames {
     dir: PathBuf,
     camera: CameraFile,
-    /// Frame id -> camera-to-world.
+    /// Frame id -> camera-to-world (calibrated): where the regions are.
     poses: BTreeMap<u32, Pose>,
+    /// Frame id -> the pose a pair's truth is made of: the calibrated one, or the arm's.
+    truth_poses: BTreeMap<u32, Pose>,
+    /// The mount correcting the arm's poses, for [`Truth::Arm`].
+    mount: Option<Pose>,
+}
+
+/// The camera motions of consecutive frames of `dir` by the arm's poses and by the calibrated
+/// ones.
+///
+/// # Errors
+/// A `poses.json` that cannot be read.
+fn arm_motions(dir: &Path) -> Result<Vec<MotionPair>, String> {
+    let path = dir.join("poses.json");
+    let read = |key| flowfilter_track::tum::read_camera_poses(&path, key).map_err(|e| e.to_string());
+    let (arm, calibrated) = (read(flowfilter_track::tum::ARM)?, read(flowfilter_track::tum::CALIBRATED)?);
+    let both: Vec<u64> = calibrated.keys().copied().filter(|k| arm.contains_key(k)).collect();
+    Ok(both
+        .windows(2)
+        .map(|w| MotionPair {
+            arm: arm[&w[1]].inverse() * arm[&w[0]],
+            reference: calibrated[&w[1]].inverse() * calibrated[&w[0]],
+        })
+        .collect())
+}
+
+/// The mount correction of the arm's poses, fitted to the calibrated poses' consecutive camera
+/// motions of every folder in `dirs` (one rig, one mount).
+///
+/// # Errors
+/// A `poses.json` that cannot be read, or motions that do not determine a mount.
+pub fn fit_arm_mount(dirs: &[PathBuf]) -> Result<MountFit, String> {
+    let mut motions = vec![];
+    for dir in dirs {
+        motions.append(&mut arm_motions(dir)?);
+    }
+    fit_mount(&motions).map_err(|e| format!("fitting the arm's mount over {} sequence(s): {e}", dirs.len()))
 }
 
 /// Whether `dir` holds posed frames (`poses.json` and `camera.json`).
@@ -62,22 +139,39 @@ impl PosedFrames {
     ///
     /// # Errors
     /// A message naming the file and the field.
+    #[cfg(test)]
     pub fn open(dir: &Path) -> Result<Self, String> {
+        Self::open_with_truth(dir, &Truth::Calibrated)
+    }
+
+    /// [`PosedFrames::open`], the pairs' truth taken from `truth`'s record (a frame without
+    /// a pose in it is left out).
+    ///
+    /// # Errors
+    /// As [`PosedFrames::open`].
+    pub fn open_with_truth(dir: &Path, truth: &Truth) -> Result<Self, String> {
         let camera = CameraFile::from_file(&dir.join("camera.json")).map_err(|e| e.to_string())?;
-        let cameras =
-            flowfilter_track::tum::read_calibrated_poses(&dir.join("poses.json")).map_err(|e| e.to_string())?;
+        let path = dir.join("poses.json");
+        let read = |key| flowfilter_track::tum::read_camera_poses(&path, key).map_err(|e| e.to_string());
+        let cameras = read(flowfilter_track::tum::CALIBRATED)?;
+        let (truth_cameras, mount) = match truth {
+            Truth::Calibrated => (cameras.clone(), None),
+            Truth::Arm(fit) => (read(flowfilter_track::tum::ARM)?, Some(fit.mount)),
+        };
         let mut poses = BTreeMap::new();
+        let mut truth_poses = BTreeMap::new();
         for (id, pose) in cameras {
             let im = u32::try_from(id).map_err(|_| format!("{}: frame number {id} is too large", dir.display()))?;
             let frames = Self::files_of(dir, im);
-            if frames.color.is_file() && frames.depth.is_file() {
+            if let Some(t) = truth_cameras.get(&id).filter(|_| frames.color.is_file() && frames.depth.is_file()) {
                 poses.insert(im, pose);
+                truth_poses.insert(im, *t);
             }
         }
         if poses.is_empty() {
             return Err(format!("{}: no posed frame has frame-NNNNNN.color.png and .depth.png", dir.display()));
         }
-        Ok(Self { dir: dir.to_path_buf(), camera, poses })
+        Ok(Self { dir: dir.to_path_buf(), camera, poses, truth_poses, mount })
     }
 
     fn files_of(dir: &Path, im: u32) -> FrameFiles {
@@ -93,13 +187,16 @@ impl PosedFrames {
         self.poses.keys().copied().collect()
     }
 
-    /// The scene's motion in the camera frame from frame `a` to frame `b`: `inv(C_b) * C_a`.
+    /// The scene's motion in the camera frame from frame `a` to frame `b` by the truth's
+    /// record: `inv(C_b) * C_a`, with the arm's poses `X^-1 * inv(A_b) * A_a * X`.
     ///
     /// # Errors
     /// A frame without a pose.
     pub fn relative_motion(&self, a: u32, b: u32) -> Result<Pose, String> {
-        let pose = |i: u32| self.poses.get(&i).ok_or_else(|| format!("{}: no pose of frame {i}", self.dir.display()));
-        Ok(pose(b)?.inverse() * pose(a)?)
+        let pose =
+            |i: u32| self.truth_poses.get(&i).ok_or_else(|| format!("{}: no pose of frame {i}", self.dir.display()));
+        let motion = pose(b)?.inverse() * pose(a)?;
+        Ok(self.mount.map_or(motion, |x| x.inverse() * motion * x))
     }
 
     /// Frame `im`, whole (its mask: every pixel).

@@ -9,9 +9,13 @@
 //! - [`PoseErrors`]: all of them for one estimate, with the success test (< 2 deg and < 1 cm).
 //! - [`trajectory::trajectory_errors`]: ATE and RPE of a sequence of poses, as the TUM RGB-D
 //!   benchmark defines them.
+//! - [`hand_eye::fit_mount`]: a camera's mount on an arm from the arm's and a reference's
+//!   records of the same motions, for a truth that does not carry the reference's per-frame
+//!   errors.
 
 #![warn(missing_docs)]
 
+pub mod hand_eye;
 pub mod trajectory;
 
 use flowfilter_geometry::{KnnIndex, Point3, Pose};

@@ -209,8 +209,8 @@ pub fn flow_correspondences_guided(
             )));
         }
     }
-    let (model_gray, target_gray, model_depth, target_depth, model_mask, target_mask) =
-        (model.gray, target.gray, model.depth, target.depth, model.mask, target.mask);
+    let (model_gray, target_gray, model_depth, model_mask, target_mask) =
+        (model.gray, target.gray, model.depth, model.mask, target.mask);
     let (w, h) = model_depth.dims();
     let mut pixels = vec![];
     for y in (0..h).step_by(p.grid_step) {
@@ -266,10 +266,30 @@ pub fn flow_correspondences_guided(
     let moved: Vec<[f32; 2]> = moved_local.iter().map(|q| [q[0] + shift[0], q[1] + shift[1]]).collect();
     let flow_seconds = t0.elapsed().as_secs_f64();
     let consistent = forward_backward_sparse(&forward, &backward, p.fb_threshold);
-    let mut pairs = FlowPairs { tracked: pixels.len(), flow_seconds, ..Default::default() };
+    let mut pairs = lift_matches(model, target, rays, &pixels, &moved, &consistent, p.depth_k_sigma);
+    pairs.tracked = pixels.len();
+    pairs.flow_seconds = flow_seconds;
+    Ok(pairs)
+}
+
+/// 3-D pairs from pixel matches: each kept model pixel (with depth) back-projected, its match
+/// in the target (inside the target's mask, with interpolated depth) back-projected along the
+/// interpolated ray, and depth-change outliers weighted 0 under a Gaussian fit of the depth
+/// changes (the paper's eqs. 9-11 on `Z_f`, `k_sigma` standard deviations).
+pub(crate) fn lift_matches(
+    model: &FlowView<'_>,
+    target: &FlowView<'_>,
+    rays: &RayTable,
+    pixels: &[[f32; 2]],
+    moved: &[[f32; 2]],
+    keep: &[bool],
+    k_sigma: f64,
+) -> FlowPairs {
+    let (model_depth, target_depth, target_mask) = (model.depth, target.depth, target.mask);
+    let mut pairs = FlowPairs::default();
     let mut dz = vec![];
     for i in 0..pixels.len() {
-        if !consistent[i] {
+        if !keep[i] {
             continue;
         }
         let q = moved[i];
@@ -298,10 +318,9 @@ pub fn flow_correspondences_guided(
         let n = dz.len() as f64;
         let mean = dz.iter().sum::<f64>() / n;
         let sd = (dz.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / n).sqrt().max(1e-4);
-        pairs.pairs.weights =
-            dz.iter().map(|d| if (d - mean).abs() <= p.depth_k_sigma * sd { 1.0 } else { 0.0 }).collect();
+        pairs.pairs.weights = dz.iter().map(|d| if (d - mean).abs() <= k_sigma * sd { 1.0 } else { 0.0 }).collect();
     } else {
         pairs.pairs.weights = vec![1.0; dz.len()];
     }
-    Ok(pairs)
+    pairs
 }

@@ -6,6 +6,8 @@
 //! - [`metrics`]: end-point error (all valid pixels, under a mask, at query points).
 //! - [`viz`]: the Middlebury colour-wheel visualisation.
 //! - [`FlowEstimator`]: the estimator seam ([`LucasKanade`], [`dis::Dis`]), with typed [`FlowError`]s.
+//! - [`features`]: wide-baseline matches of FAST corners by BRIEF descriptors, beyond the
+//!   pyramid's reach.
 
 #![warn(missing_docs)]
 
@@ -14,6 +16,7 @@ pub mod coarse_search;
 pub mod correspondences;
 pub mod dis;
 pub mod estimator;
+pub mod features;
 mod field;
 pub mod flo;
 pub mod lk;

@@ -6,6 +6,7 @@ use flowfilter_depth::DepthConfig;
 use flowfilter_flow::coarse_search::CoarseSearchParams;
 use flowfilter_flow::correspondences::CorrespondenceParams;
 use flowfilter_flow::dis::{DisParams, SearchGradients};
+use flowfilter_flow::features::FeatureParams;
 use flowfilter_flow::{FlowError, FlowEstimator, LucasKanade, flow_estimator_by_name};
 use flowfilter_registration::{RegistrationConfig, registrar_by_name};
 use serde::{Deserialize, Serialize};
@@ -91,6 +92,9 @@ pub struct WideBaselineConfig {
     pub max_search_side_px: usize,
     /// The search's parameters.
     pub search: CoarseSearchParams,
+    /// Feature matches (FAST corners, BRIEF descriptors) beside the search, under the same
+    /// condition; a consensus among them guides tracking as the search's answer does.
+    pub features: FeatureParams,
 }
 
 impl Default for WideBaselineConfig {
@@ -104,6 +108,7 @@ impl Default for WideBaselineConfig {
             settled_distance_m: 0.005,
             max_search_side_px: 80,
             search: CoarseSearchParams::default(),
+            features: FeatureParams::default(),
         }
     }
 }
@@ -111,6 +116,7 @@ impl Default for WideBaselineConfig {
 impl WideBaselineConfig {
     /// Check ranges.
     fn validate(&self) -> Result<(), String> {
+        self.features.validate()?;
         let s = &self.search;
         let ok = self.min_motion_px >= 0.0
             && (0.0..=1.0).contains(&self.settled_fraction)

@@ -374,6 +374,18 @@ impl Pipeline {
             sets.push(finder.find_guided(model, target, &guide)?);
             sources.push("wide");
         }
+        // Feature matches where the search runs: their own set, and the region tracked again
+        // from the motion they agree on.
+        if view.is_some() && wide.features.enabled {
+            let k_sigma = self.config.flow.correspondences.depth_k_sigma;
+            let (matched, guide) = crate::wide::feature_guide(model, target, wide, k_sigma);
+            sets.push(matched);
+            sources.push("features");
+            if let Some(guide) = guide {
+                sets.push(finder.find_guided(model, target, &guide)?);
+                sources.push("features-guided");
+            }
+        }
         if self.config.flow.guided
             && !followed_small_motion(&sets[0], settled.as_ref(), self.config.flow.unguided_below_deg)
             && let Some(prior) = self.registrar.prior(problem)?

@@ -5,6 +5,8 @@ use crate::config::WideBaselineConfig;
 use crate::stages::PreparedFrame;
 use flowfilter_camera::{CameraModel, Pixel};
 use flowfilter_flow::coarse_search::{CoarseMatch, SearchImages, coarse_search, search_hypotheses};
+use flowfilter_flow::correspondences::FlowPairs;
+use flowfilter_flow::features::feature_pairs;
 use flowfilter_geometry::{Correspondences, Pose};
 use flowfilter_registration::ransac_kabsch;
 use nalgebra::{Rotation3, Translation3, Unit, UnitQuaternion, Vector3};
@@ -69,6 +71,31 @@ pub(crate) fn settled(pairs: &Correspondences, cfg: &WideBaselineConfig) -> Opti
     (agreeing >= cfg.settled_min_pairs && agreeing as f64 >= cfg.settled_fraction * pairs.usable() as f64)
         .then_some(pose)
 }
+
+/// The feature matches of `model`'s region in `target` ([`flowfilter_flow::features`]) as 3-D
+/// pairs, and the motion their largest rigid consensus gives when it has at least
+/// [`FEATURE_MIN_AGREEING`] pairs and moves the region's pixels at least `min_motion_px` on
+/// average (the guide tracking starts from, as the coarse search's).
+pub(crate) fn feature_guide(
+    model: &PreparedFrame,
+    target: &PreparedFrame,
+    cfg: &WideBaselineConfig,
+    k_sigma: f64,
+) -> (FlowPairs, Option<Pose>) {
+    let matched = feature_pairs(&model.view(), &target.view(), &model.rays, &cfg.features, k_sigma);
+    let guide = ransac_kabsch(&matched.pairs, FEATURE_RANSAC_ITERATIONS, FEATURE_AGREEMENT_M, FEATURE_MIN_AGREEING, 0)
+        .map(|(pose, _)| pose)
+        .filter(|pose| mean_motion_px(pose, model) >= cfg.min_motion_px);
+    (matched, guide)
+}
+
+/// Least feature pairs agreeing on a motion for it to guide tracking.
+pub const FEATURE_MIN_AGREEING: usize = 8;
+/// Distance within which a feature pair agrees with a motion (metres): a corner is placed to a
+/// pixel or two, and real depth at a corner is noisy.
+const FEATURE_AGREEMENT_M: f64 = 0.01;
+/// RANSAC hypotheses of [`feature_guide`].
+const FEATURE_RANSAC_ITERATIONS: usize = 500;
 
 /// RANSAC hypotheses of [`settled`].
 const SETTLED_RANSAC_ITERATIONS: usize = 200;

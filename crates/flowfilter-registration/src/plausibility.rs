@@ -11,6 +11,10 @@
 //!   than [`Plausibility::min_support`] have a source point within the gate (the source lies on
 //!   a small part of a surface that the rest of it contradicts).
 //!
+//! A result that is not converged for none of these reasons, nor for a stop its backend
+//! named, gets [`RegistrationWarning::IterationLimit`]: every result reported as not converged
+//! says why.
+//!
 //! The gate is [`Plausibility::gate_spacings`] times the clouds' median point spacing, so the
 //! checks hold at any density.
 
@@ -66,6 +70,14 @@ pub fn assess(problem: &RegistrationProblem, r: &mut Registration) {
 
 /// [`assess`] with given thresholds.
 pub fn assess_with(problem: &RegistrationProblem, r: &mut Registration, limits: &Plausibility) {
+    check_support(problem, r, limits);
+    if !r.converged && !r.warnings.iter().any(RegistrationWarning::explains_no_convergence) {
+        r.warnings.push(RegistrationWarning::IterationLimit { iterations: r.iterations });
+    }
+}
+
+/// The three conditions of the module's doc.
+fn check_support(problem: &RegistrationProblem, r: &mut Registration, limits: &Plausibility) {
     let (source, target) = (&problem.source, &problem.target);
     if source.len() < 3 || target.len() < 3 {
         return;
@@ -158,6 +170,20 @@ mod tests {
         let mut r = result(Pose::identity());
         assess(&p, &mut r);
         assert!(r.converged && r.warnings.is_empty(), "{:?}", r.warnings);
+    }
+
+    /// A supported result its backend did not converge on says so; one whose backend named its
+    /// stop keeps that reason alone.
+    #[test]
+    fn a_result_not_converged_says_why() {
+        let p = RegistrationProblem::new(cloud(plane(30, 0.004)), cloud(plane(30, 0.004)));
+        let mut r = Registration { iterations: 50, ..Registration::with_transform(Pose::identity()) };
+        assess(&p, &mut r);
+        assert!(!r.converged);
+        assert_eq!(r.warnings, [RegistrationWarning::IterationLimit { iterations: 50 }]);
+        let mut r = Registration { warnings: vec![RegistrationWarning::DegenerateUpdate], ..r };
+        assess(&p, &mut r);
+        assert_eq!(r.warnings, [RegistrationWarning::DegenerateUpdate]);
     }
 
     #[test]

@@ -103,6 +103,13 @@ pub enum RegistrationWarning {
         /// The gate, metres.
         gate_m: f64,
     },
+    /// The registration stopped without converging and without another reason: its iteration
+    /// limit, or a result that was never iterated (set by [`crate::assess`], so that every
+    /// result reported as not converged says why).
+    IterationLimit {
+        /// Iterations run.
+        iterations: usize,
+    },
     /// Flow Filter's geometric check kept a flow-free registration that fits the clouds clearly
     /// better than the flow result.
     GeometricCheck {
@@ -132,7 +139,23 @@ impl RegistrationWarning {
             Self::FarApart { .. } => "far_apart",
             Self::PoorFit { .. } => "poor_fit",
             Self::OneSidedOverlap { .. } => "one_sided_overlap",
+            Self::IterationLimit { .. } => "iteration_limit",
         }
+    }
+
+    /// Whether the condition ends a registration short of convergence (a stop, a divergence,
+    /// or a result the clouds do not support): a not-converged result without one gets
+    /// [`RegistrationWarning::IterationLimit`].
+    pub fn explains_no_convergence(&self) -> bool {
+        matches!(
+            self,
+            Self::TooFewPairs { .. }
+                | Self::DegenerateUpdate
+                | Self::NothingExplained
+                | Self::NothingNear { .. }
+                | Self::Diverged { .. }
+                | Self::IterationLimit { .. }
+        ) || self.is_implausible()
     }
 
     /// Whether the condition means the clouds do not support the result (the result is then not
@@ -203,6 +226,9 @@ impl fmt::Display for RegistrationWarning {
                 support * 100.0,
                 gate_m * 1e3
             ),
+            Self::IterationLimit { iterations } => {
+                write!(f, "the registration did not converge (stopped after {iterations} iterations)")
+            }
             Self::GeometricCheck { kept, residual_m, flow_residual_m } => write!(
                 f,
                 "geometric check: the flow result fits the clouds worse (mean residual {:.2} mm) than {kept} \

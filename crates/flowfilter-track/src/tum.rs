@@ -35,16 +35,28 @@ pub struct TruthError {
 /// # Errors
 /// [`TruthError`] naming the key that cannot be read.
 pub fn read_calibrated_poses(path: &Path) -> Result<BTreeMap<u64, Pose>, TruthError> {
+    read_camera_poses(path, CALIBRATED)
+}
+
+/// The key of a `poses.json`'s calibrated camera poses.
+pub const CALIBRATED: &str = "camera_to_world_calibrated";
+/// The key of a `poses.json`'s camera poses by the arm's kinematics alone.
+pub const ARM: &str = "camera_to_world_robot";
+
+/// The camera-to-world poses under `key` of a `poses.json` (frame number -> 4x4 row-major,
+/// metres): [`CALIBRATED`] or [`ARM`] in the shared RealSense sequences.
+///
+/// # Errors
+/// [`TruthError`] naming the key that cannot be read.
+pub fn read_camera_poses(path: &Path, key: &str) -> Result<BTreeMap<u64, Pose>, TruthError> {
     let err = |message: String| TruthError { path: path.to_path_buf(), message };
     let text = std::fs::read_to_string(path).map_err(|e| err(format!("cannot read: {e}")))?;
     let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| err(format!("not JSON: {e}")))?;
-    let table = v["camera_to_world_calibrated"]
-        .as_object()
-        .ok_or_else(|| err("expected a `camera_to_world_calibrated` object (frame number -> 4x4)".into()))?;
+    let table = v[key].as_object().ok_or_else(|| err(format!("expected a `{key}` object (frame number -> 4x4)")))?;
     let mut cameras = BTreeMap::new();
-    for (key, m) in table {
-        let bad = |what: String| err(format!("camera_to_world_calibrated.{key}: {what}"));
-        let n: u64 = key.parse().map_err(|_| bad("the key must be a frame number".into()))?;
+    for (frame, m) in table {
+        let bad = |what: String| err(format!("{key}.{frame}: {what}"));
+        let n: u64 = frame.parse().map_err(|_| bad("the key must be a frame number".into()))?;
         let values: Option<Vec<f64>> = (0..16).map(|k| m[k / 4][k % 4].as_f64()).collect();
         let values = values.ok_or_else(|| bad("expected 4 rows of 4 numbers".into()))?;
         let pose = flowfilter_geometry::rigid_from_matrix(&Matrix4::from_row_slice(&values))
