@@ -170,6 +170,26 @@ struct Previous {
     pose: Pose,
 }
 
+/// An estimate that did not converge, kept in case no other does.
+struct Doubtful {
+    reference: usize,
+    estimate: Estimate,
+    reference_pose: Pose,
+    traced: Option<Box<TracedPair>>,
+}
+
+impl Doubtful {
+    /// The estimate's rotation bound (degrees; unbounded without one).
+    fn bound_deg(&self) -> f64 {
+        self.estimate.registration.uncertainty.map_or(f64::INFINITY, |u| u.rotation_deg)
+    }
+}
+
+/// Whether no warning says the clouds do not support the estimate.
+fn plausible(e: &Estimate) -> bool {
+    !e.warnings.iter().any(PipelineWarning::is_implausible)
+}
+
 /// Keyframes tried first: this many nearest to the last pose.
 const NEAREST_KEYFRAMES: usize = 2;
 
@@ -314,14 +334,18 @@ impl Tracker {
     /// The frame estimated against its candidates, its state decided, the keyframes updated:
     /// first with the predicted mask, then (without a converged estimate there) unmasked.
     fn track(&mut self, index: usize, target: PreparedFrame) -> TrackedFrame {
+        let mut fallback = None;
         if let Some(predicted) = self.predicted_target(&target)
-            && let Some((reference, e, reference_pose, pair)) = self.converged_with(&predicted)
+            && let Some((reference, e, reference_pose, pair)) = self.estimated_with(&predicted)
         {
-            let mut r = self.accept(index, target, reference, e, reference_pose);
-            r.traced = pair;
-            return r;
+            if e.registration.converged {
+                let mut r = self.accept(index, target, reference, e, reference_pose);
+                r.traced = pair;
+                return r;
+            }
+            fallback = Some(Doubtful { reference, estimate: e, reference_pose, traced: pair });
         }
-        self.track_unmasked(index, target)
+        self.track_unmasked(index, target, fallback)
     }
 
     /// The new frame with the object's mask predicted from the previous frame by the
@@ -335,13 +359,13 @@ impl Tracker {
     }
 
     /// The estimate of `target` against the first candidate (the keyframe nearest to the
-    /// predicted pose), if it converged. The others are left to the unmasked pass, so that a
+    /// predicted pose). Unless it converged the others are left to the unmasked pass, so that a
     /// nearest keyframe the predicted mask does not fit (an old view coming back, where the
     /// drift has moved the prediction) is tried there before any other.
-    fn converged_with(&self, target: &PreparedFrame) -> Option<(usize, Estimate, Pose, Option<Box<TracedPair>>)> {
+    fn estimated_with(&self, target: &PreparedFrame) -> Option<(usize, Estimate, Pose, Option<Box<TracedPair>>)> {
         let (reference, model, reference_pose) = self.candidates().into_iter().next()?;
         let (e, pair) = self.estimated(model, target).ok()?;
-        e.registration.converged.then_some((reference, e, reference_pose, pair))
+        Some((reference, e, reference_pose, pair))
     }
 
     /// One estimate, with its trace when [`TrackerConfig::trace`] is set.
@@ -361,10 +385,11 @@ impl Tracker {
     }
 
     /// [`Tracker::track`] on the unmasked frame (the pipeline propagates the reference's mask).
-    fn track_unmasked(&mut self, index: usize, target: PreparedFrame) -> TrackedFrame {
-        let mut doubtful: Option<(usize, Estimate, Pose)> = None;
+    /// Without a converged estimate the frame is uncertain, its pose the plausible estimate with
+    /// the tightest rotation bound among the unmasked ones and the predicted mask's (`fallback`).
+    fn track_unmasked(&mut self, index: usize, target: PreparedFrame, fallback: Option<Doubtful>) -> TrackedFrame {
+        let mut doubtful: Option<Doubtful> = fallback.filter(|d| plausible(&d.estimate));
         let mut failure: Option<String> = None;
-        let mut traced: Option<Box<TracedPair>> = None;
         for (reference, model, reference_pose) in self.candidates() {
             match self.estimated(model, &target) {
                 Ok((e, pair)) if e.registration.converged => {
@@ -372,26 +397,32 @@ impl Tracker {
                     r.traced = pair;
                     return r;
                 }
-                Ok((e, pair)) => {
-                    if doubtful.is_none() && !e.warnings.iter().any(PipelineWarning::is_implausible) {
-                        doubtful = Some((reference, e, reference_pose));
-                        traced = pair;
+                Ok((estimate, traced)) => {
+                    let this = Doubtful { reference, estimate, reference_pose, traced };
+                    if plausible(&this.estimate) && doubtful.as_ref().is_none_or(|d| this.bound_deg() < d.bound_deg()) {
+                        doubtful = Some(this);
                     }
                 }
                 Err(err) => failure = Some(err.to_string()),
             }
         }
         match doubtful.filter(|_| !self.lost && self.uncertain_run < self.config.max_uncertain) {
-            Some((reference, e, reference_pose)) => {
+            Some(Doubtful { reference, estimate: e, reference_pose, traced }) => {
                 self.uncertain_run += 1;
                 let pose = e.pose * reference_pose;
                 let reason = warning_codes(&e);
-                let mask = if self.object {
+                let (frame, mask_px) = if self.object {
                     let model = self.reference_frame(reference);
-                    carry_mask(model, &e.pose, &target, self.config.splat_px, self.config.depth_tolerance_m)
+                    let mask = carry_mask(model, &e.pose, &target, self.config.splat_px, self.config.depth_tolerance_m);
+                    let px = area(&mask);
+                    (target.with_mask(mask), px)
                 } else {
-                    target.mask.clone()
+                    (target, 0)
                 };
+                // Not a keyframe, but the next frame's nearest view: it is estimated against this
+                // one (a short motion) when no keyframe converges, as chaining would.
+                self.velocity = self.velocity_to(index, &pose);
+                self.previous = Some(Previous { index, frame, pose });
                 self.last_pose = pose;
                 TrackedFrame {
                     index,
@@ -401,7 +432,7 @@ impl Tracker {
                     reason: Some(format!("not converged: {reason}")),
                     reference: Some(reference),
                     keyframe: false,
-                    mask_px: if self.object { area(&mask) } else { 0 },
+                    mask_px,
                     estimate: Some(e),
                     traced,
                 }
@@ -481,10 +512,7 @@ impl Tracker {
             (target, 0)
         };
         let state = if self.lost { TrackState::Recovered } else { TrackState::Tracking };
-        self.velocity = match (&self.previous, self.lost) {
-            (Some(p), false) if p.index + 1 == index => pose * p.pose.inverse(),
-            _ => Pose::identity(),
-        };
+        self.velocity = if self.lost { Pose::identity() } else { self.velocity_to(index, &pose) };
         self.lost = false;
         self.uncertain_run = 0;
         self.last_pose = pose;
@@ -510,6 +538,15 @@ impl Tracker {
             mask_px,
             estimate: Some(e),
             traced: None,
+        }
+    }
+
+    /// The motion from the previous frame to frame `index` at `pose`, when the previous frame
+    /// is the one just before it; else none.
+    fn velocity_to(&self, index: usize, pose: &Pose) -> Pose {
+        match &self.previous {
+            Some(p) if p.index + 1 == index => pose * p.pose.inverse(),
+            _ => Pose::identity(),
         }
     }
 
