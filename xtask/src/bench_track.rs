@@ -164,7 +164,7 @@ pub fn run(args: &TrackBenchArgs) -> anyhow::Result<()> {
         }
     }
     std::fs::write(dir.join("results.json"), serde_json::to_string_pretty(&results)?)?;
-    let summary = summary(&results, started.elapsed().as_secs_f64());
+    let summary = summary(&results, started.elapsed().as_secs_f64(), args.truth);
     std::fs::write(dir.join("summary.md"), &summary)?;
     println!("{summary}\nresults in {}", dir.display());
     if args.check {
@@ -416,10 +416,15 @@ fn result(s: &Stream, method: &'static str, poses: &[Pose], states: &[TrackState
     }
 }
 
-fn summary(results: &[StreamResult], seconds: f64) -> String {
+fn summary(results: &[StreamResult], seconds: f64, truth: TruthRecord) -> String {
+    let truth = match truth {
+        TruthRecord::Calibrated => "their calibrated camera poses",
+        TruthRecord::Arm => "the arm's poses with a mount fitted to the calibrated ones (--truth arm)",
+    };
     let mut out = format!(
         "# bench-track\n\n{} stream runs in {seconds:.0} s. States: tracking / uncertain / lost / recovered. \
-         ATE: position RMSE after rigid alignment; RPE: over one frame; last: the last frame's error.\n\n\
+         ATE: position RMSE after rigid alignment; RPE: over one frame; last: the last frame's error. \
+         The real sequences' truth: {truth}.\n\n\
          | stream | method | frames | states | ATE (mm) | RPE (mm / deg) | last (deg / mm) | frames/s |\n|---|---|---|---|---|---|---|---|\n",
         results.len()
     );
