@@ -12,7 +12,7 @@
 //! and the pipeline then propagates the model's: `mask_propagated`).
 
 use crate::pairs::{Methods, PairJob, PairResult, RunArgs};
-use crate::realsense::{PosedFrames, Region, Truth, TruthRecord, is_posed_folder, network_mask};
+use crate::realsense::{PosedFrames, Region, Truth, TruthRecord, network_mask, posed_folders};
 use crate::report::{ReportSpec, ShardRun, write_outputs};
 use crate::shard::Shard;
 use crate::{dir_name, in_repo};
@@ -185,7 +185,7 @@ pub fn run(args: &RealBenchArgs) -> anyhow::Result<()> {
             if args.exact_masks { "exact" } else { "with a segmentation network's defects" },
             args.seed,
             args.pipeline.display(),
-            truth_line(&truth)
+            truth.describe()
         ),
         step_label: "frame gap",
         methods: &args.methods,
@@ -237,22 +237,6 @@ fn truth_json(truth: &Truth) -> serde_json::Value {
     }
 }
 
-/// The truth in the summary's protocol line.
-fn truth_line(truth: &Truth) -> String {
-    match truth {
-        Truth::Calibrated => "calibrated camera poses".into(),
-        Truth::Arm(fit) => format!(
-            "the arm's poses with a fitted mount (turned {:.2} deg, shifted {:.1} mm from the nominal; {} motions, \
-             median disagreement with the calibrated poses {:.2} deg, {:.1} mm)",
-            fit.mount.rotation.angle().to_degrees(),
-            fit.mount.translation.vector.norm() * 1e3,
-            fit.pairs,
-            fit.median_rotation_deg,
-            fit.median_translation_m * 1e3
-        ),
-    }
-}
-
 /// Every sequence (names, in order), this shard's folders, and every posed folder in `--data`
 /// (whatever `--sequences` picks: the arm's mount is fitted over all of them).
 fn sequence_dirs(args: &RealBenchArgs) -> anyhow::Result<(Vec<String>, Vec<PathBuf>, Vec<PathBuf>)> {
@@ -263,18 +247,7 @@ fn sequence_dirs(args: &RealBenchArgs) -> anyhow::Result<(Vec<String>, Vec<PathB
             root.display()
         );
     }
-    let mut dirs: Vec<PathBuf> = if is_posed_folder(&root) {
-        vec![root.clone()]
-    } else {
-        let mut d: Vec<PathBuf> = std::fs::read_dir(&root)
-            .with_context(|| format!("reading {}", root.display()))?
-            .filter_map(Result::ok)
-            .map(|e| e.path())
-            .filter(|p| is_posed_folder(p))
-            .collect();
-        d.sort();
-        d
-    };
+    let mut dirs = posed_folders(&root).with_context(|| format!("reading {}", root.display()))?;
     if dirs.is_empty() {
         bail!("{}: no sequence folders (frames with poses.json and camera.json)", root.display());
     }
@@ -470,14 +443,15 @@ mod tests {
 
     /// A region of a real pair and the default pipeline: the frames with the region's network
     /// masks (the target's replaced by `target_mask` when given), the truth, the estimate.
-    fn estimate_region(
+    /// A region of a real pair with its network masks (none missing; the target's replaced by
+    /// `target_mask` when given) and the truth: `None` without the shared data.
+    fn region_pair(
         name: &str,
         (a, b): (u32, u32),
         seed: u64,
         mask_seeds: (u64, u64),
-        config: PipelineConfig,
         target_mask: Option<flowfilter_pipeline::Mask>,
-    ) -> Option<(flowfilter_pipeline::Estimate, f64, f64)> {
+    ) -> Option<(RgbdFrame, RgbdFrame, flowfilter_pipeline::Pose)> {
         let data = shelf(name)?;
         let seq = PosedFrames::open(&data).unwrap();
         let (fa, fb) = (seq.frame(a).unwrap(), seq.frame(b).unwrap());
@@ -489,7 +463,20 @@ mod tests {
             let truth = seq.true_mask(&fb, b, &region);
             network_mask(&truth, &network, mask_seeds.1, false).unwrap()
         });
-        let truth = seq.relative_motion(a, b).unwrap();
+        Some((model, target, seq.relative_motion(a, b).unwrap()))
+    }
+
+    /// [`region_pair`] estimated by the pipeline of `config`: the estimate, its geodesic and
+    /// translation errors.
+    fn estimate_region(
+        name: &str,
+        pair: (u32, u32),
+        seed: u64,
+        mask_seeds: (u64, u64),
+        config: PipelineConfig,
+        target_mask: Option<flowfilter_pipeline::Mask>,
+    ) -> Option<(flowfilter_pipeline::Estimate, f64, f64)> {
+        let (model, target, truth) = region_pair(name, pair, seed, mask_seeds, target_mask)?;
         let pipeline = flowfilter_pipeline::Pipeline::from_config(config).unwrap();
         let e = pipeline.estimate(&model, &target).unwrap();
         let errors = flowfilter_pipeline::eval::PoseErrors::new(&e.pose, &truth, None);
@@ -615,24 +602,15 @@ mod tests {
     /// nearly all of its pairs agree with the true motion within 1 cm.
     #[test]
     fn feature_matches_of_a_region_25_degrees_away_agree_with_the_truth() {
-        let Some(data) = shelf("shelf-A") else { return };
-        let seq = PosedFrames::open(&data).unwrap();
         let (a, b) = (1u32, 3u32);
-        let (mut model, mut target) = (seq.frame(a).unwrap(), seq.frame(b).unwrap());
-        let region = seq.draw_region((&model, &target), (a, b), seed_of("shelf-A", 0, &[1, 3, 1])).unwrap();
-        let network = NetworkMaskModel::SHELF_NETWORK;
-        let mask = |frame: &RgbdFrame, im: u32, is_model| {
-            let seed = seed_of("shelf-A", 0, &[im.into(), 4, 1]);
-            network_mask(&seq.true_mask(frame, im, &region), &network, seed, is_model)
-        };
-        model.mask = mask(&model, a, true).unwrap();
-        target.mask = mask(&target, b, false).unwrap_or_else(|| target.mask.clone());
+        let seed = seed_of("shelf-A", 0, &[a.into(), b.into(), 1]);
+        let masks = (seed_of("shelf-A", 0, &[a.into(), 4, 1]), seed_of("shelf-A", 0, &[b.into(), 4, 1]));
+        let Some((model, target, truth)) = region_pair("shelf-A", (a, b), seed, masks, None) else { return };
         let mut config = default_config();
         config.flow.wide.features.enabled = true;
         let pipeline = flowfilter_pipeline::Pipeline::from_config(config).unwrap();
         let (pm, pt) = (pipeline.prepare(&model).unwrap(), pipeline.prepare(&target).unwrap());
         let (_, trace) = pipeline.estimate_traced(&pm, &pt).unwrap();
-        let truth = seq.relative_motion(a, b).unwrap();
         let sources: Vec<&str> = trace.sets.iter().map(|s| s.source).collect();
         let features = trace.sets.iter().find(|s| s.source == "features").expect("a feature set");
         let (usable, right) = (features.pairs.usable(), features.pairs.agreeing(&truth, 0.01));

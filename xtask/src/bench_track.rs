@@ -10,7 +10,7 @@
 //! over one frame) and the last frame's rotation error (a loop's closure error).
 
 use crate::bench_real::seed_of;
-use crate::realsense::{PosedFrames, TruthRecord, is_posed_folder, network_mask};
+use crate::realsense::{PosedFrames, Truth, TruthRecord, network_mask, posed_folders};
 use crate::sequence::{Sequence, YcbVideoFrames};
 use anyhow::Context;
 use clap::Args;
@@ -145,7 +145,8 @@ pub fn run(args: &TrackBenchArgs) -> anyhow::Result<()> {
             }
         }
     }
-    streams.extend(real_streams(args)?);
+    let (real, truth) = real_streams(args)?;
+    streams.extend(real);
     if !args.quick {
         streams.extend(ycb_video_streams(&args.ycb_video)?);
     }
@@ -164,7 +165,7 @@ pub fn run(args: &TrackBenchArgs) -> anyhow::Result<()> {
         }
     }
     std::fs::write(dir.join("results.json"), serde_json::to_string_pretty(&results)?)?;
-    let summary = summary(&results, started.elapsed().as_secs_f64(), args.truth);
+    let summary = summary(&results, started.elapsed().as_secs_f64(), truth.as_ref());
     std::fs::write(dir.join("summary.md"), &summary)?;
     println!("{summary}\nresults in {}", dir.display());
     if args.check {
@@ -211,20 +212,14 @@ fn turntable(object: &str, sensor: SensorId, step: u32, span: u32) -> anyhow::Re
     })
 }
 
-/// The real sequences: each as whole frames and as a region with the network's first mask.
-fn real_streams(args: &TrackBenchArgs) -> anyhow::Result<Vec<Stream>> {
+/// The real sequences: each as whole frames and as a region with the network's first mask;
+/// and their truth (`None` without them).
+fn real_streams(args: &TrackBenchArgs) -> anyhow::Result<(Vec<Stream>, Option<Truth>)> {
     if !args.data.is_dir() {
         println!("skipping the real sequences: {} is absent", args.data.display());
-        return Ok(vec![]);
+        return Ok((vec![], None));
     }
-    let mut dirs: Vec<PathBuf> = if is_posed_folder(&args.data) {
-        vec![args.data.clone()]
-    } else {
-        let mut d: Vec<PathBuf> =
-            std::fs::read_dir(&args.data)?.flatten().map(|e| e.path()).filter(|p| is_posed_folder(p)).collect();
-        d.sort();
-        d
-    };
+    let mut dirs = posed_folders(&args.data)?;
     let truth = args.truth.truth(&dirs).map_err(anyhow::Error::msg)?;
     if let Some(names) = &args.sequences {
         dirs.retain(|d| names.iter().any(|n| d.file_name().is_some_and(|f| f == n.as_str())));
@@ -261,7 +256,7 @@ fn real_streams(args: &TrackBenchArgs) -> anyhow::Result<Vec<Stream>> {
             out.push(region_stream);
         }
     }
-    Ok(out)
+    Ok((out, Some(truth)))
 }
 
 /// Each object of a folder of YCB-Video frames seen in every frame: tracked from its label mask
@@ -416,15 +411,11 @@ fn result(s: &Stream, method: &'static str, poses: &[Pose], states: &[TrackState
     }
 }
 
-fn summary(results: &[StreamResult], seconds: f64, truth: TruthRecord) -> String {
-    let truth = match truth {
-        TruthRecord::Calibrated => "their calibrated camera poses",
-        TruthRecord::Arm => "the arm's poses with a mount fitted to the calibrated ones (--truth arm)",
-    };
+fn summary(results: &[StreamResult], seconds: f64, truth: Option<&Truth>) -> String {
+    let truth = truth.map_or_else(String::new, |t| format!(" The real sequences' truth: {}.", t.describe()));
     let mut out = format!(
         "# bench-track\n\n{} stream runs in {seconds:.0} s. States: tracking / uncertain / lost / recovered. \
-         ATE: position RMSE after rigid alignment; RPE: over one frame; last: the last frame's error. \
-         The real sequences' truth: {truth}.\n\n\
+         ATE: position RMSE after rigid alignment; RPE: over one frame; last: the last frame's error.{truth}\n\n\
          | stream | method | frames | states | ATE (mm) | RPE (mm / deg) | last (deg / mm) | frames/s |\n|---|---|---|---|---|---|---|---|\n",
         results.len()
     );

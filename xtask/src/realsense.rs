@@ -44,6 +44,24 @@ pub enum Truth {
     Arm(MountFit),
 }
 
+impl Truth {
+    /// The truth in words, for a summary's protocol line.
+    pub fn describe(&self) -> String {
+        match self {
+            Self::Calibrated => "calibrated camera poses".into(),
+            Self::Arm(fit) => format!(
+                "the arm's poses with a fitted mount (turned {:.2} deg, shifted {:.1} mm from the nominal; {} motions, \
+                 median disagreement with the calibrated poses {:.2} deg, {:.1} mm)",
+                fit.mount.rotation.angle().to_degrees(),
+                fit.mount.translation.vector.norm() * 1e3,
+                fit.pairs,
+                fit.median_rotation_deg,
+                fit.median_translation_m * 1e3
+            ),
+        }
+    }
+}
+
 /// The record of camera poses a pair's truth is made of (`--truth` of `bench-real` and
 /// `bench-track`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -73,10 +91,9 @@ pub struct PosedFrames {
     camera: CameraFile,
     /// Frame id -> camera-to-world (calibrated): where the regions are.
     poses: BTreeMap<u32, Pose>,
-    /// Frame id -> the pose a pair's truth is made of: the calibrated one, or the arm's.
+    /// Frame id -> the pose a pair's truth is made of: the calibrated one, or the arm's with
+    /// the fitted mount (`A * X`).
     truth_poses: BTreeMap<u32, Pose>,
-    /// The mount correcting the arm's poses, for [`Truth::Arm`].
-    mount: Option<Pose>,
 }
 
 /// The camera motions of consecutive frames of `dir` by the arm's poses and by the calibrated
@@ -109,6 +126,21 @@ pub fn fit_arm_mount(dirs: &[PathBuf]) -> Result<MountFit, String> {
         motions.append(&mut arm_motions(dir)?);
     }
     fit_mount(&motions).map_err(|e| format!("fitting the arm's mount over {} sequence(s): {e}", dirs.len()))
+}
+
+/// The posed folders of `root`: `root` itself when it holds posed frames, else its
+/// sub-folders that do, sorted.
+///
+/// # Errors
+/// `root` cannot be listed.
+pub fn posed_folders(root: &Path) -> std::io::Result<Vec<PathBuf>> {
+    if is_posed_folder(root) {
+        return Ok(vec![root.to_path_buf()]);
+    }
+    let mut dirs: Vec<PathBuf> =
+        std::fs::read_dir(root)?.filter_map(Result::ok).map(|e| e.path()).filter(|p| is_posed_folder(p)).collect();
+    dirs.sort();
+    Ok(dirs)
 }
 
 /// Whether `dir` holds posed frames (`poses.json` and `camera.json`).
@@ -154,9 +186,11 @@ impl PosedFrames {
         let path = dir.join("poses.json");
         let read = |key| flowfilter_track::tum::read_camera_poses(&path, key).map_err(|e| e.to_string());
         let cameras = read(flowfilter_track::tum::CALIBRATED)?;
-        let (truth_cameras, mount) = match truth {
-            Truth::Calibrated => (cameras.clone(), None),
-            Truth::Arm(fit) => (read(flowfilter_track::tum::ARM)?, Some(fit.mount)),
+        let truth_cameras = match truth {
+            Truth::Calibrated => cameras.clone(),
+            Truth::Arm(fit) => {
+                read(flowfilter_track::tum::ARM)?.into_iter().map(|(id, a)| (id, a * fit.mount)).collect()
+            }
         };
         let mut poses = BTreeMap::new();
         let mut truth_poses = BTreeMap::new();
@@ -171,7 +205,7 @@ impl PosedFrames {
         if poses.is_empty() {
             return Err(format!("{}: no posed frame has frame-NNNNNN.color.png and .depth.png", dir.display()));
         }
-        Ok(Self { dir: dir.to_path_buf(), camera, poses, truth_poses, mount })
+        Ok(Self { dir: dir.to_path_buf(), camera, poses, truth_poses })
     }
 
     fn files_of(dir: &Path, im: u32) -> FrameFiles {
@@ -188,15 +222,14 @@ impl PosedFrames {
     }
 
     /// The scene's motion in the camera frame from frame `a` to frame `b` by the truth's
-    /// record: `inv(C_b) * C_a`, with the arm's poses `X^-1 * inv(A_b) * A_a * X`.
+    /// record: `inv(C_b) * C_a`; with the arm's poses `C = A * X`, so `X^-1 * inv(A_b) * A_a * X`.
     ///
     /// # Errors
     /// A frame without a pose.
     pub fn relative_motion(&self, a: u32, b: u32) -> Result<Pose, String> {
         let pose =
             |i: u32| self.truth_poses.get(&i).ok_or_else(|| format!("{}: no pose of frame {i}", self.dir.display()));
-        let motion = pose(b)?.inverse() * pose(a)?;
-        Ok(self.mount.map_or(motion, |x| x.inverse() * motion * x))
+        Ok(pose(b)?.inverse() * pose(a)?)
     }
 
     /// Frame `im`, whole (its mask: every pixel).

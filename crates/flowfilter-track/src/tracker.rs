@@ -411,14 +411,7 @@ impl Tracker {
                 self.uncertain_run += 1;
                 let pose = e.pose * reference_pose;
                 let reason = warning_codes(&e);
-                let (frame, mask_px) = if self.object {
-                    let model = self.reference_frame(reference);
-                    let mask = carry_mask(model, &e.pose, &target, self.config.splat_px, self.config.depth_tolerance_m);
-                    let px = area(&mask);
-                    (target.with_mask(mask), px)
-                } else {
-                    (target, 0)
-                };
+                let (frame, mask_px) = self.carried(reference, &e.pose, target);
                 // Not a keyframe, but the next frame's nearest view: it is estimated against this
                 // one (a short motion) when no keyframe converges, as chaining would.
                 self.velocity = self.velocity_to(index, &pose);
@@ -494,23 +487,11 @@ impl Tracker {
         reference_pose: Pose,
     ) -> TrackedFrame {
         let pose = e.pose * reference_pose;
-        let (frame, mask_px) = if self.object {
-            let mask = carry_mask(
-                self.reference_frame(reference),
-                &e.pose,
-                &target,
-                self.config.splat_px,
-                self.config.depth_tolerance_m,
-            );
-            let px = area(&mask);
-            if px < self.config.min_mask_px {
-                return self
-                    .lose(index, format!("the object's mask emptied ({px} pixels): it left the view or is hidden"));
-            }
-            (target.with_mask(mask), px)
-        } else {
-            (target, 0)
-        };
+        let (frame, mask_px) = self.carried(reference, &e.pose, target);
+        if self.object && mask_px < self.config.min_mask_px {
+            return self
+                .lose(index, format!("the object's mask emptied ({mask_px} pixels): it left the view or is hidden"));
+        }
         let state = if self.lost { TrackState::Recovered } else { TrackState::Tracking };
         self.velocity = if self.lost { Pose::identity() } else { self.velocity_to(index, &pose) };
         self.lost = false;
@@ -539,6 +520,18 @@ impl Tracker {
             estimate: Some(e),
             traced: None,
         }
+    }
+
+    /// `target` with the object's mask carried from `reference` by `motion`, and the mask's
+    /// area; a whole frame as it is (area 0).
+    fn carried(&self, reference: usize, motion: &Pose, target: PreparedFrame) -> (PreparedFrame, usize) {
+        if !self.object {
+            return (target, 0);
+        }
+        let (splat, tolerance) = (self.config.splat_px, self.config.depth_tolerance_m);
+        let mask = carry_mask(self.reference_frame(reference), motion, &target, splat, tolerance);
+        let px = area(&mask);
+        (target.with_mask(mask), px)
     }
 
     /// The motion from the previous frame to frame `index` at `pose`, when the previous frame
