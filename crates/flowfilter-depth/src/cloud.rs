@@ -184,6 +184,51 @@ pub fn voxel_downsample(cloud: &PointCloud, voxel: f64) -> PointCloud {
     out
 }
 
+/// [`voxel_downsample`] at `voxel` metres (0: every point), then, when more than `max_points`
+/// remain (0: no limit), again with a voxel grown until no more do: a registration cloud
+/// bounded by a budget, whatever the object's size (a whole frame, an object close to the
+/// camera). The grown voxel starts where a surface's point count would fit (the count falls
+/// with the voxel's area) and grows by a tenth at a time; the result is deterministic. Returns
+/// the cloud and the voxel it was last thinned with (`voxel` when the budget did not bind).
+///
+/// ```
+/// use flowfilter_depth::cloud::voxel_downsample_within;
+/// use flowfilter_geometry::{Point3, PointCloud};
+///
+/// // A 40 x 40 cm plane sampled every millimetre: 160 000 points.
+/// let points = (0..400).flat_map(|i| (0..400).map(move |j| Point3::new(i as f64 * 1e-3, j as f64 * 1e-3, 1.0)));
+/// let cloud = PointCloud::from_points(points.collect());
+/// assert_eq!(voxel_downsample_within(&cloud, 0.004, 0).0.len(), 10_000);
+/// let (bounded, voxel) = voxel_downsample_within(&cloud, 0.004, 4000);
+/// assert!(bounded.len() <= 4000 && bounded.len() > 3000, "{}", bounded.len());
+/// assert!(voxel > 0.006 && voxel < 0.008, "{voxel}");
+/// ```
+pub fn voxel_downsample_within(cloud: &PointCloud, voxel: f64, max_points: usize) -> (PointCloud, f64) {
+    let thinned = if voxel > 0.0 { voxel_downsample(cloud, voxel) } else { cloud.clone() };
+    thin_to_budget(thinned, voxel, max_points)
+}
+
+/// The second half of [`voxel_downsample_within`]: `cloud`, already thinned with `voxel` (0:
+/// not thinned), thinned again with a grown voxel until at most `max_points` remain (0: no
+/// limit). Returns the cloud and its voxel.
+pub fn thin_to_budget(cloud: PointCloud, voxel: f64, max_points: usize) -> (PointCloud, f64) {
+    if max_points == 0 || cloud.len() <= max_points {
+        return (cloud, voxel);
+    }
+    let start = if voxel > 0.0 { voxel } else { BUDGET_START_VOXEL_M };
+    let mut grown = start * (cloud.len() as f64 / max_points as f64).sqrt();
+    loop {
+        let bounded = voxel_downsample(&cloud, grown);
+        if bounded.len() <= max_points {
+            return (bounded, grown);
+        }
+        grown *= 1.1;
+    }
+}
+
+/// The voxel [`voxel_downsample_within`] grows from when no voxel thins the cloud first (metres).
+const BUDGET_START_VOXEL_M: f64 = 0.001;
+
 /// Statistical outlier removal (as Open3D's `remove_statistical_outlier`): drop points whose
 /// mean distance to their `k` nearest neighbours exceeds the cloud-wide mean of that quantity by
 /// more than `std_ratio` standard deviations. Returns the kept cloud and the kept indices.
@@ -264,6 +309,25 @@ mod tests {
         for n in knn_normals(&pts, 10, &Point3::origin()) {
             assert!((n - expected).norm() < 1e-9, "{n:?}");
         }
+    }
+
+    #[test]
+    fn a_budget_bounds_the_cloud_and_leaves_a_smaller_one_as_it_was() {
+        let cloud = PointCloud::from_points(plane());
+        let free = voxel_downsample(&cloud, 0.02);
+        for budget in [0, 100, 1000] {
+            let (kept, voxel) = voxel_downsample_within(&cloud, 0.02, budget);
+            assert_eq!((kept.points, voxel), (free.points.clone(), 0.02), "budget {budget}");
+        }
+        for budget in [10, 37, 99] {
+            let (bounded, voxel) = voxel_downsample_within(&cloud, 0.02, budget);
+            assert!(bounded.len() <= budget && bounded.len() * 2 > budget, "{budget}: {}", bounded.len());
+            assert!(voxel > 0.02, "{budget}: {voxel}");
+            assert_eq!(bounded.points, voxel_downsample_within(&cloud, 0.02, budget).0.points, "deterministic");
+        }
+        // Without a first voxel every point is kept up to the budget.
+        assert_eq!(voxel_downsample_within(&cloud, 0.0, 0).0.len(), cloud.len());
+        assert!(voxel_downsample_within(&cloud, 0.0, 50).0.len() <= 50);
     }
 
     #[test]

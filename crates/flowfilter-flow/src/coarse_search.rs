@@ -122,18 +122,48 @@ impl Template {
         })
     }
 
-    /// Correlation of the template turned by `turn` and centred at `(u, v)` in `target`
-    /// (nearest samples), when enough of it lands inside.
-    fn score(&self, target: &Gray, (u, v): (f64, f64), (sin, cos): (f32, f32), min_overlap: f64) -> Option<f64> {
+    /// The template turned by `(sin, cos)` and centred at `base` (whose fractional part every
+    /// placement of a search shares), as whole-pixel offsets from `base`'s integer part: the
+    /// nearest target pixel of each template pixel at every placement `base + (i, j)` is its
+    /// offset plus `(i, j)`, so the search scores a placement without rounding a position.
+    fn turned(&self, base: (f64, f64), (sin, cos): (f32, f32)) -> TurnedTemplate<'_> {
+        let (fu, fv) = ((base.0 - base.0.floor()) as f32, (base.1 - base.1.floor()) as f32);
+        let offsets = self
+            .offsets
+            .iter()
+            .map(|o| {
+                let x = fu + (cos * o[0] - sin * o[1]);
+                let y = fv + (sin * o[0] + cos * o[1]);
+                [(x + 0.5).floor() as i32, (y + 0.5).floor() as i32]
+            })
+            .collect();
+        TurnedTemplate { offsets, values: &self.values }
+    }
+}
+
+/// A [`Template`] turned for one search: whole-pixel offsets and the grey values.
+struct TurnedTemplate<'a> {
+    offsets: Vec<[i32; 2]>,
+    values: &'a [f32],
+}
+
+impl TurnedTemplate<'_> {
+    /// Correlation of the template placed with its offsets from `(x, y)` in `target` (nearest
+    /// samples), when at least `min_overlap` of it lands inside.
+    fn score(&self, target: &Gray, (x, y): (i64, i64), min_overlap: f64) -> Option<f64> {
         let (w, h) = target.dims();
         let data = target.as_slice();
-        let (mut n, mut sm, mut st, mut smm, mut stt, mut smt) = (0usize, 0.0f64, 0.0f64, 0.0f64, 0.0f64, 0.0f64);
-        let (u, v) = (u as f32, v as f32);
-        for (o, &m) in self.offsets.iter().zip(&self.values) {
-            let x = u + cos * o[0] - sin * o[1];
-            let y = v + sin * o[0] + cos * o[1];
-            let (xi, yi) = ((x + 0.5).floor(), (y + 0.5).floor());
-            if xi < 0.0 || yi < 0.0 || xi >= w as f32 || yi >= h as f32 {
+        // A placement stops counting once more pixels have fallen outside than it may lose.
+        let allowed_misses = ((1.0 - min_overlap) * self.offsets.len() as f64).max(0.0) as usize;
+        let (mut misses, mut n) = (0usize, 0usize);
+        let (mut sm, mut st, mut smm, mut stt, mut smt) = (0.0f64, 0.0f64, 0.0f64, 0.0f64, 0.0f64);
+        for (o, &m) in self.offsets.iter().zip(self.values) {
+            let (xi, yi) = (x + i64::from(o[0]), y + i64::from(o[1]));
+            if xi < 0 || yi < 0 || xi >= w as i64 || yi >= h as i64 {
+                misses += 1;
+                if misses > allowed_misses {
+                    return None;
+                }
                 continue;
             }
             let t = data[yi as usize * w + xi as usize];
@@ -184,24 +214,59 @@ impl SearchImages {
     }
 }
 
-/// The best placement of `template` in `target` over `centres` and `turns` (radians): score,
-/// centre, turn. Ties go to the first in order (the same answer with any thread count).
+/// Placements of a template's centre: `base` plus each whole-pixel step (the steps share
+/// `base`'s fractional part, so each turn's offsets are rounded once).
+struct Placements {
+    base: (f64, f64),
+    steps: Vec<(i64, i64)>,
+}
+
+impl Placements {
+    /// Every pixel of a `(w, h)` image.
+    fn everywhere((w, h): (usize, usize)) -> Self {
+        let steps = (0..h as i64).flat_map(|y| (0..w as i64).map(move |x| (x, y))).collect();
+        Self { base: (0.0, 0.0), steps }
+    }
+
+    /// `centre` and the pixels up to `reach` from it in either direction.
+    fn around(centre: [f64; 2], reach: i64) -> Self {
+        let steps = (-reach..=reach).flat_map(|j| (-reach..=reach).map(move |i| (i, j))).collect();
+        Self { base: (centre[0], centre[1]), steps }
+    }
+
+    /// Placement `k`'s centre.
+    fn centre(&self, k: usize) -> (f64, f64) {
+        (self.base.0 + self.steps[k].0 as f64, self.base.1 + self.steps[k].1 as f64)
+    }
+}
+
+/// The best placement of `template` in `target` over `placements` and `turns` (radians):
+/// score, centre, turn. Ties go to the first in order (the same answer with any thread count).
 fn best_placement(
     template: &Template,
     target: &Gray,
-    centres: &[(f64, f64)],
+    placements: &Placements,
     turns: &[f64],
     min_overlap: f64,
 ) -> Option<(f64, (f64, f64), f64)> {
-    let work: Vec<(usize, usize)> = (0..turns.len()).flat_map(|t| (0..centres.len()).map(move |c| (t, c))).collect();
+    let turned: Vec<TurnedTemplate<'_>> = turns
+        .iter()
+        .map(|t| {
+            let (s, c) = t.sin_cos();
+            template.turned(placements.base, (s as f32, c as f32))
+        })
+        .collect();
+    let (bx, by) = (placements.base.0.floor() as i64, placements.base.1.floor() as i64);
+    let work: Vec<(usize, usize)> =
+        (0..turns.len()).flat_map(|t| (0..placements.steps.len()).map(move |c| (t, c))).collect();
     work.par_iter()
         .with_min_len(64)
         .filter_map(|&(t, c)| {
-            let (s, co) = turns[t].sin_cos();
-            template.score(target, centres[c], (s as f32, co as f32), min_overlap).map(|sc| (sc, t, c))
+            let (i, j) = placements.steps[c];
+            turned[t].score(target, (bx + i, by + j), min_overlap).map(|sc| (sc, t, c))
         })
         .reduce_with(|a, b| if b.0 > a.0 || (b.0 == a.0 && (b.1, b.2) < (a.1, a.2)) { b } else { a })
-        .map(|(sc, t, c)| (sc, centres[c], turns[t]))
+        .map(|(sc, t, c)| (sc, placements.centre(c), turns[t]))
 }
 
 /// Where the `mask`ed region of `model` went in `target` (see the module documentation);
@@ -213,9 +278,8 @@ pub fn coarse_search(images: &SearchImages, mask: &Mask, p: &CoarseSearchParams)
     let template = Template::new(coarse_model, mask, level, p.max_pixels)?;
     let steps = if p.turn_step_deg > 0.0 { (p.max_turn_deg / p.turn_step_deg).floor() as i64 } else { 0 };
     let turns: Vec<f64> = (-steps..=steps).map(|k| (k as f64 * p.turn_step_deg).to_radians()).collect();
-    let (w, h) = coarse_target.dims();
-    let centres: Vec<(f64, f64)> = (0..h).flat_map(|y| (0..w).map(move |x| (x as f64, y as f64))).collect();
-    let (_, (u, v), turn) = best_placement(&template, coarse_target, &centres, &turns, p.min_overlap)?;
+    let everywhere = Placements::everywhere(coarse_target.dims());
+    let (_, (u, v), turn) = best_placement(&template, coarse_target, &everywhere, &turns, p.min_overlap)?;
     // One level finer: +-3 px around the coarse placement, the turn within half a step.
     let finer = level - 1;
     let [fine_model, fine_target] = &images.fine;
@@ -228,8 +292,7 @@ pub fn coarse_search(images: &SearchImages, mask: &Mask, p: &CoarseSearchParams)
     let (sin, cos) = turn.sin_cos();
     let d = [fine.centre[0] - coarse_centre[0], fine.centre[1] - coarse_centre[1]];
     let guess = [u * s + cos * d[0] - sin * d[1], v * s + sin * d[0] + cos * d[1]];
-    let near: Vec<(f64, f64)> =
-        (-3..=3).flat_map(|j| (-3..=3).map(move |i| (guess[0] + f64::from(i), guess[1] + f64::from(j)))).collect();
+    let near = Placements::around(guess, 3);
     let half = p.turn_step_deg.to_radians() / 2.0;
     let fine_turns = [turn - half / 2.0, turn, turn + half / 2.0];
     let (score, (fu, fv), fturn) = best_placement(&fine, fine_target, &near, &fine_turns, p.min_overlap)?;
@@ -277,18 +340,14 @@ pub fn search_hypotheses(
             let moved = |x: f64, y: f64| predict(h, x, y).map(|q| [q[0] + near.shift[0], q[1] + near.shift[1]]);
             let coarse = Template::predicted(coarse_model, mask, level, p.max_pixels, &moved)?;
             let s = f64::from(1u32 << level);
-            let (w, h) = coarse_target.dims();
-            let centres: Vec<(f64, f64)> = (0..h).flat_map(|y| (0..w).map(move |x| (x as f64, y as f64))).collect();
-            let (_, (u, v), _) = best_placement(&coarse, coarse_target, &centres, &[0.0], p.min_overlap)?;
+            let everywhere = Placements::everywhere(coarse_target.dims());
+            let (_, (u, v), _) = best_placement(&coarse, coarse_target, &everywhere, &[0.0], p.min_overlap)?;
             let coarse_shift = [(u - coarse.centre[0]) * s, (v - coarse.centre[1]) * s];
             let fine = Template::predicted(fine_model, mask, level - 1, p.max_pixels * 2, &|x, y| {
                 moved(x, y).map(|q| [q[0] + coarse_shift[0], q[1] + coarse_shift[1]])
             })?;
             let fs = s / 2.0;
-            let near_fine: Vec<(f64, f64)> = (-3..=3)
-                .flat_map(|j| (-3..=3).map(move |i| (f64::from(i), f64::from(j))))
-                .map(|(i, j)| (fine.centre[0] + i, fine.centre[1] + j))
-                .collect();
+            let near_fine = Placements::around(fine.centre, 3);
             let (score, (fu, fv), _) = best_placement(&fine, fine_target, &near_fine, &[0.0], p.min_overlap)?;
             let shift = [
                 near.shift[0] + coarse_shift[0] + (fu - fine.centre[0]) * fs,

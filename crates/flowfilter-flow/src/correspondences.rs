@@ -38,6 +38,10 @@ pub struct FlowPairs {
 pub struct CorrespondenceParams {
     /// Grid step of the model pixels tracked (pixels).
     pub grid_step: usize,
+    /// At most this many model pixels are tracked: on a larger region (a whole frame, an
+    /// object close to the camera) the grid step grows until the grid holds no more, so the
+    /// flow's cost is bounded by this budget, not by the region's area. 0 = no limit.
+    pub max_pixels: usize,
     /// Forward-backward consistency threshold (pixels).
     pub fb_threshold: f32,
     /// Reject pairs whose depth change is more than this many standard deviations from the
@@ -56,7 +60,14 @@ pub struct CorrespondenceParams {
 
 impl Default for CorrespondenceParams {
     fn default() -> Self {
-        Self { grid_step: 6, fb_threshold: 1.0, depth_k_sigma: 2.5, crop_margin_px: 96, warp_windows: true }
+        Self {
+            grid_step: 6,
+            max_pixels: 2000,
+            fb_threshold: 1.0,
+            depth_k_sigma: 2.5,
+            crop_margin_px: 96,
+            warp_windows: true,
+        }
     }
 }
 
@@ -106,6 +117,31 @@ fn depth_at(d: &DepthMap, x: f32, y: f32) -> Option<f64> {
     }
     let (fx, fy) = (x - x0, y - y0);
     Some(f64::from((z[0] * (1.0 - fx) + z[1] * fx) * (1.0 - fy) + (z[2] * (1.0 - fx) + z[3] * fx) * fy))
+}
+
+/// The model pixels tracked: the mask's pixels with depth on a grid of `step`, the step grown
+/// until at most `max_pixels` remain (0 = no limit). Rows and columns of the grid start at 0,
+/// so the same frame gives the same pixels on every pair.
+pub fn tracked_pixels(mask: &Mask, depth: &DepthMap, step: usize, max_pixels: usize) -> Vec<[f32; 2]> {
+    let (w, h) = depth.dims();
+    let on_grid = |step: usize| {
+        (0..h)
+            .step_by(step)
+            .flat_map(move |y| (0..w).step_by(step).map(move |x| (x, y)))
+            .filter(|&(x, y)| *mask.at(x, y) && *depth.at(x, y) > 0.0)
+    };
+    let mut step = step.max(1);
+    if max_pixels > 0 {
+        // The count falls with the square of the step: start near the step that fits.
+        let n = on_grid(step).count();
+        if n > max_pixels {
+            step = ((step as f64) * (n as f64 / max_pixels as f64).sqrt()).floor().max(step as f64) as usize;
+            while on_grid(step).count() > max_pixels {
+                step += 1;
+            }
+        }
+    }
+    on_grid(step).map(|(x, y)| [x as f32, y as f32]).collect()
 }
 
 /// Build flow correspondences between a model view and a target view of the same colour camera:
@@ -211,15 +247,7 @@ pub fn flow_correspondences_guided(
     }
     let (model_gray, target_gray, model_depth, model_mask, target_mask) =
         (model.gray, target.gray, model.depth, model.mask, target.mask);
-    let (w, h) = model_depth.dims();
-    let mut pixels = vec![];
-    for y in (0..h).step_by(p.grid_step) {
-        for x in (0..w).step_by(p.grid_step) {
-            if *model_mask.at(x, y) && *model_depth.at(x, y) > 0.0 {
-                pixels.push([x as f32, y as f32]);
-            }
-        }
-    }
+    let pixels = tracked_pixels(model_mask, model_depth, p.grid_step, p.max_pixels);
     let t0 = Instant::now();
     // Crop both views to the masks' region (flow vectors do not depend on the origin).
     let (x0, y0, x1, y1) = crop_box(model_mask, target_mask, p.crop_margin_px);
@@ -323,4 +351,42 @@ pub(crate) fn lift_matches(
         pairs.pairs.weights = vec![1.0; dz.len()];
     }
     pairs
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A `w x h` frame whose mask is a disc of radius `r` px with depth everywhere but every
+    /// seventh column (a sensor's holes).
+    fn disc(w: usize, h: usize, r: f64) -> (Mask, DepthMap) {
+        let (cx, cy) = (w as f64 / 2.0, h as f64 / 2.0);
+        let mask = Mask::from_fn(w, h, |x, y| (x as f64 - cx).hypot(y as f64 - cy) < r);
+        let depth = DepthMap::from_fn(w, h, |x, _| if x % 7 == 3 { 0.0 } else { 0.6 });
+        (mask, depth)
+    }
+
+    #[test]
+    fn the_tracked_pixels_are_bounded_by_the_budget_and_spread_over_the_region() {
+        let (mask, depth) = disc(640, 480, 230.0);
+        let all = tracked_pixels(&mask, &depth, 6, 0);
+        assert!(all.len() > 3500, "{}", all.len());
+        for budget in [2000, 500, 50] {
+            let kept = tracked_pixels(&mask, &depth, 6, budget);
+            assert!(kept.len() <= budget && kept.len() * 2 > budget, "{budget}: {}", kept.len());
+            // Spread: the kept pixels span most of the disc's 460-px diameter both ways.
+            let span = |k: usize| {
+                let (lo, hi) = kept.iter().fold((f32::MAX, f32::MIN), |(lo, hi), q| (lo.min(q[k]), hi.max(q[k])));
+                hi - lo
+            };
+            assert!(span(0) > 320.0 && span(1) > 320.0, "{budget}: spans {} x {}", span(0), span(1));
+            assert!(
+                kept.iter()
+                    .all(|q| *mask.at(q[0] as usize, q[1] as usize) && *depth.at(q[0] as usize, q[1] as usize) > 0.0)
+            );
+        }
+        // A region within the budget is tracked on the configured grid.
+        let (small, depth) = disc(640, 480, 60.0);
+        assert_eq!(tracked_pixels(&small, &depth, 6, 2000), tracked_pixels(&small, &depth, 6, 0));
+    }
 }

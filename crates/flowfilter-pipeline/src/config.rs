@@ -18,11 +18,16 @@ use std::path::Path;
 pub struct CloudPrepConfig {
     /// Voxel size (metres) of the registration clouds; 0 keeps every point.
     pub voxel_m: f64,
+    /// At most this many points in a registration cloud: a larger one (a whole frame, an object
+    /// close to the camera) is thinned with a coarser voxel until it fits, so the
+    /// registration's cost is bounded by this budget, not by the object's size
+    /// ([`flowfilter_depth::cloud::voxel_downsample_within`]). 0 = no limit.
+    pub max_points: usize,
 }
 
 impl Default for CloudPrepConfig {
     fn default() -> Self {
-        Self { voxel_m: 0.004 }
+        Self { voxel_m: 0.004, max_points: 4000 }
     }
 }
 

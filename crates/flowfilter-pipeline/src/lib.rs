@@ -48,7 +48,9 @@ pub use flowfilter_photometric::{
 pub use frame::{ImagesError, RgbdFrame, load_bigbird_frame};
 pub use pipeline::Pipeline;
 pub use source::{FrameFiles, MaskSource};
-pub use stages::{CorrespondenceFinder, DepthPreparer, FlowCorrespondenceFinder, FramePreparer, PreparedFrame};
+pub use stages::{
+    CloudThinning, CorrespondenceFinder, DepthPreparer, FlowCorrespondenceFinder, FramePreparer, PreparedFrame,
+};
 pub use trace::{PairTrace, TracedCandidate, TracedSet};
 pub use warning::PipelineWarning;
 

@@ -267,7 +267,8 @@ impl Pipeline {
         }
         let target = propagated.as_ref().unwrap_or(target);
         warnings.extend([model, target].into_iter().filter_map(crate::frame_checks::mask_coverage));
-        let mut problem = RegistrationProblem::new(model.cloud.clone(), target.cloud.clone());
+        let (source, target_cloud) = crate::stages::registration_clouds(model, target);
+        let mut problem = RegistrationProblem::new(source, target_cloud);
         let found = self.finder().and_then(|finder| {
             let tf = Instant::now();
             let found =
@@ -311,7 +312,8 @@ impl Pipeline {
             warnings.push(PipelineWarning::WideBounds { rotation_deg: u.rotation_deg, limit_deg });
         }
         let doubtful = warnings.iter().any(PipelineWarning::is_doubtful);
-        let mut estimate = self.assemble(model, target, reg, summary, times, warnings);
+        let points = (problem.source.len(), problem.target.len());
+        let mut estimate = self.assemble((model, target), points, reg, summary, times, warnings);
         // Never confidently wrong: an estimate the evidence does not single out is not converged.
         estimate.registration.converged &= !doubtful;
         estimate.judge = report;
@@ -600,11 +602,12 @@ impl Pipeline {
         })
     }
 
-    /// The estimate from the registration and what the stages reported.
+    /// The estimate from the registration (of clouds of `points`, model and target) and what
+    /// the stages reported.
     fn assemble(
         &self,
-        model: &PreparedFrame,
-        target: &PreparedFrame,
+        (model, target): (&PreparedFrame, &PreparedFrame),
+        points: (usize, usize),
         reg: Registration,
         correspondences: Option<CorrespondenceSummary>,
         stage_ms: StageTimes,
@@ -622,7 +625,7 @@ impl Pipeline {
             rotation_angle_deg: angle.to_degrees(),
             rotation_axis: axis,
             translation_m: [t.x, t.y, t.z],
-            registration: RegistrationSummary::new(&reg, model.cloud.len(), target.cloud.len()),
+            registration: RegistrationSummary::new(&reg, points.0, points.1),
             correspondences,
             stage_ms,
             judge: None,

@@ -5,7 +5,7 @@ use crate::config::CloudPrepConfig;
 use crate::error::PipelineError;
 use crate::frame::RgbdFrame;
 use flowfilter_camera::{RayTable, RgbdSensor};
-use flowfilter_depth::cloud::voxel_downsample;
+use flowfilter_depth::cloud::{thin_to_budget, voxel_downsample};
 use flowfilter_depth::{DepthConfig, DepthStage};
 use flowfilter_flow::FlowEstimator;
 use flowfilter_flow::correspondences::{
@@ -32,6 +32,9 @@ pub struct PreparedFrame {
     pub cloud: PointCloud,
     /// Points of the full organised cloud before thinning.
     pub full_points: usize,
+    /// How the registration cloud was thinned (the voxel, and the finer cloud where the
+    /// budget bound).
+    pub thinning: CloudThinning,
     /// The sensor.
     pub sensor: RgbdSensor,
     /// Rays of the colour camera.
@@ -44,27 +47,66 @@ pub struct PreparedFrame {
     pub unmasked: bool,
 }
 
+/// How a frame's registration cloud was thinned: the voxel of the cloud, and, where the cloud
+/// budget (`cloud.max_points`) made it coarser than configured, the cloud at the configured
+/// voxel (so that a mask applied later cuts the finer cloud and thins only what it keeps).
+#[derive(Debug, Clone, Default)]
+pub struct CloudThinning {
+    /// The voxel edge the registration cloud was thinned with (metres; 0 = not thinned).
+    pub voxel_m: f64,
+    /// The configured voxel (metres).
+    pub configured_voxel_m: f64,
+    /// The cloud budget (points; 0 = none).
+    pub max_points: usize,
+    /// The cloud at the configured voxel, where the budget thinned it further.
+    pub finer: Option<Arc<PointCloud>>,
+}
+
+impl CloudThinning {
+    /// `full` thinned with `cfg`'s voxel, then within its budget: the cloud and its record.
+    pub fn thin(full: &PointCloud, cfg: &CloudPrepConfig) -> (PointCloud, Self) {
+        let at_voxel = if cfg.voxel_m > 0.0 { voxel_downsample(full, cfg.voxel_m) } else { full.clone() };
+        Self { voxel_m: cfg.voxel_m, configured_voxel_m: cfg.voxel_m, max_points: cfg.max_points, finer: None }
+            .rethin(at_voxel)
+    }
+
+    /// `cloud` (at the configured voxel) within the budget: the cloud and its record.
+    fn rethin(&self, cloud: PointCloud) -> (PointCloud, Self) {
+        let n = cloud.len();
+        let (thinned, voxel_m) = thin_to_budget(cloud.clone(), self.configured_voxel_m, self.max_points);
+        let finer = (thinned.len() < n).then(|| Arc::new(cloud));
+        (thinned, Self { voxel_m, finer, ..self.clone() })
+    }
+}
+
 impl PreparedFrame {
     /// The frame with another object mask: its cloud cut to the points that project into the
-    /// mask (the rest of the preparation kept). How a mask found later (propagated, carried by a
-    /// tracker) applies to a frame prepared without one.
+    /// mask (the rest of the preparation kept; where the cloud budget had thinned the whole
+    /// frame's cloud, the finer cloud is cut and thinned within the budget again). How a mask
+    /// found later (propagated, carried by a tracker) applies to a frame prepared without one.
     pub fn with_mask(&self, mask: Mask) -> PreparedFrame {
         let camera = &self.sensor.color;
-        let inside: Vec<usize> = (0..self.cloud.len())
+        let source = self.thinning.finer.as_deref().unwrap_or(&self.cloud);
+        let inside: Vec<usize> = (0..source.len())
             .filter(|&i| {
-                camera.project(&self.cloud.points[i]).is_some_and(|p| {
+                camera.project(&source.points[i]).is_some_and(|p| {
                     let (x, y) = (p.x.round(), p.y.round());
                     x >= 0.0 && y >= 0.0 && mask.get(x as usize, y as usize).copied().unwrap_or(false)
                 })
             })
             .collect();
+        let (cloud, thinning) = match &self.thinning.finer {
+            Some(_) => self.thinning.rethin(source.select(&inside)),
+            None => (source.select(&inside), self.thinning.clone()),
+        };
         PreparedFrame {
             label: self.label.clone(),
             gray: self.gray.clone(),
             depth: self.depth.clone(),
             mask,
-            cloud: self.cloud.select(&inside),
+            cloud,
             full_points: self.full_points,
+            thinning,
             sensor: self.sensor,
             rays: self.rays.clone(),
             seconds: self.seconds,
@@ -124,15 +166,17 @@ impl FramePreparer for DepthPreparer {
             .stage
             .process(&frame.depth, &frame.color, &frame.mask, &frame.sensor)
             .map_err(|source| PipelineError::Depth { frame: frame.label.clone(), source })?;
-        let mut cloud =
-            if self.cloud.voxel_m > 0.0 { voxel_downsample(&p.cloud, self.cloud.voxel_m) } else { p.cloud.clone() };
-        cloud.colors = None;
+        let full_points = p.cloud.len();
+        let mut full = p.cloud;
+        full.colors = None;
+        let (cloud, thinning) = CloudThinning::thin(&full, &self.cloud);
         let prepared = PreparedFrame {
             label: frame.label.clone(),
             gray: to_gray(&frame.color),
             depth: p.depth,
             mask: frame.mask.clone(),
-            full_points: p.cloud.len(),
+            full_points,
+            thinning,
             cloud,
             sensor: frame.sensor,
             rays: self.stage.rays(&frame.sensor.color),
@@ -142,6 +186,20 @@ impl FramePreparer for DepthPreparer {
         crate::frame_checks::check_cloud(frame, &prepared)?;
         Ok(prepared)
     }
+}
+
+/// The two frames' registration clouds at one density: the cloud thinned with the finer voxel
+/// is thinned again with the other's (where the cloud budget bound on one frame only, or a
+/// frame prepared whole was cut to a propagated mask), so that neither cloud outweighs the other
+/// in the registration's mixture. A cracker box turned 21 deg, whose target view held 4.2k
+/// points (thinned to 2.9k by the budget) against 1.6k in the model, landed 87 deg off at mixed
+/// densities and 0.28 deg off at one (as without the budget).
+pub fn registration_clouds(model: &PreparedFrame, target: &PreparedFrame) -> (PointCloud, PointCloud) {
+    let coarse = model.thinning.voxel_m.max(target.thinning.voxel_m);
+    let at_coarse = |f: &PreparedFrame| {
+        if f.thinning.voxel_m < coarse { voxel_downsample(&f.cloud, coarse) } else { f.cloud.clone() }
+    };
+    (at_coarse(model), at_coarse(target))
 }
 
 /// Finds weighted 3-D pairs between two prepared frames.

@@ -5,7 +5,7 @@ mod common;
 
 use common::{box_scene, frame, truth};
 use flowfilter_eval::PoseErrors;
-use flowfilter_pipeline::{Pipeline, PipelineConfig, PipelineWarning, RegistrationWarning};
+use flowfilter_pipeline::{Mask, Pipeline, PipelineConfig, PipelineWarning, RegistrationWarning, RgbdFrame};
 use flowfilter_synth::{Rig, Scene, procedural};
 use image::RgbImage;
 
@@ -151,4 +151,41 @@ fn the_guided_pass_is_skipped_where_the_plain_flow_settled_on_a_small_motion() {
     let (small, errors) = sources(&always, 3);
     assert_eq!(small, ["plain", "guided"]);
     assert!(errors.angle_error_deg < 0.5, "{errors:?}");
+}
+
+/// The pipeline with a cloud budget of `points` and a tracking budget of `pixels`.
+fn budgeted(points: usize, pixels: usize) -> Pipeline {
+    let mut config = PipelineConfig::default();
+    config.cloud.max_points = points;
+    config.flow.correspondences.max_pixels = pixels;
+    Pipeline::from_config(config).unwrap()
+}
+
+#[test]
+fn the_budgets_bound_the_clouds_and_the_tracked_pixels_whatever_the_regions_area() {
+    let (rig, scene) = (Rig::bigbird_like(), box_scene());
+    let (a, b) = (frame(&scene, &rig, 3, 0), frame(&scene, &rig, 3, 9));
+    let free = pipeline("flowfilter").estimate(&a, &b).unwrap();
+    let (points, pixels) = (free.registration.model_points / 3, free.correspondences.unwrap().tracked / 3);
+    let e = budgeted(points, pixels).estimate(&a, &b).unwrap();
+    let c = e.correspondences.unwrap();
+    assert!(e.registration.model_points <= points && e.registration.target_points <= points, "{:?}", e.registration);
+    assert!(c.tracked <= pixels && c.tracked * 2 > pixels, "{c:?} against a budget of {pixels}");
+    let errors = PoseErrors::new(&e.pose, &truth(&rig, 3, 0, 9), None);
+    assert!(errors.angle_error_deg < 1.0 && errors.translation_error_m < 0.005, "{errors:?}");
+    // The whole frame (every pixel with depth: the box and the turntable) is thinned to the
+    // budget; the object's mask applied later cuts the finer cloud, not the thinned one.
+    let pipeline = budgeted(points, pixels);
+    let (w, h) = a.mask.dims();
+    let whole = pipeline.prepare(&RgbdFrame { mask: Mask::filled(w, h, true), ..a.clone() }).unwrap();
+    assert!(whole.cloud.len() <= points && whole.thinning.finer.is_some(), "{}", whole.cloud.len());
+    let cut = whole.with_mask(a.mask.clone());
+    let object = pipeline.prepare(&a).unwrap();
+    assert!(cut.thinning.voxel_m < whole.thinning.voxel_m, "{:?} / {:?}", cut.thinning.voxel_m, whole.thinning.voxel_m);
+    assert!(
+        cut.cloud.len() <= points && cut.cloud.len() * 10 > object.cloud.len() * 8,
+        "{} / {}",
+        cut.cloud.len(),
+        object.cloud.len()
+    );
 }

@@ -1,0 +1,179 @@
+"""Whole 640x480 RGB-D frames: Open3D's coloured ICP against `flowfilter estimate`, same pairs, same minutes.
+
+For each sequence folder (frame-NNNNNN.color.png, frame-NNNNNN.depth.png, camera.json with the
+depth camera's own intrinsics and `color_from_depth`, poses.json with calibrated camera poses),
+every pair of frames `gap` apart (`--gaps`, default 1,2) is registered whole (no mask) by:
+
+- Open3D 0.20's multi-scale coloured ICP as its tutorial runs it (voxels of 4, 2 and 1 cm; 50,
+  30 and 14 iterations; normals from 30 neighbours within twice the voxel; relative fitness and
+  RMSE 1e-6), from the identity. Timed from the two RGB-D images to the answer: both clouds,
+  their downsampling and normals, the three scales. The raw depth is registered onto the colour
+  grid beforehand, untimed (as `open3d_odometry.py` does it); ours does that inside its timing;
+- `flowfilter estimate` (Flow Filter, defaults) and `flowfilter estimate --method
+  filterreg-pt2pl`: the `stage_ms.total` the CLI reports (both frames' depth stage included,
+  file reading not).
+
+The two sides alternate pair by pair, under one thread count at a time (`--threads`, default
+1,2: `RAYON_NUM_THREADS` for ours, `OMP_NUM_THREADS` for Open3D, set before it is imported).
+Errors are against the calibrated poses, `T = inv(C_b) C_a`; success is under 2 deg and 1 cm.
+
+    python3 tools/peers/whole_frames_timing.py ../shared/data/realsense-shelf/shelf-A [more ...] \
+        [--flowfilter target/release/flowfilter] [--gaps 1,2] [--threads 1,2] [--json OUT]
+
+Needs numpy and open3d (tools/peers/requirements.txt; the open3d wheel needs Debian's
+libusb-1.0-0). Prints one Markdown row per thread count and method, and per-pair rows with
+`--pairs`.
+"""
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def register_depth(depth_mm, camera):
+    """Raw depth (uint16, depth camera grid) -> metres on the colour grid (0 = none), nearest kept."""
+    kd = np.array(camera["depth"]["K"], dtype=float)
+    kc = np.array(camera["K"], dtype=float)
+    c_from_d = np.array(camera["color_from_depth"], dtype=float)
+    unit = camera.get("depth_unit_m", 0.001)
+    v, u = np.nonzero(depth_mm)
+    z = depth_mm[v, u].astype(float) * unit
+    pts = np.stack([(u - kd[0, 2]) / kd[0, 0] * z, (v - kd[1, 2]) / kd[1, 1] * z, z], axis=1)
+    pts = pts @ c_from_d[:3, :3].T + c_from_d[:3, 3]
+    pts = pts[pts[:, 2] > 0]
+    uc = np.round(kc[0, 0] * pts[:, 0] / pts[:, 2] + kc[0, 2]).astype(int)
+    vc = np.round(kc[1, 1] * pts[:, 1] / pts[:, 2] + kc[1, 2]).astype(int)
+    inside = (uc >= 0) & (uc < camera["width"]) & (vc >= 0) & (vc < camera["height"])
+    out = np.full((camera["height"], camera["width"]), np.inf)
+    np.minimum.at(out, (vc[inside], uc[inside]), pts[inside, 2])
+    out[np.isinf(out)] = 0.0
+    return out.astype(np.float32)
+
+
+def open3d_pair(o3d, folder, a, b, camera):
+    """Open3D's multi-scale coloured ICP of frame a onto frame b: (T, seconds)."""
+    kc = np.array(camera["K"], dtype=float)
+    intrinsic = o3d.camera.PinholeCameraIntrinsic(camera["width"], camera["height"], kc[0, 0], kc[1, 1], kc[0, 2], kc[1, 2])
+
+    def rgbd(n):
+        color = o3d.io.read_image(str(folder / f"frame-{n:06d}.color.png"))
+        depth = np.asarray(o3d.io.read_image(str(folder / f"frame-{n:06d}.depth.png")))
+        return o3d.geometry.RGBDImage.create_from_color_and_depth(
+            color, o3d.geometry.Image(register_depth(depth, camera)), depth_scale=1.0, depth_trunc=3.0,
+            convert_rgb_to_intensity=False,
+        )
+
+    images = rgbd(a), rgbd(b)
+    start = time.perf_counter()
+    source, target = (o3d.geometry.PointCloud.create_from_rgbd_image(i, intrinsic) for i in images)
+    transform = np.eye(4)
+    for radius, iterations in zip([0.04, 0.02, 0.01], [50, 30, 14]):
+        s, t = source.voxel_down_sample(radius), target.voxel_down_sample(radius)
+        for c in (s, t):
+            c.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=radius * 2, max_nn=30))
+        result = o3d.pipelines.registration.registration_colored_icp(
+            s, t, radius, transform,
+            o3d.pipelines.registration.TransformationEstimationForColoredICP(),
+            o3d.pipelines.registration.ICPConvergenceCriteria(
+                relative_fitness=1e-6, relative_rmse=1e-6, max_iteration=iterations
+            ),
+        )
+        transform = result.transformation
+    return np.asarray(transform), time.perf_counter() - start
+
+
+def ours_pair(binary, folder, a, b, method):
+    """`flowfilter estimate` on the whole frames: (T, seconds as stage_ms.total, converged)."""
+    f = lambda n, kind: str(folder / f"frame-{n:06d}.{kind}.png")
+    cmd = [binary, "estimate", "--camera", str(folder / "camera.json"), "--model-color", f(a, "color"),
+           "--model-depth", f(a, "depth"), "--target-color", f(b, "color"), "--target-depth", f(b, "depth"), "--json"]
+    if method:
+        cmd += ["--method", method]
+    out = subprocess.run(cmd, check=False, capture_output=True, text=True)
+    if not out.stdout.strip():
+        raise RuntimeError(f"{' '.join(cmd)}: {out.stderr.strip()}")
+    e = json.loads(out.stdout)
+    return np.array(e["transform"], dtype=float), e["stage_ms"]["total"] / 1e3, e["registration"]["converged"]
+
+
+def errors(t, truth):
+    r = t[:3, :3].T @ truth[:3, :3]
+    angle = np.degrees(np.arccos(np.clip((np.trace(r) - 1) / 2, -1, 1)))
+    return float(angle), float(np.linalg.norm(t[:3, 3] - truth[:3, 3]))
+
+
+METHODS = [("Open3D coloured ICP", None), ("Flow Filter", ""), ("FilterReg point-to-plane", "filterreg-pt2pl")]
+
+
+def worker(args):
+    """One thread count: every pair by every method, alternating; JSON lines on stdout."""
+    import open3d as o3d
+
+    for folder in args.sequences:
+        camera = json.loads((folder / "camera.json").read_text())
+        poses = json.loads((folder / "poses.json").read_text())["camera_to_world_calibrated"]
+        c = {int(k): np.array(v, dtype=float) for k, v in poses.items()}
+        numbers = sorted(c)
+        for gap in args.gaps:
+            for a, b in zip(numbers, numbers[gap:]):
+                truth = np.linalg.inv(c[b]) @ c[a]
+                for name, method in METHODS:
+                    if method is None:
+                        t, secs = open3d_pair(o3d, folder, a, b, camera)
+                    else:
+                        t, secs, _ = ours_pair(args.flowfilter, folder, a, b, method)
+                    rot, trans = errors(t, truth)
+                    row = dict(sequence=folder.name, a=a, b=b, gap=gap, method=name, seconds=secs,
+                               rotation_error_deg=rot, translation_error_m=trans)
+                    print(json.dumps(row), flush=True)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("sequences", nargs="+", type=Path)
+    ap.add_argument("--flowfilter", default="target/release/flowfilter")
+    ap.add_argument("--gaps", default="1,2")
+    ap.add_argument("--threads", default="1,2")
+    ap.add_argument("--json", type=Path, help="write every pair's row here (JSON lines)")
+    ap.add_argument("--pairs", action="store_true", help="also print one row per pair")
+    ap.add_argument("--worker", type=int, default=0, help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    args.gaps = [int(g) for g in args.gaps.split(",")]
+    if args.worker:
+        worker(args)
+        return
+    rows = []
+    for threads in [int(t) for t in args.threads.split(",")]:
+        env = dict(os.environ, RAYON_NUM_THREADS=str(threads), OMP_NUM_THREADS=str(threads))
+        cmd = [sys.executable, __file__, *map(str, args.sequences), "--flowfilter", args.flowfilter,
+               "--gaps", ",".join(map(str, args.gaps)), "--worker", str(threads)]
+        out = subprocess.run(cmd, env=env, check=True, capture_output=True, text=True).stdout
+        rows += [dict(json.loads(line), threads=threads) for line in out.splitlines() if line.strip()]
+    if args.json:
+        args.json.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    print("| threads | method | pairs | median s | mean s | max s | median / Open3D's | success | median error (deg) |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    for threads in sorted({r["threads"] for r in rows}):
+        of = lambda name: [r for r in rows if r["threads"] == threads and r["method"] == name]
+        peer = np.median([r["seconds"] for r in of(METHODS[0][0])])
+        for name, _ in METHODS:
+            rs = of(name)
+            secs = np.array([r["seconds"] for r in rs])
+            ok = sum(r["rotation_error_deg"] < 2.0 and r["translation_error_m"] < 0.01 for r in rs)
+            err = np.median([r["rotation_error_deg"] for r in rs])
+            print(f"| {threads} | {name} | {len(rs)} | {np.median(secs):.3f} | {secs.mean():.3f} | {secs.max():.3f} | "
+                  f"{np.median(secs) / peer:.2f}x | {ok}/{len(rs)} | {err:.2f} |")
+    if args.pairs:
+        for r in rows:
+            print(f"{r['threads']} {r['sequence']} {r['a']}->{r['b']} {r['method']}: {r['seconds']:.3f} s, "
+                  f"{r['rotation_error_deg']:.2f} deg, {r['translation_error_m'] * 1000:.1f} mm")
+
+
+if __name__ == "__main__":
+    main()
