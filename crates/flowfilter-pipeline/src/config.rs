@@ -27,7 +27,7 @@ pub struct CloudPrepConfig {
 
 impl Default for CloudPrepConfig {
     fn default() -> Self {
-        Self { voxel_m: 0.004, max_points: 4000 }
+        Self { voxel_m: 0.004, max_points: 6000 }
     }
 }
 

@@ -269,6 +269,9 @@ impl Pipeline {
         warnings.extend([model, target].into_iter().filter_map(crate::frame_checks::mask_coverage));
         let (source, target_cloud) = crate::stages::registration_clouds(model, target);
         let mut problem = RegistrationProblem::new(source, target_cloud);
+        // The model's own size before any thinning past the configured voxel (the budget's, or
+        // the other frame's density): what the scene rule reads.
+        problem.source_points = Some(model.thinning.finer.as_ref().map_or(model.cloud.len(), |f| f.len()));
         let found = self.finder().and_then(|finder| {
             let tf = Instant::now();
             let found =

@@ -56,6 +56,20 @@ pub struct FlowFilterConfig {
     /// mean residual); the flow result wins ties within `geometric_margin_m`. Flow then decides
     /// where the geometry is ambiguous (symmetric shapes) and cannot override it where it is not.
     pub geometric_check: bool,
+    /// The geometric check is skipped where the flow settles the answer: the first
+    /// correspondence set (the plain flow's) is the one chosen, at least this many of its pairs
+    /// agree on the RANSAC pose... (0 = always check). Every flow-free alternative the check
+    /// weighs would contradict that many pairs; what it guards against (flow stuck on shading
+    /// that does not turn with the surface) shows as fewer agreeing pairs or a larger turn.
+    pub settled_min_pairs: usize,
+    /// ...at least this fraction of its usable pairs agree...
+    pub settled_fraction: f64,
+    /// ...and the RANSAC pose turns less than this (degrees)...
+    pub settled_max_turn_deg: f64,
+    /// ...and at least this (degrees): flow locked on shading that stays put while the surface
+    /// turns says "no motion", consistently, on many pairs; an answer that barely turns is
+    /// always checked.
+    pub settled_min_turn_deg: f64,
     /// Residual difference (metres) below which the geometry counts as ambiguous.
     pub geometric_margin_m: f64,
     /// ...and residual ratio below which it does: a correct pose on a partial view leaves the
@@ -118,9 +132,9 @@ pub struct FlowFilterConfig {
     /// `filterreg.variant` says. Point-to-point EM crawls on a scene (a 13k-point shelf frame:
     /// 300 iterations, 64 s on 2 cores), point-to-plane converges in tens of iterations (0.1-0.2
     /// s); on the small objects of the default protocol (at most about 2.6k points) point-to-point
-    /// is the more accurate (0.25 deg against 0.37 with point-to-plane everywhere). The
-    /// pipeline's cloud budget (`cloud.max_points`, 4000) thins a scene to 3300-4000 points,
-    /// which this rule must still call a scene. 0 = never.
+    /// is the more accurate (0.25 deg against 0.37 with point-to-plane everywhere). The count is
+    /// [`RegistrationProblem::source_size`]: a cloud thinned by the pipeline's budget counts as
+    /// the points it stands for. 0 = never.
     pub scene_points: usize,
 }
 
@@ -135,6 +149,10 @@ impl Default for FlowFilterConfig {
             correspondence_weight: 1.0,
             seed: 0,
             geometric_check: true,
+            settled_min_pairs: 200,
+            settled_fraction: 0.7,
+            settled_max_turn_deg: 10.0,
+            settled_min_turn_deg: 1.0,
             geometric_margin_m: 0.001,
             geometric_ratio: 1.8,
             geometric_tau_m: 0.01,
@@ -147,7 +165,7 @@ impl Default for FlowFilterConfig {
             reprojection_max_change_deg: 3.0,
             reprojection_row_shear_sd: 0.002,
             filterreg: FilterRegConfig::default(),
-            scene_points: 3000,
+            scene_points: 8000,
         }
     }
 }
@@ -202,6 +220,17 @@ pub fn ransac_kabsch(
 }
 
 impl FlowFilterConfig {
+    /// Whether the flow settles the answer and the geometric check is skipped (see
+    /// [`FlowFilterConfig::settled_min_pairs`]): correspondence set `set` chosen, `agreeing` of
+    /// its `usable` pairs agreeing on `pose`.
+    pub fn settles(&self, set: usize, agreeing: usize, usable: usize, pose: &Pose) -> bool {
+        self.settled_min_pairs > 0
+            && set == 0
+            && agreeing >= self.settled_min_pairs
+            && agreeing as f64 >= self.settled_fraction * usable as f64
+            && (self.settled_min_turn_deg..self.settled_max_turn_deg).contains(&pose.rotation.angle().to_degrees())
+    }
+
     /// The polish's guard: whether a polish that moves the flow pairs' median residual from
     /// `before` to `after` (metres) is kept (see [`FlowFilterConfig::polish_flow_slack_m`]).
     pub fn polish_agrees_with_flow(&self, before: f64, after: f64) -> bool {
@@ -241,6 +270,9 @@ impl FlowFilterConfig {
         params::positive("inlier_threshold_m", self.inlier_threshold_m)?;
         params::in_closed("min_inlier_fraction", self.min_inlier_fraction, 0.0, 1.0)?;
         params::non_negative("correspondence_weight", self.correspondence_weight)?;
+        params::in_closed("settled_fraction", self.settled_fraction, 0.0, 1.0)?;
+        params::non_negative("settled_max_turn_deg", self.settled_max_turn_deg)?;
+        params::non_negative("settled_min_turn_deg", self.settled_min_turn_deg)?;
         params::non_negative("geometric_margin_m", self.geometric_margin_m)?;
         params::at_least("geometric_ratio", self.geometric_ratio, 1.0)?;
         params::positive("geometric_tau_m", self.geometric_tau_m)?;
@@ -354,7 +386,7 @@ impl FlowFilter {
     /// The FilterReg configuration for `p`: point-to-plane on a scene
     /// ([`FlowFilterConfig::scene_points`]), else as configured.
     fn filterreg_config(&self, p: &RegistrationProblem) -> FilterRegConfig {
-        let scene = self.config.scene_points > 0 && p.source.len() > self.config.scene_points;
+        let scene = self.config.scene_points > 0 && p.source_size() > self.config.scene_points;
         let mut cfg = self.config.filterreg.clone();
         if scene && p.target.normals.is_some() {
             cfg.variant = FilterRegVariant::PointToPlane;
@@ -443,7 +475,8 @@ impl FlowFilter {
             return Ok(Solved::by_flow(flow_only(pose, agreeing, pairs.len())));
         }
         let flow_result = self.filterreg_from_flow(p, pairs, pose, inliers)?;
-        if !cfg.geometric_check {
+        let settled = chosen.is_some_and(|c| self.config.settles(c.index, agreeing, usable, &pose));
+        if !cfg.geometric_check || settled {
             return Ok(Solved::by_flow(flow_result));
         }
         self.verify(p, pose, flow_result)
@@ -656,6 +689,24 @@ mod tests {
         let diag = Vector3::repeat(trans * trans).push(rot * rot).push(rot * rot).push(rot * rot);
         let covariance = Matrix6::from_diagonal(&nalgebra::Vector6::from_iterator(diag.iter().copied()));
         Refinement { pose, covariance, blocks: 0, row_shear: Vector2::zeros() }
+    }
+
+    /// The geometric check is skipped only where the plain flow's many pairs agree on a small
+    /// motion that is not "no motion".
+    #[test]
+    fn the_check_is_skipped_only_where_the_flow_settles_a_small_turn() {
+        let cfg = FlowFilterConfig::default();
+        let turned = |deg: f64| Pose::new(Vector3::new(0.01, 0.0, 0.0), Vector3::new(0.0, deg.to_radians(), 0.0));
+        assert!(cfg.settles(0, 400, 500, &turned(3.0)));
+        assert!(!cfg.settles(1, 400, 500, &turned(3.0)), "a guided or searched set is always checked");
+        assert!(!cfg.settles(0, 150, 160, &turned(3.0)), "too few pairs");
+        assert!(!cfg.settles(0, 300, 500, &turned(3.0)), "too small a share");
+        assert!(!cfg.settles(0, 400, 500, &turned(12.0)), "a large turn");
+        assert!(!cfg.settles(0, 400, 500, &turned(0.3)), "flow that says no motion (shading locked)");
+        assert!(
+            !FlowFilterConfig { settled_min_pairs: 0, ..cfg }.settles(0, 400, 500, &turned(3.0)),
+            "0: always checked"
+        );
     }
 
     /// Taken, the refinement's move adds to its bounds in quadrature; not taken (the pose

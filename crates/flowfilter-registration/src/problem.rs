@@ -27,6 +27,12 @@ pub struct RegistrationProblem {
     /// handed back so that the backend does not compute it a second time. Only the backend
     /// that computed it may be given it.
     pub prior: Option<Registration>,
+    /// How many points the source cloud stands for, where a point budget thinned it (the
+    /// pipeline's `cloud.max_points`): its count at the configured voxel. `None`: the points it
+    /// holds. Rules that tell a scene from an object by its size
+    /// ([`crate::FlowFilterConfig::scene_points`]) read this, so that a whole frame thinned to a
+    /// budget is still a scene.
+    pub source_points: Option<usize>,
 }
 
 impl RegistrationProblem {
@@ -39,7 +45,14 @@ impl RegistrationProblem {
             correspondences: None,
             alternative_correspondences: vec![],
             prior: None,
+            source_points: None,
         }
+    }
+
+    /// The source's size as rules about it read it: [`RegistrationProblem::source_points`], or
+    /// the points it holds.
+    pub fn source_size(&self) -> usize {
+        self.source_points.unwrap_or(self.source.len())
     }
 
     /// Set the initial pose.
@@ -57,7 +70,8 @@ impl RegistrationProblem {
     /// The same clouds and initial pose, without correspondences or prior: what a geometric
     /// backend run inside another one sees.
     pub fn geometry_only(&self) -> Self {
-        Self::new(self.source.clone(), self.target.clone()).with_init(self.init)
+        Self { source_points: self.source_points, ..Self::new(self.source.clone(), self.target.clone()) }
+            .with_init(self.init)
     }
 
     /// The candidate sets of correspondences in order (set 0 first); empty without any.

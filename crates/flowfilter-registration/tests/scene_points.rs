@@ -49,6 +49,10 @@ fn a_scene_is_registered_point_to_plane_and_an_object_as_configured() {
     let object = problem(40);
     let prior = flow_filter.prior(&object).unwrap().expect("a prior").transform;
     assert_eq!(prior, filterreg(FilterRegVariant::PointToPoint, &object));
+    // The same 1600 points standing for 2500 (thinned by a budget): a scene.
+    let thinned = RegistrationProblem { source_points: Some(2500), ..problem(40) };
+    let prior = flow_filter.prior(&thinned).unwrap().expect("a prior").transform;
+    assert_eq!(prior, filterreg(FilterRegVariant::PointToPlane, &thinned));
     // 0 turns the rule off.
     let off = FlowFilter::new(FlowFilterConfig { scene_points: 0, ..FlowFilterConfig::default() }).unwrap();
     assert_eq!(off.prior(&scene).unwrap().unwrap().transform, filterreg(FilterRegVariant::PointToPoint, &scene));
