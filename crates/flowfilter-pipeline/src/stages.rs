@@ -190,10 +190,11 @@ impl FramePreparer for DepthPreparer {
 
 /// The two frames' registration clouds at one density: the cloud thinned with the finer voxel
 /// is thinned again with the other's (where the cloud budget bound on one frame only), so that
-/// neither cloud outweighs the other in the registration's mixture. With a 4000-point budget, a cracker box turned 21 deg, whose
-/// target view held 4.2k points (thinned to 2.9k) against 1.6k in the model, landed 87 deg off
-/// at mixed densities and 0.28 deg off at one (as without the budget).
-pub fn registration_clouds(model: &PreparedFrame, target: &PreparedFrame) -> (PointCloud, PointCloud) {
+/// neither cloud outweighs the other in the registration's mixture. With a 4000-point budget, a
+/// cracker box turned 21 deg, whose target view held 4.2k points (thinned to 2.9k) against 1.6k
+/// in the model, landed 87 deg off at mixed densities and 0.28 deg off at one (as without the
+/// budget).
+pub(crate) fn registration_clouds(model: &PreparedFrame, target: &PreparedFrame) -> (PointCloud, PointCloud) {
     let coarse = model.thinning.voxel_m.max(target.thinning.voxel_m);
     let at_coarse = |f: &PreparedFrame| {
         if f.thinning.voxel_m < coarse { voxel_downsample(&f.cloud, coarse) } else { f.cloud.clone() }
