@@ -8,7 +8,8 @@ every pair of frames `gap` apart (`--gaps`, default 1,2) is registered whole (no
   30 and 14 iterations; normals from 30 neighbours within twice the voxel; relative fitness and
   RMSE 1e-6), from the identity. Timed from the two RGB-D images to the answer: both clouds,
   their downsampling and normals, the three scales. The raw depth is registered onto the colour
-  grid beforehand, untimed (as `open3d_odometry.py` does it); ours does that inside its timing;
+  grid beforehand, untimed (by `open3d_odometry.register_depth`); ours does that inside its
+  timing;
 - `flowfilter estimate` (Flow Filter, defaults) and `flowfilter estimate --method
   filterreg-pt2pl`: the `stage_ms.total` the CLI reports (both frames' depth stage included,
   file reading not).
@@ -36,28 +37,10 @@ from pathlib import Path
 import numpy as np
 
 
-def register_depth(depth_mm, camera):
-    """Raw depth (uint16, depth camera grid) -> metres on the colour grid (0 = none), nearest kept."""
-    kd = np.array(camera["depth"]["K"], dtype=float)
-    kc = np.array(camera["K"], dtype=float)
-    c_from_d = np.array(camera["color_from_depth"], dtype=float)
-    unit = camera.get("depth_unit_m", 0.001)
-    v, u = np.nonzero(depth_mm)
-    z = depth_mm[v, u].astype(float) * unit
-    pts = np.stack([(u - kd[0, 2]) / kd[0, 0] * z, (v - kd[1, 2]) / kd[1, 1] * z, z], axis=1)
-    pts = pts @ c_from_d[:3, :3].T + c_from_d[:3, 3]
-    pts = pts[pts[:, 2] > 0]
-    uc = np.round(kc[0, 0] * pts[:, 0] / pts[:, 2] + kc[0, 2]).astype(int)
-    vc = np.round(kc[1, 1] * pts[:, 1] / pts[:, 2] + kc[1, 2]).astype(int)
-    inside = (uc >= 0) & (uc < camera["width"]) & (vc >= 0) & (vc < camera["height"])
-    out = np.full((camera["height"], camera["width"]), np.inf)
-    np.minimum.at(out, (vc[inside], uc[inside]), pts[inside, 2])
-    out[np.isinf(out)] = 0.0
-    return out.astype(np.float32)
-
-
 def open3d_pair(o3d, folder, a, b, camera):
     """Open3D's multi-scale coloured ICP of frame a onto frame b: (T, seconds)."""
+    from open3d_odometry import register_depth  # the same registration of depth onto colour
+
     kc = np.array(camera["K"], dtype=float)
     intrinsic = o3d.camera.PinholeCameraIntrinsic(camera["width"], camera["height"], kc[0, 0], kc[1, 1], kc[0, 2], kc[1, 2])
 
@@ -103,8 +86,9 @@ def ours_pair(binary, folder, a, b, method):
 
 
 def errors(t, truth):
-    r = t[:3, :3].T @ truth[:3, :3]
-    angle = np.degrees(np.arccos(np.clip((np.trace(r) - 1) / 2, -1, 1)))
+    from open3d_odometry import rotation_deg
+
+    angle = rotation_deg(t[:3, :3].T @ truth[:3, :3])
     return float(angle), float(np.linalg.norm(t[:3, 3] - truth[:3, 3]))
 
 

@@ -184,35 +184,27 @@ pub fn voxel_downsample(cloud: &PointCloud, voxel: f64) -> PointCloud {
     out
 }
 
-/// [`voxel_downsample`] at `voxel` metres (0: every point), then, when more than `max_points`
-/// remain (0: no limit), again with a voxel grown until no more do: a registration cloud
-/// bounded by a budget, whatever the object's size (a whole frame, an object close to the
-/// camera). The grown voxel starts where a surface's point count would fit (the count falls
-/// with the voxel's area) and grows by a tenth at a time; the result is deterministic. Returns
-/// the cloud and the voxel it was last thinned with (`voxel` when the budget did not bind).
+/// `cloud`, already thinned with [`voxel_downsample`] at `voxel` metres (0: not thinned),
+/// thinned again with a grown voxel until at most `max_points` remain (0: no limit): a
+/// registration cloud bounded by a budget, whatever the object's size (a whole frame, an object
+/// close to the camera). Returns the cloud and its voxel (`voxel` when the budget did not bind).
+/// The voxel starts a little below where a surface's count would fit (the count falls with the
+/// voxel's area) and is approached from below in steps of [`BUDGET_STEP`], so the cloud keeps
+/// close to `max_points` (within one step's thinning, about a tenth on a surface): a rule that
+/// reads the count (a scene's) still sees a large cloud. The result is deterministic.
 ///
 /// ```
-/// use flowfilter_depth::cloud::voxel_downsample_within;
+/// use flowfilter_depth::cloud::{thin_to_budget, voxel_downsample};
 /// use flowfilter_geometry::{Point3, PointCloud};
 ///
-/// // A 40 x 40 cm plane sampled every millimetre: 160 000 points.
+/// // A 40 x 40 cm plane sampled every millimetre: 160 000 points, 10 000 at 4 mm.
 /// let points = (0..400).flat_map(|i| (0..400).map(move |j| Point3::new(i as f64 * 1e-3, j as f64 * 1e-3, 1.0)));
-/// let cloud = PointCloud::from_points(points.collect());
-/// assert_eq!(voxel_downsample_within(&cloud, 0.004, 0).0.len(), 10_000);
-/// let (bounded, voxel) = voxel_downsample_within(&cloud, 0.004, 4000);
+/// let at_4mm = voxel_downsample(&PointCloud::from_points(points.collect()), 0.004);
+/// assert_eq!(thin_to_budget(at_4mm.clone(), 0.004, 0).0.len(), 10_000);
+/// let (bounded, voxel) = thin_to_budget(at_4mm, 0.004, 4000);
 /// assert!(bounded.len() <= 4000 && bounded.len() > 3000, "{}", bounded.len());
 /// assert!(voxel > 0.006 && voxel < 0.008, "{voxel}");
 /// ```
-pub fn voxel_downsample_within(cloud: &PointCloud, voxel: f64, max_points: usize) -> (PointCloud, f64) {
-    let thinned = if voxel > 0.0 { voxel_downsample(cloud, voxel) } else { cloud.clone() };
-    thin_to_budget(thinned, voxel, max_points)
-}
-
-/// The second half of [`voxel_downsample_within`]: `cloud`, already thinned with `voxel` (0:
-/// not thinned), thinned again with a grown voxel until at most `max_points` remain (0: no
-/// limit). Returns the cloud and its voxel. The voxel is approached from below in steps of
-/// [`BUDGET_STEP`], so the cloud keeps close to `max_points` (within one step's thinning, about
-/// a tenth on a surface): a rule that reads the count (a scene's) still sees a large cloud.
 pub fn thin_to_budget(cloud: PointCloud, voxel: f64, max_points: usize) -> (PointCloud, f64) {
     if max_points == 0 || cloud.len() <= max_points {
         return (cloud, voxel);
@@ -235,7 +227,7 @@ pub fn thin_to_budget(cloud: PointCloud, voxel: f64, max_points: usize) -> (Poin
 /// The factor by which [`thin_to_budget`] grows (or shrinks) its voxel at each step.
 pub const BUDGET_STEP: f64 = 1.05;
 
-/// The voxel [`voxel_downsample_within`] grows from when no voxel thins the cloud first (metres).
+/// The voxel [`thin_to_budget`] grows from when no voxel thinned the cloud first (metres).
 const BUDGET_START_VOXEL_M: f64 = 0.001;
 
 /// Statistical outlier removal (as Open3D's `remove_statistical_outlier`): drop points whose
@@ -318,6 +310,13 @@ mod tests {
         for n in knn_normals(&pts, 10, &Point3::origin()) {
             assert!((n - expected).norm() < 1e-9, "{n:?}");
         }
+    }
+
+    /// `cloud` at `voxel` (0: every point), then within `max_points`: what the pipeline's
+    /// cloud preparation does.
+    fn voxel_downsample_within(cloud: &PointCloud, voxel: f64, max_points: usize) -> (PointCloud, f64) {
+        let thinned = if voxel > 0.0 { voxel_downsample(cloud, voxel) } else { cloud.clone() };
+        thin_to_budget(thinned, voxel, max_points)
     }
 
     #[test]

@@ -334,13 +334,13 @@ pub fn search_hypotheses(
 ) -> Option<HypothesisMatch> {
     let level = images.level;
     let ([coarse_model, coarse_target], [fine_model, fine_target]) = (&images.coarse, &images.fine);
+    let everywhere = Placements::everywhere(coarse_target.dims());
     let searched: Vec<Option<(f64, [f64; 2])>> = (0..count)
         .into_par_iter()
         .map(|h| {
             let moved = |x: f64, y: f64| predict(h, x, y).map(|q| [q[0] + near.shift[0], q[1] + near.shift[1]]);
             let coarse = Template::predicted(coarse_model, mask, level, p.max_pixels, &moved)?;
             let s = f64::from(1u32 << level);
-            let everywhere = Placements::everywhere(coarse_target.dims());
             let (_, (u, v), _) = best_placement(&coarse, coarse_target, &everywhere, &[0.0], p.min_overlap)?;
             let coarse_shift = [(u - coarse.centre[0]) * s, (v - coarse.centre[1]) * s];
             let fine = Template::predicted(fine_model, mask, level - 1, p.max_pixels * 2, &|x, y| {

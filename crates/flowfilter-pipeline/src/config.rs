@@ -21,7 +21,7 @@ pub struct CloudPrepConfig {
     /// At most this many points in a registration cloud: a larger one (a whole frame, an object
     /// close to the camera) is thinned with a coarser voxel until it fits, so the
     /// registration's cost is bounded by this budget, not by the object's size
-    /// ([`flowfilter_depth::cloud::voxel_downsample_within`]). 0 = no limit.
+    /// ([`flowfilter_depth::cloud::thin_to_budget`]). 0 = no limit.
     pub max_points: usize,
 }
 

@@ -70,12 +70,15 @@ impl CloudThinning {
             .rethin(at_voxel)
     }
 
-    /// `cloud` (at the configured voxel) within the budget: the cloud and its record.
+    /// `cloud` (at the configured voxel) within the budget: the cloud and its record (the finer
+    /// cloud kept, a copy, only where the budget binds).
     fn rethin(&self, cloud: PointCloud) -> (PointCloud, Self) {
-        let n = cloud.len();
+        let at_voxel = Self { voxel_m: self.configured_voxel_m, finer: None, ..self.clone() };
+        if self.max_points == 0 || cloud.len() <= self.max_points {
+            return (cloud, at_voxel);
+        }
         let (thinned, voxel_m) = thin_to_budget(cloud.clone(), self.configured_voxel_m, self.max_points);
-        let finer = (thinned.len() < n).then(|| Arc::new(cloud));
-        (thinned, Self { voxel_m, finer, ..self.clone() })
+        (thinned, Self { voxel_m, finer: Some(Arc::new(cloud)), ..at_voxel })
     }
 }
 
