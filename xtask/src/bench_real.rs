@@ -67,6 +67,12 @@ pub struct RealBenchArgs {
     /// to run a pair again with `flowfilter estimate --model-mask ... --target-mask ...`.
     #[arg(long)]
     pub save_masks: Option<PathBuf>,
+    /// Run the pairs' synthetic twins instead of the real frames: each pair rendered from its
+    /// model frame's own surface, the target frame from where the calibrated poses put it,
+    /// with the SR300 shelf profile's noise and effects (the same pairs, regions and mask
+    /// defects; the truth exact). Only with the calibrated truth.
+    #[arg(long)]
+    pub twin: bool,
     /// CI-sized: the first 4 frames of each sequence, gap 1, one region per pair.
     #[arg(long)]
     pub quick: bool,
@@ -80,18 +86,24 @@ pub const WHOLE_FRAME: &str = "whole-frame";
 /// The object name of region pairs.
 pub const REGION: &str = "region";
 
-/// A frame of a pair: the image, the region whose mask it carries (0: whole frame) and whether
-/// it is the pair's model frame (whose mask is never missing).
+/// A frame of a pair: the image, the region whose mask it carries (0: whole frame), whether
+/// it is the pair's model frame (whose mask is never missing), and the frame whose surface a
+/// twin renders it from (`im` itself for a real frame and a twin's model frame).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 pub struct RealKey {
     im: u32,
     region: u32,
     model: bool,
+    source: u32,
 }
 
 impl fmt::Display for RealKey {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "frame-{:06}/region-{}", self.im, self.region)
+        write!(f, "frame-{:06}/region-{}", self.im, self.region)?;
+        if self.source != self.im {
+            write!(f, "/twin-from-{:06}", self.source)?;
+        }
+        Ok(())
     }
 }
 
@@ -112,6 +124,10 @@ pub fn run(args: &RealBenchArgs) -> anyhow::Result<()> {
     let started = Instant::now();
     let (all, dirs, every) = sequence_dirs(args)?;
     let truth = args.truth.truth(&every).map_err(anyhow::Error::msg)?;
+    if args.twin && !matches!(truth, Truth::Calibrated) {
+        bail!("--twin renders the pairs with the calibrated poses: it is scored against them only (leave --truth out)");
+    }
+    let twin_options = crate::real_twin::twin_options(args.seed);
     let mut results: Vec<PairResult> = vec![];
     let mut skipped: Vec<(String, String)> = vec![];
     for dir in &dirs {
@@ -136,20 +152,29 @@ pub fn run(args: &RealBenchArgs) -> anyhow::Result<()> {
             })
             .collect();
         let save_masks = args.save_masks.as_ref().map(|d| d.join(&label));
-        let plan = Plan {
+        let mut plan = Plan {
             seq: &seq,
             whole: &whole,
+            twins: None,
             label: &label,
             seed: args.seed,
             regions,
             mask_model,
             save_masks: save_masks.as_deref(),
         };
-        let (jobs, regions_of) = plan.jobs(&gaps, !args.no_whole);
+        let (jobs, regions_of) = plan.jobs(&gaps, !args.no_whole, args.twin);
         if jobs.is_empty() {
             skipped.push((label, format!("no pair of frames {gaps:?} apart")));
             continue;
         }
+        let twins = if args.twin {
+            let wanted = jobs.iter().flat_map(|j| [j.model, j.target]).map(|k| (k.source, k.im)).collect();
+            crate::real_twin::render_twin_frames(&seq, &whole, &wanted, &label, &twin_options)
+                .map_err(anyhow::Error::msg)?
+        } else {
+            BTreeMap::new()
+        };
+        plan.twins = args.twin.then_some(&twins);
         let mut frames: Vec<RealKey> = jobs.iter().flat_map(|j| [j.model, j.target]).collect();
         frames.sort();
         frames.dedup();
@@ -171,13 +196,19 @@ pub fn run(args: &RealBenchArgs) -> anyhow::Result<()> {
             "mask_model": mask_model,
             "seed": args.seed,
             "truth": truth_json(&truth),
+            "twin": args.twin.then(|| serde_json::json!({
+                "noise": twin_options.noise.as_ref().map(|n| n.name.clone()),
+                "effects": format!("{:?}", twin_options.effects),
+                "seed": twin_options.seed,
+            })),
             "quick": args.quick,
             "methods": args.methods,
             "pipeline": args.pipeline,
             "voxel": args.run.voxel,
         }),
         protocol_line: format!(
-            "{} sequence(s), gaps {:?}, {} region(s) per pair{}, masks {}, seed {}, pipeline {}, truth {}",
+            "{}{} sequence(s), gaps {:?}, {} region(s) per pair{}, masks {}, seed {}, pipeline {}, truth {}",
+            if args.twin { "the synthetic twins of the pairs of " } else { "" },
             all.len(),
             gaps,
             regions,
@@ -280,6 +311,8 @@ pub fn seed_of(label: &str, seed: u64, parts: &[u64]) -> u64 {
 struct Plan<'a> {
     seq: &'a PosedFrames,
     whole: &'a BTreeMap<u32, RgbdFrame>,
+    /// The twin frames by (source, frame), when the pairs' twins run.
+    twins: Option<&'a BTreeMap<(u32, u32), RgbdFrame>>,
     label: &'a str,
     seed: u64,
     regions: u32,
@@ -293,8 +326,9 @@ impl Plan<'_> {
         seed_of(self.label, self.seed, parts)
     }
 
-    /// The pairs (whole frames and regions) and the regions by id.
-    fn jobs(&self, gaps: &[u32], whole_frames: bool) -> (Vec<PairJob<RealKey>>, BTreeMap<u32, Region>) {
+    /// The pairs (whole frames and regions) and the regions by id; with `twin`, a target frame
+    /// is its pair's model frame's twin.
+    fn jobs(&self, gaps: &[u32], whole_frames: bool, twin: bool) -> (Vec<PairJob<RealKey>>, BTreeMap<u32, Region>) {
         let mut pairs: Vec<(u32, u32, u32)> = vec![];
         for &gap in gaps {
             for &a in self.whole.keys() {
@@ -326,8 +360,8 @@ impl Plan<'_> {
                 from: a,
                 to: b,
                 step: gap,
-                model: RealKey { im: a, region, model: true },
-                target: RealKey { im: b, region, model: false },
+                model: RealKey { im: a, region, model: true, source: a },
+                target: RealKey { im: b, region, model: false, source: if twin { a } else { b } },
                 truth: self.seq.relative_motion(a, b),
             };
             if whole_frames {
@@ -344,7 +378,11 @@ impl Plan<'_> {
     /// A frame with the mask its key asks for: none for the whole frame, else the network's
     /// mask of the region (a target mask the network drops: none, as `estimate` takes a frame without `--target-mask`).
     fn frame(&self, key: RealKey, regions: &BTreeMap<u32, Region>) -> Result<RgbdFrame, String> {
-        let whole = self.whole.get(&key.im).ok_or_else(|| format!("frame {} could not be read", key.im))?;
+        let whole = match self.twins {
+            Some(twins) => twins.get(&(key.source, key.im)),
+            None => self.whole.get(&key.im),
+        }
+        .ok_or_else(|| format!("frame {} could not be read", key.im))?;
         if key.region == 0 {
             return Ok(whole.clone());
         }
@@ -403,6 +441,7 @@ mod tests {
             methods: vec!["flowfilter".into()],
             pipeline: PathBuf::from("configs/flowfilter.toml"),
             save_masks: None,
+            twin: false,
             quick: true,
             run: RunArgs { out, voxel: None, check: true, shard: None, rerun: None, rerun_limit: 20 },
         }
@@ -439,6 +478,38 @@ mod tests {
         }
         let masks = std::fs::read_dir(tmp.path().join("masks/shelf-G")).unwrap().count();
         assert_eq!(masks, 2 * of(REGION, "flowfilter").len());
+    }
+
+    /// `--twin` runs the same pairs and regions on their twins: the whole frames' twins are
+    /// scored against the calibrated motion they were rendered with (within 0.3 deg: the
+    /// twin's warp of the depth is all that moves them), the same region ids as the real run,
+    /// and the arm's truth is refused.
+    #[test]
+    fn the_twins_of_a_sequence_run_as_its_pairs_do() {
+        let Some(data) = shelf("shelf-G") else { return };
+        let tmp = tempfile::tempdir().unwrap();
+        let results = |dir: &Path| -> Vec<serde_json::Value> {
+            let run_dir = std::fs::read_dir(dir).unwrap().next().unwrap().unwrap().path();
+            let v: serde_json::Value =
+                serde_json::from_str(&std::fs::read_to_string(run_dir.join("results.json")).unwrap()).unwrap();
+            v["pairs"].as_array().unwrap().iter().filter(|p| p["method"] == "flowfilter").cloned().collect()
+        };
+        let real = args(data.clone(), tmp.path().join("real"));
+        run(&real).unwrap();
+        let mut twin = args(data, tmp.path().join("twin"));
+        twin.twin = true;
+        run(&twin).unwrap();
+        let (real, twin_pairs) = (results(&tmp.path().join("real")), results(&tmp.path().join("twin")));
+        let key = |p: &serde_json::Value| (p["object"].to_string(), p["from"].to_string(), p["to"].to_string());
+        assert_eq!(real.iter().map(key).collect::<Vec<_>>(), twin_pairs.iter().map(key).collect::<Vec<_>>());
+        for p in twin_pairs.iter().filter(|p| p["object"] == WHOLE_FRAME) {
+            let e = p["errors"]["geodesic_error_deg"].as_f64().unwrap();
+            assert!(e < 0.3, "{p}");
+        }
+        let mut arm = args(shelf("shelf-G").unwrap(), tmp.path().join("arm"));
+        (arm.twin, arm.truth) = (true, TruthRecord::Arm);
+        let e = run(&arm).unwrap_err().to_string();
+        assert!(e.contains("--twin") && e.contains("calibrated"), "{e}");
     }
 
     /// A region of a real pair and the default pipeline: the frames with the region's network

@@ -31,6 +31,7 @@ mod mutate;
 mod pairs;
 mod plots;
 mod publish_check;
+mod real_twin;
 mod realsense;
 mod report;
 mod sequence;

@@ -232,6 +232,16 @@ impl PosedFrames {
         Ok(pose(b)?.inverse() * pose(a)?)
     }
 
+    /// The camera's motion from frame `a` to frame `b` by the calibrated poses, whatever the
+    /// truth: `inv(C_b) * C_a` (what a twin of the pair is rendered with).
+    ///
+    /// # Errors
+    /// A frame without a pose.
+    pub fn calibrated_motion(&self, a: u32, b: u32) -> Result<Pose, String> {
+        let pose = |i: u32| self.poses.get(&i).ok_or_else(|| format!("{}: no pose of frame {i}", self.dir.display()));
+        Ok(pose(b)?.inverse() * pose(a)?)
+    }
+
     /// Frame `im`, whole (its mask: every pixel).
     ///
     /// # Errors

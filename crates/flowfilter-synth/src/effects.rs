@@ -96,6 +96,21 @@ impl FrameEffects {
         ..Self::REAL_SENSOR
     };
 
+    /// What the real RealSense SR300 shelf sequences (`../shared/data/realsense-shelf`) show
+    /// between frames, for their twins: the arm stops at each pose, so no depth delay and no
+    /// rolling-shutter shear; masks get the segmentation network's defects elsewhere
+    /// (`NetworkMaskModel::SHELF_NETWORK`), so none here; the auto exposure's gain between two
+    /// frames of a pair, measured against the twins (docs/real.md, "The synthetic twin").
+    pub const SR300_SHELF: Self = Self {
+        exposure: 0.12,
+        white_balance: 0.04,
+        mask_shift_px: 0,
+        mask_grow_px: 0,
+        depth_delay_deg: 0.0,
+        row_shear_px_per_row: 0.0,
+        row_stretch_px_per_row: 0.0,
+    };
+
     /// Draw one frame's values.
     pub fn draw(&self, rng: &mut impl Rng) -> FrameDraw {
         let mut symmetric = |bound: f64| if bound > 0.0 { rng.random_range(-bound..=bound) } else { 0.0 };

@@ -8,6 +8,8 @@
 //!   noise ([`NoiseProfile`]).
 //! - [`true_flow`]: exact optical flow between any two colour views, with occlusion.
 //! - [`write_capture`]: a whole capture in the BigBIRD layout through `flowfilter-bigbird`.
+//! - [`surface_from_rgbd`] and [`render_surface_view`]: a real RGB-D frame as a textured surface,
+//!   seen again from another pose through the same sensor (twins of captured scenes).
 //! - [`write_bop_scene`]: a scene in the BOP layout (depth registered to colour, visible masks,
 //!   `scene_gt.json`), with the per-frame [`FrameEffects`] of real captures.
 
@@ -15,6 +17,7 @@
 
 mod bop;
 mod capture;
+mod captured;
 mod effects;
 mod error;
 mod mesh;
@@ -31,6 +34,7 @@ pub use bop::{BopSceneOptions, BopView, bop_sensor, render_bop_view, write_bop_s
 pub use capture::{
     CaptureOptions, RenderedFrame, contact_sheet, parse_angles, parse_fractional_angles, render_frame, write_capture,
 };
+pub use captured::{SurfaceOptions, render_surface_view, surface_from_rgbd};
 pub use effects::{FrameDraw, FrameEffects};
 pub use error::SynthError;
 pub use mesh::TexturedMesh;

@@ -37,6 +37,46 @@ pub struct DepthNoise {
     pub flying_probability: f64,
     /// Probability that an edge pixel takes its neighbour's depth.
     pub lateral_jitter_probability: f64,
+    /// RMS of a smooth depth error field drawn afresh for every view, metres (0 = none): the
+    /// view-dependent warp of a real sensor's depth, which tilts a small patch differently
+    /// from one view to the next.
+    #[serde(default)]
+    pub warp_sigma_m: f64,
+    /// Typical wavelength of that field on the depth image, pixels.
+    #[serde(default = "default_warp_wavelength_px")]
+    pub warp_wavelength_px: f64,
+}
+
+fn default_warp_wavelength_px() -> f64 {
+    200.0
+}
+
+/// Plane waves summed into a view's depth warp field.
+const WARP_WAVES: usize = 8;
+
+/// A smooth random field of RMS `sigma` (metres) over pixels: [`WARP_WAVES`] plane waves of
+/// random directions, phases and wavelengths within 0.7-1.4 times `wavelength_px`.
+struct WarpField {
+    waves: Vec<(f64, f64, f64)>,
+    amplitude: f64,
+}
+
+impl WarpField {
+    fn draw(sigma: f64, wavelength_px: f64, rng: &mut impl Rng) -> Self {
+        let waves = (0..WARP_WAVES)
+            .map(|_| {
+                let (angle, phase) =
+                    (rng.random_range(0.0..std::f64::consts::TAU), rng.random_range(0.0..std::f64::consts::TAU));
+                let k = std::f64::consts::TAU / (wavelength_px * rng.random_range(0.7..1.4));
+                (k * angle.cos(), k * angle.sin(), phase)
+            })
+            .collect();
+        Self { waves, amplitude: sigma * (2.0 / WARP_WAVES as f64).sqrt() }
+    }
+
+    fn at(&self, x: f64, y: f64) -> f64 {
+        self.amplitude * self.waves.iter().map(|&(kx, ky, phase)| (kx * x + ky * y + phase).cos()).sum::<f64>()
+    }
 }
 
 /// Colour noise parameters.
@@ -69,6 +109,9 @@ pub const CARMINE_TOML: &str = include_str!("../profiles/carmine.toml");
 /// The profile fitted to the real YCB-Video sample (an Xtion at 640 x 480; see the file).
 pub const XTION_SAMPLE_TOML: &str = include_str!("../profiles/xtion-sample.toml");
 
+/// The profile of the twins of the real RealSense SR300 shelf sequences (see the file).
+pub const SR300_SHELF_TOML: &str = include_str!("../profiles/sr300-shelf.toml");
+
 impl NoiseProfile {
     /// Parse and validate a TOML profile; `source_name` is used in error messages.
     pub fn from_toml(text: &str, source_name: &str) -> Result<Self, SynthError> {
@@ -89,6 +132,8 @@ impl NoiseProfile {
                 "flying + lateral jitter probabilities exceed 1",
             ),
             (p.color.noise_sigma >= 0.0 && p.color.blur_sigma_px >= 0.0, "color sigmas must be >= 0"),
+            (d.warp_sigma_m >= 0.0, "depth.warp_sigma_m must be >= 0"),
+            (d.warp_wavelength_px > 0.0, "depth.warp_wavelength_px must be > 0"),
             ((1..=100).contains(&p.color.jpeg_quality), "color.jpeg_quality must be in 1..=100"),
         ];
         match checks.iter().find(|(ok, _)| !ok) {
@@ -107,17 +152,26 @@ impl NoiseProfile {
         Self::from_toml(XTION_SAMPLE_TOML, "xtion-sample (built in)").expect("built-in profile is valid")
     }
 
-    /// `none` -> no noise; `carmine` and `xtion-sample` -> the built-in profiles; anything else
-    /// is a TOML file path.
+    /// The built-in profile of the twins of the real SR300 shelf sequences
+    /// (`profiles/sr300-shelf.toml`).
+    pub fn sr300_shelf() -> Self {
+        Self::from_toml(SR300_SHELF_TOML, "sr300-shelf (built in)").expect("built-in profile is valid")
+    }
+
+    /// `none` -> no noise; `carmine`, `xtion-sample` and `sr300-shelf` -> the built-in profiles;
+    /// anything else is a TOML file path.
     pub fn resolve(spec: &str) -> Result<Option<Self>, SynthError> {
         match spec {
             "none" => Ok(None),
             "carmine" => Ok(Some(Self::carmine())),
             "xtion-sample" => Ok(Some(Self::xtion_sample())),
+            "sr300-shelf" => Ok(Some(Self::sr300_shelf())),
             path => {
                 let text = std::fs::read_to_string(Path::new(path)).map_err(|e| SynthError::NoiseProfile {
                     source_name: path.into(),
-                    message: format!("cannot read ({e}); use 'none', 'carmine', 'xtion-sample' or a TOML file"),
+                    message: format!(
+                        "cannot read ({e}); use 'none', 'carmine', 'xtion-sample', 'sr300-shelf' or a TOML file"
+                    ),
                 })?;
                 Self::from_toml(&text, path).map(Some)
             }
@@ -183,6 +237,8 @@ pub fn apply_depth_noise(p: &DepthNoise, input: &DepthNoiseInput, rng: &mut impl
     let mut dropped = vec![false; w * h];
     let (cos_start, cos_full) = (p.grazing_start_deg.to_radians().cos(), p.grazing_full_deg.to_radians().cos());
     let unit = Normal::new(0.0, 1.0).expect("valid normal");
+    // Drawn only when asked for, so that the other profiles' noise streams stay as they were.
+    let warp = (p.warp_sigma_m > 0.0).then(|| WarpField::draw(p.warp_sigma_m, p.warp_wavelength_px, rng));
     for y in 0..h {
         for x in 0..w {
             let k = y * w + x;
@@ -233,6 +289,9 @@ pub fn apply_depth_noise(p: &DepthNoise, input: &DepthNoiseInput, rng: &mut impl
                 }
             }
             zz += gauss * p.axial_sigma(zz);
+            if let Some(warp) = &warp {
+                zz += warp.at(x as f64, y as f64);
+            }
             out[k] = p.quantise(zz, input.focal_px) as f32;
         }
     }
@@ -323,5 +382,43 @@ mod tests {
         let gap = fb / (d - 0.125) - fb / d;
         assert!((gap - step).abs() / step < 0.01, "{gap} vs {step}");
         assert!((p.quantise(0.8, f) - 0.8).abs() <= step / 2.0 + 1e-12);
+    }
+
+    /// The view's depth warp is smooth and of the profile's RMS (one draw over a 640 x 480 image
+    /// of 200-px waves: within 40%), a new draw gives a new field, and a profile without it
+    /// (the keys absent) draws the same noise as before it existed.
+    #[test]
+    fn the_depth_warp_is_a_smooth_field_of_the_profiles_size() {
+        use rand::SeedableRng;
+        let (w, h) = (640, 480);
+        let clean = DepthMap::from_vec(w, h, vec![0.8; w * h]).unwrap();
+        let (cos, shadowed) = (vec![1.0f32; w * h], vec![false; w * h]);
+        let input = DepthNoiseInput { clean: &clean, cos_incidence: &cos, shadowed: &shadowed, focal_px: 477.0 };
+        let mut p = NoiseProfile::sr300_shelf().depth;
+        p.axial_sigma_a_m = 0.0;
+        let field = |p: &DepthNoise, seed: u64| {
+            let (d, _) = apply_depth_noise(p, &input, &mut rand_chacha::ChaCha8Rng::seed_from_u64(seed));
+            d.as_slice().iter().map(|&z| f64::from(z) - 0.8).collect::<Vec<f64>>()
+        };
+        let a = field(&p, 1);
+        let rms = (a.iter().map(|v| v * v).sum::<f64>() / a.len() as f64).sqrt();
+        assert!((rms / p.warp_sigma_m - 1.0).abs() < 0.4, "RMS {rms} against {}", p.warp_sigma_m);
+        let step =
+            (0..h).flat_map(|y| (1..w).map(move |x| (x, y))).map(|(x, y)| (a[y * w + x] - a[y * w + x - 1]).abs());
+        assert!(step.fold(0.0, f64::max) < p.warp_sigma_m / 4.0, "neighbours differ by more than a quarter of the RMS");
+        let b = field(&p, 2);
+        assert!(a.iter().zip(&b).any(|(u, v)| (u - v).abs() > p.warp_sigma_m / 2.0), "a new draw, a new field");
+        let carmine = NoiseProfile::carmine().depth;
+        assert_eq!(carmine.warp_sigma_m, 0.0);
+        let with_keys = NoiseProfile::from_toml(
+            &CARMINE_TOML.replace(
+                "lateral_jitter_probability = 0.25",
+                "lateral_jitter_probability = 0.25\nwarp_sigma_m = 0.0\nwarp_wavelength_px = 50.0",
+            ),
+            "carmine with the keys",
+        )
+        .unwrap()
+        .depth;
+        assert_eq!(field(&carmine, 3), field(&with_keys, 3));
     }
 }

@@ -64,7 +64,8 @@ impl Default for TwinOptions {
 pub struct TwinView {
     /// Colour image (noise, gain and row shear applied).
     pub color: RgbImage,
-    /// Depth registered to colour, in the sensor's units (0 = no reading).
+    /// Depth in the sensor's units (0 = no reading), on its depth camera's grid (registered to
+    /// colour for [`render_twin_view`], whose sensors are).
     pub depth: RawDepth,
     /// The object's mask as an annotation would give it (perturbed by the frame's effects).
     pub mask: Mask,

@@ -1,0 +1,107 @@
+#!/usr/bin/env python3
+"""Flow Filter on the real RealSense shelf pairs against the same pairs' synthetic twins.
+
+`cargo xtask bench-real --twin` renders each pair from its model frame's own surface (the real
+texture, geometry and depth holes; the SR300 shelf profile's noise and effects; the exact
+truth). The script runs
+
+    xtask bench-real --methods flowfilter --out OUT/real [ARGS]
+    xtask bench-real --methods flowfilter --twin --seed SEED --out OUT/twin-SEED [ARGS]   (every seed)
+
+(or reads pairs.csv files given with --real-csv / --twin-csv) and prints, per kind of pair
+(region or whole frame, shelf or tote, gap), the real pairs' success / within 2 deg / median
+geodesic error against the twins' (pooled over the seeds), the ratio of the medians, and how
+many of the real pairs over 2 deg off are over 2 deg off in their twin too. The regions and
+their mask defects depend on the seed, so only seed 0's twin is compared pair by pair. Needs
+only the standard library and the xtask binary (`cargo build --release -p xtask`).
+
+    python3 tools/bench/real_twin_against_real.py --xtask target/release/xtask \
+        --out target/real-twin --seeds 0
+"""
+import argparse
+import csv
+import statistics
+import subprocess
+from collections import defaultdict
+from pathlib import Path
+
+
+def bench(xtask, out, extra):
+    """Run bench-real with `extra` arguments into `out` and return its pairs.csv path."""
+    cmd = [xtask, "bench-real", "--methods", "flowfilter", "--out", str(out), *extra]
+    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    found = sorted(Path(out).glob("*/pairs.csv"))
+    if not found:
+        raise SystemExit(f"no pairs.csv under {out}")
+    return found[-1]
+
+
+def rows(pairs_csv):
+    """Flow Filter's rows of a pairs.csv, keyed by (object, sequence, from, to, index)."""
+    out = {}
+    seen = defaultdict(int)
+    with open(pairs_csv, newline="") as f:
+        for r in csv.DictReader(f):
+            if r["method"] != "flowfilter" or not r["geodesic_error_deg"]:
+                continue
+            base = (r["object"], r["camera"], int(r["from"]), int(r["to"]))
+            out[(*base, seen[base])] = r
+            seen[base] += 1
+    return out
+
+
+def kind(key, row):
+    """The table row a pair belongs to."""
+    place = "tote" if key[1] == "tote" else "shelf"
+    return f"{key[0]}, {place}, gap {row['step']}"
+
+
+def cell(group):
+    """success / within 2 deg / median geodesic error of a list of rows."""
+    errors = [float(r["geodesic_error_deg"]) for r in group]
+    ok = sum(r["success"] == "true" for r in group)
+    within = sum(e < 2.0 for e in errors)
+    n = len(group)
+    return f"{100 * ok / n:.0f}% / {100 * within / n:.0f}% / {statistics.median(errors):.2f}", statistics.median(errors)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--xtask", default="target/release/xtask")
+    ap.add_argument("--out", default="target/real-twin")
+    ap.add_argument("--seeds", default="0", help="seeds of the twins, comma separated")
+    ap.add_argument("--real-csv", help="a real run's pairs.csv (seed 0) instead of running it")
+    ap.add_argument("--twin-csv", nargs="*", help="twin runs' pairs.csv (seed 0 first) instead of running them")
+    ap.add_argument("args", nargs="*", help="more bench-real arguments (after --)")
+    a = ap.parse_args()
+    real_csv = a.real_csv or bench(a.xtask, Path(a.out) / "real", a.args)
+    twin_csvs = a.twin_csv or [
+        bench(a.xtask, Path(a.out) / f"twin-{s}", ["--twin", "--seed", s, *a.args]) for s in a.seeds.split(",")
+    ]
+    real = rows(real_csv)
+    twins = [rows(c) for c in twin_csvs]
+    groups = defaultdict(lambda: ([], []))
+    for key, r in real.items():
+        groups[kind(key, r)][0].append(r)
+    for t in twins:
+        for key, r in t.items():
+            groups[kind(key, r)][1].append(r)
+    print("| pairs | n | real | twin | twin / real (median) |")
+    print("|---|---|---|---|---|")
+    for name in sorted(groups):
+        rg, tg = groups[name]
+        if not rg or not tg:
+            continue
+        (rc, rm), (tc, tm) = cell(rg), cell(tg)
+        print(f"| {name} | {len(rg)} | {rc} | {tc} | {tm / rm:.2f} |")
+    first = twins[0]
+    wrong = [k for k, r in real.items() if float(r["geodesic_error_deg"]) >= 2.0 and k in first]
+    both = [k for k in wrong if float(first[k]["geodesic_error_deg"]) >= 2.0]
+    right = [k for k, r in real.items() if float(r["geodesic_error_deg"]) < 2.0 and k in first]
+    twin_wrong = [k for k in right if float(first[k]["geodesic_error_deg"]) >= 2.0]
+    print(f"\nReal pairs over 2 deg off: {len(wrong)}; their twins over 2 deg off: {len(both)}.")
+    print(f"Real pairs within 2 deg: {len(right)}; their twins over 2 deg off: {len(twin_wrong)}.")
+
+
+if __name__ == "__main__":
+    main()
