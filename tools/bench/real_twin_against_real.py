@@ -5,18 +5,18 @@
 texture, geometry and depth holes; the SR300 shelf profile's noise and effects; the exact
 truth). The script runs
 
-    xtask bench-real --methods flowfilter --out OUT/real [ARGS]
-    xtask bench-real --methods flowfilter --twin --seed SEED --out OUT/twin-SEED [ARGS]   (every seed)
+    xtask bench-real --methods flowfilter --seed SEED --out OUT/real-SEED [ARGS]
+    xtask bench-real --methods flowfilter --twin --seed SEED --out OUT/twin-SEED [ARGS]
 
-(or reads pairs.csv files given with --real-csv / --twin-csv) and prints, per kind of pair
+for every seed (the seed draws the regions and their masks' defects; or reads one seed's
+pairs.csv files given with --real-csv and --twin-csv) and prints, per seed and kind of pair
 (region or whole frame, shelf or tote, gap), the real pairs' success / within 2 deg / median
-geodesic error against the twins' (pooled over the seeds), the ratio of the medians, and how
-many of the real pairs over 2 deg off are over 2 deg off in their twin too. The regions and
-their mask defects depend on the seed, so only seed 0's twin is compared pair by pair. Needs
-only the standard library and the xtask binary (`cargo build --release -p xtask`).
+geodesic error against their twins', the ratio of the medians, and how many of the real pairs
+over 2 deg off are over 2 deg off in their twin too. Needs only the standard library and the
+xtask binary (`cargo build --release -p xtask`).
 
     python3 tools/bench/real_twin_against_real.py --xtask target/release/xtask \
-        --out target/real-twin --seeds 0
+        --out target/real-twin --seeds 0,1
 """
 import argparse
 import csv
@@ -65,27 +65,13 @@ def cell(group):
     return f"{100 * ok / n:.0f}% / {100 * within / n:.0f}% / {statistics.median(errors):.2f}", statistics.median(errors)
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--xtask", default="target/release/xtask")
-    ap.add_argument("--out", default="target/real-twin")
-    ap.add_argument("--seeds", default="0", help="seeds of the twins, comma separated")
-    ap.add_argument("--real-csv", help="a real run's pairs.csv (seed 0) instead of running it")
-    ap.add_argument("--twin-csv", nargs="*", help="twin runs' pairs.csv (seed 0 first) instead of running them")
-    ap.add_argument("args", nargs="*", help="more bench-real arguments (after --)")
-    a = ap.parse_args()
-    real_csv = a.real_csv or bench(a.xtask, Path(a.out) / "real", a.args)
-    twin_csvs = a.twin_csv or [
-        bench(a.xtask, Path(a.out) / f"twin-{s}", ["--twin", "--seed", s, *a.args]) for s in a.seeds.split(",")
-    ]
-    real = rows(real_csv)
-    twins = [rows(c) for c in twin_csvs]
+def compare(real, twin):
+    """Print the table and the pair-by-pair counts of one seed's runs."""
     groups = defaultdict(lambda: ([], []))
     for key, r in real.items():
         groups[kind(key, r)][0].append(r)
-    for t in twins:
-        for key, r in t.items():
-            groups[kind(key, r)][1].append(r)
+    for key, r in twin.items():
+        groups[kind(key, r)][1].append(r)
     print("| pairs | n | real | twin | twin / real (median) |")
     print("|---|---|---|---|---|")
     for name in sorted(groups):
@@ -94,13 +80,33 @@ def main():
             continue
         (rc, rm), (tc, tm) = cell(rg), cell(tg)
         print(f"| {name} | {len(rg)} | {rc} | {tc} | {tm / rm:.2f} |")
-    first = twins[0]
-    wrong = [k for k, r in real.items() if float(r["geodesic_error_deg"]) >= 2.0 and k in first]
-    both = [k for k in wrong if float(first[k]["geodesic_error_deg"]) >= 2.0]
-    right = [k for k, r in real.items() if float(r["geodesic_error_deg"]) < 2.0 and k in first]
-    twin_wrong = [k for k in right if float(first[k]["geodesic_error_deg"]) >= 2.0]
+    wrong = [k for k, r in real.items() if float(r["geodesic_error_deg"]) >= 2.0 and k in twin]
+    both = [k for k in wrong if float(twin[k]["geodesic_error_deg"]) >= 2.0]
+    right = [k for k, r in real.items() if float(r["geodesic_error_deg"]) < 2.0 and k in twin]
+    twin_wrong = [k for k in right if float(twin[k]["geodesic_error_deg"]) >= 2.0]
     print(f"\nReal pairs over 2 deg off: {len(wrong)}; their twins over 2 deg off: {len(both)}.")
-    print(f"Real pairs within 2 deg: {len(right)}; their twins over 2 deg off: {len(twin_wrong)}.")
+    print(f"Real pairs within 2 deg: {len(right)}; their twins over 2 deg off: {len(twin_wrong)}.\n")
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--xtask", default="target/release/xtask")
+    ap.add_argument("--out", default="target/real-twin")
+    ap.add_argument("--seeds", default="0", help="seeds, comma separated")
+    ap.add_argument("--real-csv", help="one seed's real pairs.csv instead of running it")
+    ap.add_argument("--twin-csv", help="the same seed's twin pairs.csv instead of running it")
+    ap.add_argument("args", nargs="*", help="more bench-real arguments for both runs (after --)")
+    a = ap.parse_args()
+    if a.real_csv or a.twin_csv:
+        if not (a.real_csv and a.twin_csv):
+            raise SystemExit("give both --real-csv and --twin-csv")
+        compare(rows(a.real_csv), rows(a.twin_csv))
+        return
+    for seed in a.seeds.split(","):
+        print(f"Seed {seed}:\n")
+        real = bench(a.xtask, Path(a.out) / f"real-{seed}", ["--seed", seed, *a.args])
+        twin = bench(a.xtask, Path(a.out) / f"twin-{seed}", ["--twin", "--seed", seed, *a.args])
+        compare(rows(real), rows(twin))
 
 
 if __name__ == "__main__":

@@ -19,7 +19,7 @@ use crate::{dir_name, in_repo};
 use anyhow::{Context, bail};
 use clap::Args;
 use flowfilter_pipeline::RgbdFrame;
-use flowfilter_synth::NetworkMaskModel;
+use flowfilter_synth::{NetworkMaskModel, NoiseProfile};
 use rayon::prelude::*;
 use std::collections::BTreeMap;
 use std::fmt;
@@ -73,6 +73,10 @@ pub struct RealBenchArgs {
     /// defects; the truth exact). Only with the calibrated truth.
     #[arg(long)]
     pub twin: bool,
+    /// The twin's sensor noise: `sr300-shelf` (fitted to these frames), `none`, another
+    /// built-in profile (`carmine`, `xtion-sample`) or a TOML profile file.
+    #[arg(long, default_value = "sr300-shelf")]
+    pub twin_noise: String,
     /// CI-sized: the first 4 frames of each sequence, gap 1, one region per pair.
     #[arg(long)]
     pub quick: bool,
@@ -127,7 +131,8 @@ pub fn run(args: &RealBenchArgs) -> anyhow::Result<()> {
     if args.twin && !matches!(truth, Truth::Calibrated) {
         bail!("--twin renders the pairs with the calibrated poses: it is scored against them only (leave --truth out)");
     }
-    let twin_options = crate::real_twin::twin_options(args.seed);
+    let twin_noise = NoiseProfile::resolve(&args.twin_noise).map_err(|e| anyhow::anyhow!("--twin-noise: {e}"))?;
+    let twin_options = crate::real_twin::twin_options(args.seed, twin_noise);
     let mut results: Vec<PairResult> = vec![];
     let mut skipped: Vec<(String, String)> = vec![];
     for dir in &dirs {
@@ -208,7 +213,11 @@ pub fn run(args: &RealBenchArgs) -> anyhow::Result<()> {
         }),
         protocol_line: format!(
             "{}{} sequence(s), gaps {:?}, {} region(s) per pair{}, masks {}, seed {}, pipeline {}, truth {}",
-            if args.twin { "the synthetic twins of the pairs of " } else { "" },
+            if args.twin {
+                format!("the synthetic twins (noise {}) of the pairs of ", args.twin_noise)
+            } else {
+                String::new()
+            },
             all.len(),
             gaps,
             regions,
@@ -442,6 +451,7 @@ mod tests {
             pipeline: PathBuf::from("configs/flowfilter.toml"),
             save_masks: None,
             twin: false,
+            twin_noise: "sr300-shelf".into(),
             quick: true,
             run: RunArgs { out, voxel: None, check: true, shard: None, rerun: None, rerun_limit: 20 },
         }

@@ -16,11 +16,11 @@ use flowfilter_synth::{
 use rayon::prelude::*;
 use std::collections::{BTreeMap, BTreeSet};
 
-/// The twin's options for a run seeded with `seed`: the SR300 shelf profile and effects, the
-/// depth camera's focal length.
-pub fn twin_options(seed: u64) -> TwinOptions {
+/// The twin's options for a run seeded with `seed` under `noise` (the SR300 shelf profile by
+/// default): the SR300 shelf effects, the depth camera's focal length.
+pub fn twin_options(seed: u64, noise: Option<NoiseProfile>) -> TwinOptions {
     TwinOptions {
-        noise: Some(NoiseProfile::sr300_shelf()),
+        noise,
         effects: FrameEffects::SR300_SHELF,
         depth_focal_px: 477.0,
         projector_baseline_m: 0.05,
@@ -245,7 +245,7 @@ mod tests {
             let ims: BTreeSet<u32> = (0..9).collect();
             let whole: BTreeMap<u32, RgbdFrame> = ims.iter().map(|&im| (im, seq.frame(im).unwrap())).collect();
             let surfaces = Surfaces::of(&whole, &ims, name).unwrap();
-            let opts = twin_options(0);
+            let opts = twin_options(0, Some(NoiseProfile::sr300_shelf()));
             let own = surfaces.render(&seq, (2, 2), &whole[&2], &opts, 1).unwrap();
             let (real_rough, twin_rough) = (depth_roughness(&whole[&2]), depth_roughness(&own));
             assert!(

@@ -75,7 +75,8 @@ pub struct SynthArgs {
     /// from colour; `none`: exact).
     #[arg(long, value_enum, default_value_t = Effects::Real)]
     pub effects: Effects,
-    /// Noise profile: `carmine` (built in), `none` (exact data), or a TOML profile file.
+    /// Noise profile: `carmine`, `xtion-sample` or `sr300-shelf` (built in), `none` (exact
+    /// data), or a TOML profile file.
     #[arg(long, default_value = "carmine")]
     pub noise: String,
     /// Also write a contact sheet PNG (colour, mask, depth) of the first angle of every camera.
