@@ -29,8 +29,15 @@ pub fn twin_options(seed: u64, noise: Option<NoiseProfile>) -> TwinOptions {
     }
 }
 
-/// The real frames' surfaces by frame.
-pub struct Surfaces(BTreeMap<u32, TexturedMesh>);
+/// Holes of a backdrop surface filled up to this many pixels from a reading: every hole of a
+/// 640 x 480 frame.
+const BACKDROP_FILL_PX: usize = 640;
+
+/// The real frames' surfaces by frame: the surface seen from other poses (holes filled up to
+/// 12 px), and the backdrop seen only from the frame's own pose (every hole filled, so that the
+/// frame's colour shows wherever no surface reaches: its dark and far parts, which have no
+/// depth).
+pub struct Surfaces(BTreeMap<u32, (TexturedMesh, TexturedMesh)>);
 
 impl Surfaces {
     /// The surfaces of the frames `ims` of `whole` (the real frames).
@@ -42,16 +49,19 @@ impl Surfaces {
             .par_iter()
             .map(|&im| {
                 let f = whole.get(&im).ok_or_else(|| format!("{label}: frame {im} could not be read"))?;
-                surface_from_rgbd(&f.color, &f.depth, &f.sensor, &SurfaceOptions::default())
-                    .map(|s| (im, s))
-                    .map_err(|e| format!("{label}: the surface of frame {im}: {e}"))
+                let surface = |opts: &SurfaceOptions| {
+                    surface_from_rgbd(&f.color, &f.depth, &f.sensor, opts)
+                        .map_err(|e| format!("{label}: the surface of frame {im}: {e}"))
+                };
+                let backdrop = SurfaceOptions { fill_holes_px: BACKDROP_FILL_PX, ..SurfaceOptions::default() };
+                Ok((im, (surface(&SurfaceOptions::default())?, surface(&backdrop)?)))
             })
             .collect::<Result<_, String>>()?;
         Ok(Self(built))
     }
 
     /// Frame `im` of the twin, rendered from frame `source`'s surface at the calibrated motion
-    /// between them, over frame `im`'s own surface, its noise drawn for `draw`; depth readings
+    /// between them, over frame `im`'s own backdrop, its noise drawn for `draw`; depth readings
     /// only where the real frame `real` (frame `im`) has them; its mask every pixel.
     ///
     /// # Errors
@@ -64,10 +74,10 @@ impl Surfaces {
         opts: &TwinOptions,
         draw: u32,
     ) -> Result<RgbdFrame, String> {
-        let surface = |i: u32| self.0.get(&i).ok_or_else(|| format!("no surface of frame {i}"));
+        let surfaces = |i: u32| self.0.get(&i).ok_or_else(|| format!("no surface of frame {i}"));
         let motion = seq.calibrated_motion(source, im)?;
-        let backdrop = if source == im { None } else { Some((surface(im)?, Pose::identity())) };
-        let view = render_surface_view(surface(source)?, backdrop, &real.sensor, &motion, opts, draw)
+        let backdrop = (&surfaces(im)?.1, Pose::identity());
+        let view = render_surface_view(&surfaces(source)?.0, Some(backdrop), &real.sensor, &motion, opts, draw)
             .map_err(|e| format!("the twin of frame {im} from frame {source}: {e}"))?;
         let mut depth = view.depth;
         // The real frame's holes (dark texture, grazing surfaces, shadows) are the sensor's, seen

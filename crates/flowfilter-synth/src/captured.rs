@@ -161,14 +161,15 @@ fn smoothed_depth(depth: &RawDepth, sensor: &RgbdSensor, opts: &SurfaceOptions) 
 /// smoothing gate of the nearest of them.
 fn filled(mut depth: DepthMap, opts: &SurfaceOptions) -> DepthMap {
     let (w, h) = depth.dims();
+    let gate = opts.smoothing_gate_m as f32;
+    // Only the empty pixels are visited, pass after pass.
+    let mut empty: Vec<usize> = (0..w * h).filter(|&k| depth.as_slice()[k] <= 0.0).collect();
     for _ in 0..opts.fill_holes_px {
-        let src = depth.as_slice().to_vec();
-        let mut changed = false;
-        for y in 0..h {
-            for x in 0..w {
-                if src[y * w + x] > 0.0 {
-                    continue;
-                }
+        let src = depth.as_slice();
+        let updates: Vec<(usize, f32)> = empty
+            .iter()
+            .filter_map(|&k| {
+                let (x, y) = (k % w, k / w);
                 let mut near = [0.0f32; 8];
                 let mut n = 0;
                 for yy in y.saturating_sub(1)..(y + 2).min(h) {
@@ -181,19 +182,21 @@ fn filled(mut depth: DepthMap, opts: &SurfaceOptions) -> DepthMap {
                     }
                 }
                 if n < 2 {
-                    continue;
+                    return None;
                 }
                 let nearest = near[..n].iter().copied().fold(f32::MAX, f32::min);
-                let gate = opts.smoothing_gate_m as f32;
                 let (sum, count) =
                     near[..n].iter().filter(|&&v| v - nearest <= gate).fold((0.0, 0.0), |(s, c), &v| (s + v, c + 1.0));
-                depth.as_mut_slice()[y * w + x] = sum / count;
-                changed = true;
-            }
-        }
-        if !changed {
+                Some((k, sum / count))
+            })
+            .collect();
+        if updates.is_empty() {
             break;
         }
+        for &(k, v) in &updates {
+            depth.as_mut_slice()[k] = v;
+        }
+        empty.retain(|&k| depth.as_slice()[k] <= 0.0);
     }
     depth
 }
@@ -415,6 +418,33 @@ mod tests {
         let with = render_surface_view(&surface, Some((&surface, Pose::identity())), &s, &motion, &exact(), 1).unwrap();
         assert_eq!(with.color.get_pixel(158, 10).0, color.get_pixel(158, 10).0);
         assert!(!*with.true_mask.at(158, 10), "the backdrop is not the object");
+    }
+
+    /// A hole in the depth (a dark patch the sensor does not read) is covered by the surface,
+    /// and its colour seen, when it is within the fill's reach of a reading; without the fill
+    /// it shows the background.
+    #[test]
+    fn holes_within_the_fills_reach_keep_their_colour() {
+        let (color, mut depth) = frame();
+        for y in 10..24 {
+            for x in 100..114 {
+                *depth.at_mut(x, y) = 0; // 14 x 14 depth pixels: 7 from a reading at most
+            }
+        }
+        let s = sensor();
+        let seen = |fill: usize| {
+            let opts = SurfaceOptions { fill_holes_px: fill, ..SurfaceOptions::default() };
+            let surface = surface_from_rgbd(&color, &depth, &s, &opts).unwrap();
+            render_surface_view(&surface, None, &s, &Pose::identity(), &exact(), 1).unwrap()
+        };
+        // The hole's middle, on the colour grid: depth pixel (107, 17) at 0.7 m.
+        let p = s.depth_pixel_to_color_pixel(&Pixel::new(107.0, 17.0), 0.7).unwrap().0;
+        let (x, y) = (p.x.round() as u32, p.y.round() as u32);
+        assert_eq!(seen(0).color.get_pixel(x, y).0, [38, 38, 42], "no fill: the background");
+        let filled = seen(12);
+        let (a, b) = (filled.color.get_pixel(x, y).0, color.get_pixel(x, y).0);
+        assert!((0..3).all(|c| a[c].abs_diff(b[c]) <= 3), "{a:?} against {b:?}");
+        assert_eq!(*filled.depth.at(107, 17), 700, "the hole takes its surroundings' depth");
     }
 
     #[test]
