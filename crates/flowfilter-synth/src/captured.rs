@@ -10,19 +10,14 @@
 //! Its depth is smoothed before it is meshed, so that the rendered depth's roughness is the
 //! profile's, not the real frame's noise twice.
 
-use crate::capture::{RenderedView, ViewTiming, render_view};
-use crate::effects::FrameDraw;
+use crate::capture::RenderedView;
 use crate::error::SynthError;
 use crate::mesh::TexturedMesh;
-use crate::rig::RigSensor;
-use crate::scene::Scene;
-use crate::twin::{TwinOptions, TwinView};
+use crate::twin::{FrameRender, TwinOptions, TwinView, frame_seed};
 use flowfilter_camera::{Pixel, RgbdSensor};
 use flowfilter_geometry::{DepthMap, Pose, RawDepth};
 use image::RgbImage;
 use nalgebra::Point3;
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
 use std::path::PathBuf;
 use std::sync::Arc;
 
@@ -49,10 +44,6 @@ impl Default for SurfaceOptions {
     fn default() -> Self {
         Self { max_step_fraction: 0.03, smoothing_radius_px: 2, smoothing_gate_m: 0.01, fill_holes_px: 12 }
     }
-}
-
-fn frame_seed(seed: u64, frame: u32) -> u64 {
-    seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ u64::from(frame) ^ 0x5CA7
 }
 
 /// The surface a captured frame shows, in its colour camera's frame: a vertex per depth reading
@@ -240,40 +231,13 @@ pub fn render_surface_view(
             message: format!("must be positive and finite, got {}", opts.depth_focal_px),
         });
     }
-    let rig_sensor = RigSensor {
-        rgbd: *sensor,
-        h_color_from_world: Pose::identity(),
-        projector_baseline: opts.projector_baseline_m,
-        ir_depth_scale: 1.0,
-    };
-    let mut rng = ChaCha8Rng::seed_from_u64(frame_seed(opts.seed, frame));
-    let mut draw: FrameDraw = opts.effects.draw(&mut rng);
-    draw.mask_shift.0 += opts.mask_offset_px.0;
-    draw.mask_shift.1 += opts.mask_offset_px.1;
-    let mut render = |mesh: &TexturedMesh, pose: &Pose| {
-        let mut scene = Scene::new(mesh.clone(), opts.seed).object_only();
-        (scene.ambient, scene.diffuse) = (1.0, 0.0);
-        let timing = ViewTiming {
-            color_from_table: *pose,
-            color_from_table_at_depth: *pose,
-            world_from_table: Pose::identity(),
-        };
-        render_view(&scene, &rig_sensor, timing, opts.noise.as_ref(), opts.depth_focal_px, &mut rng)
-    };
-    let mut view = render(surface, camera_from_surface);
+    let mut frame_render = FrameRender::new(sensor, opts, frame_seed(opts.seed, frame, 0x5CA7), true);
+    let mut view = frame_render.render(surface, camera_from_surface);
     if let Some((mesh, pose)) = backdrop {
-        let behind = render(mesh, &pose);
+        let behind = frame_render.render(mesh, &pose);
         fill_from(&mut view, &behind);
     }
-    draw.apply_gain(&mut view.color);
-    draw.apply_row_shear(&mut view.color);
-    Ok(TwinView {
-        color: view.color,
-        depth: view.raw_depth,
-        mask: draw.perturb_mask(&view.mask),
-        true_mask: view.mask,
-        draw,
-    })
+    Ok(frame_render.finish(view))
 }
 
 /// Where `view` shows no surface, it shows `other`'s (colour on the colour grid, depth on the

@@ -84,8 +84,65 @@ pub struct Occluder<'a> {
     pub camera_from_object: Pose,
 }
 
-fn frame_seed(seed: u64, frame: u32) -> u64 {
-    seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ u64::from(frame) ^ 0x7781
+/// The seed of frame `frame` of a twin seeded with `seed`; `salt` tells kinds of twin apart.
+pub(crate) fn frame_seed(seed: u64, frame: u32, salt: u64) -> u64 {
+    seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ u64::from(frame) ^ salt
+}
+
+/// One frame of a twin being rendered: its effects drawn first, then each mesh rendered
+/// through the sensor with the profile's noise (one generator for the frame, so the order of
+/// the renders is part of the draw), and the effects applied to the composed view.
+pub(crate) struct FrameRender<'a> {
+    rig_sensor: RigSensor,
+    rng: ChaCha8Rng,
+    draw: FrameDraw,
+    opts: &'a TwinOptions,
+    unlit: bool,
+}
+
+impl<'a> FrameRender<'a> {
+    /// A frame seeded with `seed`; `unlit` meshes carry their light in their texture.
+    pub(crate) fn new(sensor: &RgbdSensor, opts: &'a TwinOptions, seed: u64, unlit: bool) -> Self {
+        let rig_sensor = RigSensor {
+            rgbd: *sensor,
+            h_color_from_world: Pose::identity(),
+            projector_baseline: opts.projector_baseline_m,
+            ir_depth_scale: 1.0,
+        };
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut draw = opts.effects.draw(&mut rng);
+        draw.mask_shift.0 += opts.mask_offset_px.0;
+        draw.mask_shift.1 += opts.mask_offset_px.1;
+        Self { rig_sensor, rng, draw, opts, unlit }
+    }
+
+    /// `mesh` seen from `camera_from_mesh`.
+    pub(crate) fn render(&mut self, mesh: &TexturedMesh, camera_from_mesh: &Pose) -> RenderedView {
+        let mut scene = Scene::new(mesh.clone(), self.opts.seed).object_only();
+        if self.unlit {
+            (scene.ambient, scene.diffuse) = (1.0, 0.0);
+        }
+        let timing = ViewTiming {
+            color_from_table: *camera_from_mesh,
+            color_from_table_at_depth: *camera_from_mesh,
+            world_from_table: Pose::identity(),
+        };
+        let focal = self.opts.depth_focal_px;
+        render_view(&scene, &self.rig_sensor, timing, self.opts.noise.as_ref(), focal, &mut self.rng)
+    }
+
+    /// The composed view with the frame's gain, row shear and mask defects.
+    pub(crate) fn finish(self, mut view: RenderedView) -> TwinView {
+        self.draw.apply_gain(&mut view.color);
+        self.draw.apply_row_shear(&mut view.color);
+        TwinView {
+            color: view.color,
+            depth: view.raw_depth,
+            mask: self.draw.perturb_mask(&view.mask),
+            true_mask: view.mask,
+            draw: self.draw,
+        }
+    }
 }
 
 /// Render `object` seen by `sensor` (depth registered to colour) at `camera_from_object`, hidden
@@ -119,39 +176,13 @@ pub fn render_twin_view(
     frame: u32,
 ) -> Result<TwinView, SynthError> {
     check_options(sensor, opts)?;
-    let rig_sensor = RigSensor {
-        rgbd: *sensor,
-        h_color_from_world: Pose::identity(),
-        projector_baseline: opts.projector_baseline_m,
-        ir_depth_scale: 1.0,
-    };
-    let mut rng = ChaCha8Rng::seed_from_u64(frame_seed(opts.seed, frame));
-    let mut draw = opts.effects.draw(&mut rng);
-    draw.mask_shift.0 += opts.mask_offset_px.0;
-    draw.mask_shift.1 += opts.mask_offset_px.1;
-    let mut render = |mesh: &TexturedMesh, pose: &Pose| {
-        let scene = Scene::new(mesh.clone(), opts.seed).object_only();
-        let timing = ViewTiming {
-            color_from_table: *pose,
-            color_from_table_at_depth: *pose,
-            world_from_table: Pose::identity(),
-        };
-        render_view(&scene, &rig_sensor, timing, opts.noise.as_ref(), opts.depth_focal_px, &mut rng)
-    };
-    let mut view = render(object, camera_from_object);
+    let mut frame_render = FrameRender::new(sensor, opts, frame_seed(opts.seed, frame, 0x7781), false);
+    let mut view = frame_render.render(object, camera_from_object);
     for o in occluders {
-        let other = render(o.mesh, &o.camera_from_object);
+        let other = frame_render.render(o.mesh, &o.camera_from_object);
         hide_behind(&mut view, &other);
     }
-    draw.apply_gain(&mut view.color);
-    draw.apply_row_shear(&mut view.color);
-    Ok(TwinView {
-        color: view.color,
-        depth: view.raw_depth,
-        mask: draw.perturb_mask(&view.mask),
-        true_mask: view.mask,
-        draw,
-    })
+    Ok(frame_render.finish(view))
 }
 
 /// Where `other`'s surface is nearer than `view`'s (or `view` shows nothing), `view` shows
