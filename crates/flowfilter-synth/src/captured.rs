@@ -11,7 +11,7 @@
 //! profile's, not the real frame's noise twice.
 
 use crate::capture::RenderedView;
-use crate::error::SynthError;
+use crate::error::{SynthError, positive_and_finite};
 use crate::mesh::TexturedMesh;
 use crate::twin::{FrameRender, TwinOptions, TwinView, frame_seed};
 use flowfilter_camera::{Pixel, RgbdSensor};
@@ -225,12 +225,7 @@ pub fn render_surface_view(
     opts: &TwinOptions,
     frame: u32,
 ) -> Result<TwinView, SynthError> {
-    if !(opts.depth_focal_px.is_finite() && opts.depth_focal_px > 0.0) {
-        return Err(SynthError::BadOption {
-            field: "depth_focal_px",
-            message: format!("must be positive and finite, got {}", opts.depth_focal_px),
-        });
-    }
+    positive_and_finite(&[("depth_focal_px", opts.depth_focal_px)])?;
     let mut frame_render = FrameRender::new(sensor, opts, frame_seed(opts.seed, frame, 0x5CA7), true);
     let mut view = frame_render.render(surface, camera_from_surface);
     if let Some((mesh, pose)) = backdrop {
@@ -278,12 +273,7 @@ fn check_images(color: &RgbImage, depth: &RawDepth, sensor: &RgbdSensor) -> Resu
 }
 
 fn check_surface_options(opts: &SurfaceOptions) -> Result<(), SynthError> {
-    for (field, v) in [("max_step_fraction", opts.max_step_fraction), ("smoothing_gate_m", opts.smoothing_gate_m)] {
-        if !(v.is_finite() && v > 0.0) {
-            return Err(SynthError::BadOption { field, message: format!("must be positive and finite, got {v}") });
-        }
-    }
-    Ok(())
+    positive_and_finite(&[("max_step_fraction", opts.max_step_fraction), ("smoothing_gate_m", opts.smoothing_gate_m)])
 }
 
 #[cfg(test)]

@@ -85,3 +85,14 @@ pub enum SynthError {
     #[error(transparent)]
     Dataset(#[from] flowfilter_bigbird::BigBirdError),
 }
+
+/// [`SynthError::BadOption`] naming the first of `fields` (name, value) that is not positive and
+/// finite.
+pub(crate) fn positive_and_finite(fields: &[(&'static str, f64)]) -> Result<(), SynthError> {
+    match fields.iter().find(|(_, v)| !(v.is_finite() && *v > 0.0)) {
+        Some(&(field, v)) => {
+            Err(SynthError::BadOption { field, message: format!("must be positive and finite, got {v}") })
+        }
+        None => Ok(()),
+    }
+}

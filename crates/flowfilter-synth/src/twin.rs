@@ -11,7 +11,7 @@
 
 use crate::capture::{RenderedView, ViewTiming, render_view};
 use crate::effects::{FrameDraw, FrameEffects};
-use crate::error::SynthError;
+use crate::error::{SynthError, positive_and_finite};
 use crate::mesh::TexturedMesh;
 use crate::noise::NoiseProfile;
 use crate::rig::RigSensor;
@@ -208,12 +208,7 @@ fn check_options(sensor: &RgbdSensor, opts: &TwinOptions) -> Result<(), SynthErr
             message: "a twin's depth must be registered to its colour image (one camera for both)".into(),
         });
     }
-    for (field, v) in [("depth_focal_px", opts.depth_focal_px), ("projector_baseline_m", opts.projector_baseline_m)] {
-        if !(v.is_finite() && v > 0.0) {
-            return Err(SynthError::BadOption { field, message: format!("must be positive and finite, got {v}") });
-        }
-    }
-    Ok(())
+    positive_and_finite(&[("depth_focal_px", opts.depth_focal_px), ("projector_baseline_m", opts.projector_baseline_m)])
 }
 
 #[cfg(test)]
