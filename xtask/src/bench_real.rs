@@ -46,8 +46,12 @@ pub struct RealBenchArgs {
     #[arg(long)]
     pub no_whole: bool,
     /// Masks as they are (no network defects): the regions' true masks.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "mask_defects")]
     pub exact_masks: bool,
+    /// Only these of the network's mask defects (comma separated; default: all of them), to
+    /// measure what each costs.
+    #[arg(long, value_enum, value_delimiter = ',')]
+    pub mask_defects: Option<Vec<MaskDefect>>,
     /// The pairs' truth: the sequences' calibrated camera poses, or the arm's poses with a
     /// mount fitted to the calibrated ones over every sequence in `--data` (the regions and
     /// their masks come from the calibrated poses either way).
@@ -83,6 +87,41 @@ pub struct RealBenchArgs {
     /// Outputs, voxel size, check, shard.
     #[command(flatten)]
     pub run: RunArgs,
+}
+
+/// A kind of defect of [`NetworkMaskModel::SHELF_NETWORK`]'s masks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum MaskDefect {
+    /// The boundary moved in or out.
+    Boundary,
+    /// The mask shifted.
+    Shift,
+    /// Part of the object cut off by a straight edge.
+    Cut,
+    /// A blob bleeding onto the background.
+    Bleed,
+    /// A target frame's mask missing.
+    Missing,
+}
+
+/// The mask model of a run: exact masks, the network's with only `defects`, or all of its.
+fn mask_model(exact: bool, defects: Option<&[MaskDefect]>) -> NetworkMaskModel {
+    let (all, none) = (NetworkMaskModel::SHELF_NETWORK, NetworkMaskModel::EXACT);
+    match (exact, defects) {
+        (true, _) => none,
+        (false, None) => all,
+        (false, Some(kinds)) => kinds.iter().fold(none, |m, kind| match kind {
+            MaskDefect::Boundary => NetworkMaskModel { grow_px: all.grow_px, ..m },
+            MaskDefect::Shift => NetworkMaskModel { shift_px: all.shift_px, ..m },
+            MaskDefect::Cut => {
+                NetworkMaskModel { cut_probability: all.cut_probability, cut_fraction: all.cut_fraction, ..m }
+            }
+            MaskDefect::Bleed => {
+                NetworkMaskModel { bleed_probability: all.bleed_probability, bleed_radius: all.bleed_radius, ..m }
+            }
+            MaskDefect::Missing => NetworkMaskModel { missing_probability: all.missing_probability, ..m },
+        }),
+    }
 }
 
 /// The object name of whole-frame pairs.
@@ -121,7 +160,7 @@ pub fn run(args: &RealBenchArgs) -> anyhow::Result<()> {
         bail!("--regions 0 with --no-whole leaves no pair to run");
     }
     let regions = if args.quick { args.regions.min(1) } else { args.regions };
-    let mask_model = if args.exact_masks { NetworkMaskModel::EXACT } else { NetworkMaskModel::SHELF_NETWORK };
+    let mask_model = mask_model(args.exact_masks, args.mask_defects.as_deref());
     let configs = crate::pairs::method_configs(&args.pipeline, &args.methods, args.run.voxel)?;
     let mut methods = Methods::new(&args.methods, &configs)?;
     methods.record_failures(args.run.rerun.as_deref(), args.run.rerun_limit)?;
@@ -222,7 +261,11 @@ pub fn run(args: &RealBenchArgs) -> anyhow::Result<()> {
             gaps,
             regions,
             if args.no_whole { "" } else { " and the whole frame" },
-            if args.exact_masks { "exact" } else { "with a segmentation network's defects" },
+            match (&args.mask_defects, args.exact_masks) {
+                (_, true) => "exact".to_string(),
+                (Some(kinds), _) => format!("with a segmentation network's defects {kinds:?} only"),
+                (None, _) => "with a segmentation network's defects".to_string(),
+            },
             args.seed,
             args.pipeline.display(),
             truth.describe()
@@ -445,6 +488,7 @@ mod tests {
             regions: 1,
             no_whole: false,
             exact_masks: false,
+            mask_defects: None,
             truth: TruthRecord::Calibrated,
             seed: 0,
             methods: vec!["flowfilter".into()],
@@ -700,6 +744,20 @@ mod tests {
 
     /// A region's true mask covers the ball's visible surface in both frames of a pair, and its
     /// network mask differs from it by the drawn defects only (the same seed, the same mask).
+    /// `--mask-defects` keeps only the defects it names, at the network model's strength;
+    /// none named is the exact model, all named the network's.
+    #[test]
+    fn the_mask_defects_asked_for_are_the_only_ones_drawn() {
+        let all = NetworkMaskModel::SHELF_NETWORK;
+        let boundary = mask_model(false, Some(&[MaskDefect::Boundary]));
+        assert_eq!(boundary, NetworkMaskModel { grow_px: all.grow_px, ..NetworkMaskModel::EXACT });
+        let every = [MaskDefect::Boundary, MaskDefect::Shift, MaskDefect::Cut, MaskDefect::Bleed, MaskDefect::Missing];
+        assert_eq!(mask_model(false, Some(&every)), all);
+        assert_eq!(mask_model(false, Some(&[])), NetworkMaskModel::EXACT);
+        assert_eq!(mask_model(false, None), all);
+        assert_eq!(mask_model(true, None), NetworkMaskModel::EXACT);
+    }
+
     #[test]
     fn region_masks_follow_the_scene_and_the_seed() {
         let Some(data) = shelf("shelf-A") else { return };
