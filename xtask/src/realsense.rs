@@ -227,9 +227,7 @@ impl PosedFrames {
     /// # Errors
     /// A frame without a pose.
     pub fn relative_motion(&self, a: u32, b: u32) -> Result<Pose, String> {
-        let pose =
-            |i: u32| self.truth_poses.get(&i).ok_or_else(|| format!("{}: no pose of frame {i}", self.dir.display()));
-        Ok(pose(b)?.inverse() * pose(a)?)
+        self.motion_in(&self.truth_poses, a, b)
     }
 
     /// The camera's motion from frame `a` to frame `b` by the calibrated poses, whatever the
@@ -238,7 +236,12 @@ impl PosedFrames {
     /// # Errors
     /// A frame without a pose.
     pub fn calibrated_motion(&self, a: u32, b: u32) -> Result<Pose, String> {
-        let pose = |i: u32| self.poses.get(&i).ok_or_else(|| format!("{}: no pose of frame {i}", self.dir.display()));
+        self.motion_in(&self.poses, a, b)
+    }
+
+    /// `inv(C_b) * C_a` with the camera poses `cameras`.
+    fn motion_in(&self, cameras: &BTreeMap<u32, Pose>, a: u32, b: u32) -> Result<Pose, String> {
+        let pose = |i: u32| cameras.get(&i).ok_or_else(|| format!("{}: no pose of frame {i}", self.dir.display()));
         Ok(pose(b)?.inverse() * pose(a)?)
     }
 

@@ -37,6 +37,18 @@ impl Scene {
         let positions = object.positions.iter().chain(&table.positions).copied().collect();
         let triangles =
             object.triangles.iter().copied().chain(table.triangles.iter().map(|t| t.map(|i| i + offset))).collect();
+        Self::lit(object, table, positions, triangles)
+    }
+
+    /// The object alone, without the table: [`Scene::new`] then [`Scene::object_only`], without
+    /// building and copying what is then dropped.
+    pub(crate) fn alone(object: TexturedMesh, seed: u64) -> Self {
+        let (positions, triangles) = (object.positions.clone(), object.triangles.clone());
+        Self::lit(object, turntable_disc(TABLE_RADIUS, seed), positions, triangles)
+    }
+
+    /// A scene of these meshes and render lists under the fixed light.
+    fn lit(object: TexturedMesh, table: TexturedMesh, positions: Vec<Point3<f32>>, triangles: Vec<[u32; 3]>) -> Self {
         Self {
             object,
             table,

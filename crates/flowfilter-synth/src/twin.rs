@@ -118,7 +118,7 @@ impl<'a> FrameRender<'a> {
 
     /// `mesh` seen from `camera_from_mesh`.
     pub(crate) fn render(&mut self, mesh: &TexturedMesh, camera_from_mesh: &Pose) -> RenderedView {
-        let mut scene = Scene::new(mesh.clone(), self.opts.seed).object_only();
+        let mut scene = Scene::alone(mesh.clone(), self.opts.seed);
         if self.unlit {
             (scene.ambient, scene.diffuse) = (1.0, 0.0);
         }
