@@ -105,6 +105,11 @@ struct FrameRow {
     rotation_error_deg: f64,
     /// Its translation error (metres).
     translation_error_m: f64,
+    /// Why the state is not `tracking`, or what the estimate warned of (empty: nothing).
+    reason: String,
+    /// The frame the pose was measured against (the tracker's keyframe or previous frame; the
+    /// frame before for chained estimates); none for the first frame and lost ones.
+    reference: Option<usize>,
 }
 
 /// A stream: frames (the first with the object's mask, or whole), and each frame's true motion
@@ -339,21 +344,27 @@ fn track(pipeline: Pipeline, config: &TrackerConfig, s: &Stream) -> StreamResult
     let t0 = Instant::now();
     let mut poses = vec![Pose::identity()];
     let mut states = vec![TrackState::Tracking];
+    let mut reasons = vec![String::new()];
+    let mut references = vec![None];
     match Tracker::new(pipeline, config.clone(), &s.frames[0]) {
         Ok(mut tracker) => {
             for f in &s.frames[1..] {
                 let r = tracker.update(Ok(f.clone()));
                 poses.push(r.pose);
                 states.push(r.state);
+                reasons.push(r.reason.unwrap_or_default());
+                references.push(r.reference);
             }
         }
         Err(e) => {
             tracing::warn!(stream = %s.name, error = %e, "the tracker could not start");
             poses.resize(s.frames.len(), Pose::identity());
             states.resize(s.frames.len(), TrackState::Lost);
+            reasons.resize(s.frames.len(), format!("the tracker could not start: {e}"));
+            references.resize(s.frames.len(), None);
         }
     }
-    result(s, "tracker", &poses, &states, t0.elapsed().as_secs_f64())
+    result(s, "tracker", &poses, (&states, &reasons, &references), t0.elapsed().as_secs_f64())
 }
 
 /// Pairwise estimates of consecutive frames (each with its mask), composed.
@@ -361,6 +372,7 @@ fn chain(pipeline: &Pipeline, s: &Stream) -> StreamResult {
     let t0 = Instant::now();
     let mut poses = vec![Pose::identity()];
     let mut states = vec![TrackState::Tracking];
+    let mut reasons = vec![String::new()];
     let prepared: Vec<_> = s.masked.iter().map(|f| pipeline.prepare(f)).collect();
     for k in 1..s.masked.len() {
         let last = poses[k - 1];
@@ -369,22 +381,34 @@ fn chain(pipeline: &Pipeline, s: &Stream) -> StreamResult {
                 Ok(e) => {
                     poses.push(e.pose * last);
                     states.push(if e.registration.converged { TrackState::Tracking } else { TrackState::Uncertain });
+                    reasons.push(e.warnings.iter().map(|w| w.code()).collect::<Vec<_>>().join(","));
                 }
-                Err(_) => {
+                Err(e) => {
                     poses.push(last);
                     states.push(TrackState::Lost);
+                    reasons.push(e.to_string());
                 }
             },
-            _ => {
+            (Err(e), _) | (_, Err(e)) => {
                 poses.push(last);
                 states.push(TrackState::Lost);
+                reasons.push(e.to_string());
             }
         }
     }
-    result(s, "chained estimates", &poses, &states, t0.elapsed().as_secs_f64())
+    let references: Vec<Option<usize>> =
+        (0..poses.len()).map(|k| k.checked_sub(1).filter(|_| states[k] != TrackState::Lost)).collect();
+    result(s, "chained estimates", &poses, (&states, &reasons, &references), t0.elapsed().as_secs_f64())
 }
 
-fn result(s: &Stream, method: &'static str, poses: &[Pose], states: &[TrackState], seconds: f64) -> StreamResult {
+/// A stream's result from each frame's pose, state and reason.
+fn result(
+    s: &Stream,
+    method: &'static str,
+    poses: &[Pose],
+    (states, reasons, references): (&[TrackState], &[String], &[Option<usize>]),
+    seconds: f64,
+) -> StreamResult {
     let count = |x: TrackState| states.iter().filter(|s| **s == x).count();
     StreamResult {
         stream: s.name.clone(),
@@ -401,11 +425,13 @@ fn result(s: &Stream, method: &'static str, poses: &[Pose], states: &[TrackState
         per_frame: poses
             .iter()
             .zip(&s.truth)
-            .zip(states)
-            .map(|((pose, truth), &state)| FrameRow {
+            .zip(states.iter().zip(reasons).zip(references))
+            .map(|((pose, truth), ((&state, reason), &reference))| FrameRow {
                 state,
                 rotation_error_deg: geodesic_error_deg(pose, truth),
                 translation_error_m: translation_error_m(pose, truth),
+                reason: reason.clone(),
+                reference,
             })
             .collect(),
     }

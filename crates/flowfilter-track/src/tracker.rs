@@ -4,8 +4,8 @@
 use crate::carry::{area, carry_mask};
 use flowfilter_geometry::Pose;
 use flowfilter_pipeline::{
-    Estimate, PairTrace, Pipeline, PipelineError, PipelineWarning, PreparedFrame, RegistrationSummary, RgbdFrame,
-    StageTimes,
+    Estimate, PairTrace, Pipeline, PipelineError, PipelineWarning, PreparedFrame, RegistrationSummary,
+    RegistrationWarning, RgbdFrame, StageTimes,
 };
 use serde::{Deserialize, Serialize};
 
@@ -37,6 +37,16 @@ pub struct TrackerConfig {
     /// After a loss, the keyframes tried per frame (nearest to the last pose first): a lost
     /// frame's cost stays bounded however many keyframes are held.
     pub recovery_tries: usize,
+    /// A doubtful estimate whose only doubts a motion prediction can answer (other turns about
+    /// an axis fit as well: `ambiguous_pose`, with or without the wide error bounds those turns
+    /// bring: `wide_bounds`) is taken as tracking when its pose from the first frame lies within this many degrees of the
+    /// constant-velocity prediction (and [`TrackerConfig::motion_gate_m`]) and every other turn
+    /// it names is more than three times this from the estimate, so more than twice this from
+    /// the prediction: the motion tells the poses apart where the images do not (a can's lid
+    /// seen from above). 0: never.
+    pub motion_gate_deg: f64,
+    /// See [`TrackerConfig::motion_gate_deg`] (metres).
+    pub motion_gate_m: f64,
     /// Keep what each kept estimate weighed ([`TrackedFrame::traced`]: the frames and the
     /// pipeline's trace), for recordings.
     pub trace: bool,
@@ -54,6 +64,8 @@ impl Default for TrackerConfig {
             predicted_splat_px: 4,
             max_uncertain: 3,
             recovery_tries: 3,
+            motion_gate_deg: 2.0,
+            motion_gate_m: 0.01,
             trace: false,
         }
     }
@@ -338,7 +350,7 @@ impl Tracker {
         if let Some(predicted) = self.predicted_target(&target)
             && let Some((reference, e, reference_pose, pair)) = self.estimated_with(&predicted)
         {
-            if e.registration.converged {
+            if e.registration.converged || self.settled_by_motion(&e, &reference_pose) {
                 let mut r = self.accept(index, target, reference, e, reference_pose);
                 r.traced = pair;
                 return r;
@@ -392,7 +404,7 @@ impl Tracker {
         let mut failure: Option<String> = None;
         for (reference, model, reference_pose) in self.candidates() {
             match self.estimated(model, &target) {
-                Ok((e, pair)) if e.registration.converged => {
+                Ok((e, pair)) if e.registration.converged || self.settled_by_motion(&e, &reference_pose) => {
                     let mut r = self.accept(index, target, reference, e, reference_pose);
                     r.traced = pair;
                     return r;
@@ -443,6 +455,30 @@ impl Tracker {
         }
     }
 
+    /// Whether the constant-velocity prediction settles a doubtful estimate against a reference
+    /// at `reference_pose` ([`TrackerConfig::motion_gate_deg`]): its doubts are other turns that
+    /// fit as well (and the bounds they widen), which a prediction answers, the clouds support it, it lies within the gate of the prediction, and
+    /// the other turns it names lie beyond three gates of it. Never after a loss (no prediction).
+    fn settled_by_motion(&self, e: &Estimate, reference_pose: &Pose) -> bool {
+        let gate_deg = self.config.motion_gate_deg;
+        if gate_deg <= 0.0 || self.lost || !plausible(e) {
+            return false;
+        }
+        // Other turns named: the prediction can rule them out. Bounds widened by those turns go
+        // with them; bounds wide on their own, or a registration stopped short, it cannot.
+        let ambiguous = e.warnings.iter().any(|w| matches!(w, PipelineWarning::AmbiguousPose { .. }));
+        let answerable = |w: &PipelineWarning| match w {
+            PipelineWarning::AmbiguousPose { turns_deg, .. } => turns_deg.iter().all(|t| t.abs() > 3.0 * gate_deg),
+            PipelineWarning::Registration(RegistrationWarning::IterationLimit { .. }) => false,
+            other => !other.is_doubtful(),
+        };
+        if !ambiguous || !e.warnings.iter().filter(|w| w.code() != "wide_bounds").all(answerable) {
+            return false;
+        }
+        let off = (self.velocity * self.last_pose).inverse() * (e.pose * reference_pose);
+        off.rotation.angle().to_degrees() <= gate_deg && off.translation.vector.norm() <= self.config.motion_gate_m
+    }
+
     /// The frames to estimate against, in order: the keyframes nearest to the predicted pose
     /// (constant velocity; the
     /// smallest motions, and the oldest measurements when the object comes back: drift stays
@@ -476,7 +512,7 @@ impl Tracker {
         }
     }
 
-    /// A converged estimate: the pose from the first frame, the mask carried, a keyframe when the
+    /// A converged estimate (or one the motion settled): the pose from the first frame, the mask carried, a keyframe when the
     /// object moved far enough from the current one.
     fn accept(
         &mut self,
@@ -507,7 +543,11 @@ impl Tracker {
             self.add_keyframe(Keyframe { index, frame: frame.clone(), pose });
         }
         self.previous = Some(Previous { index, frame, pose });
-        let reason = Some(warning_codes(&e)).filter(|r| !r.is_empty());
+        let codes = warning_codes(&e);
+        let reason = match e.registration.converged {
+            true => Some(codes).filter(|r| !r.is_empty()),
+            false => Some(format!("{codes}: settled by the motion")),
+        };
         TrackedFrame {
             index,
             label: String::new(),
