@@ -120,7 +120,7 @@ impl Icp {
         // Source points in a spatially coherent order: consecutive queries share tree branches.
         let source: Vec<Point3> =
             spatial_order(&p.source.points).iter().map(|&i| p.source.points[i as usize]).collect();
-        let mut partner = vec![u32::MAX; source.len()];
+        let mut tracks = vec![Track::UNKNOWN; source.len()];
         let stats = |c: &[(Point3, usize, f64)]| {
             if c.is_empty() {
                 (0.0, 0.0)
@@ -131,7 +131,7 @@ impl Icp {
                 )
             }
         };
-        let mut corr = matcher.pairs(&source, &mut partner, &t);
+        let mut corr = matcher.pairs(&source, &mut tracks, &t, None);
         let (mut fitness, mut rmse) = stats(&corr);
         let mut history = vec![];
         let mut warnings = vec![];
@@ -161,10 +161,11 @@ impl Icp {
                 warnings.push(RegistrationWarning::DegenerateUpdate);
                 break;
             };
+            let searched_at = t;
             t = delta * t;
             iterations = it + 1;
             matcher.prepare(&corr);
-            corr = matcher.pairs(&source, &mut partner, &t);
+            corr = matcher.pairs(&source, &mut tracks, &t, Some(&searched_at));
             let (f, r) = stats(&corr);
             history.push(IterationRecord { iteration: it, transform: t, objective: r });
             // Open3D's criteria, plus a vanishing update: on planar parts the pose can keep
@@ -198,9 +199,28 @@ impl Icp {
     }
 }
 
+/// What the last pass learnt of a source point's nearest target point.
+#[derive(Debug, Clone, Copy)]
+struct Track {
+    /// Its partner within the gate (`u32::MAX`: none).
+    partner: u32,
+    /// Without one: a lower bound on its distance to the nearest target point, beyond the gate
+    /// (0: unknown).
+    far: f64,
+}
+
+impl Track {
+    /// Nothing known yet.
+    const UNKNOWN: Self = Self { partner: u32::MAX, far: 0.0 };
+}
+
 /// Source points searched in turn, each from the answer of the one before (see
 /// [`Matcher::pairs`]); runs are searched in parallel.
 const SEEDED_RUN: usize = 256;
+
+/// Relative margin a skipped point's distance bound keeps beyond the gate (rounding of the
+/// bound's arithmetic).
+const FAR_MARGIN: f64 = 1e-9;
 
 /// Target points sampled to estimate the cloud's spacing.
 const SPACING_SAMPLES: usize = 64;
@@ -247,25 +267,46 @@ impl<'a> Matcher<'a> {
     }
 
     /// The pairs of `t * source` (moved source point, target index, distance), in source order,
-    /// for the points with a target point within the gate; `partner` holds each point's last
-    /// partner (`u32::MAX`: none) and is updated. A point without one (every point of the first
-    /// pass) is searched from the nearest target point of the point before it: the source is in
-    /// spatial order, so that point is about as near as its own nearest, and the grid cells
-    /// within that distance hold the answer (the k-d tree answers the first point of each run
-    /// of [`SEEDED_RUN`] and where the cells would be too many).
-    fn pairs(&self, source: &[Point3], partner: &mut [u32], t: &Pose) -> Vec<(Point3, usize, f64)> {
+    /// for the points with a target point within the gate; `tracks` holds what the last pass
+    /// (at pose `searched_at`) learnt of each point and is updated. A point without a partner
+    /// (every point of the first pass) is searched from the nearest target point of the point
+    /// before it: the source is in spatial order, so that point is about as near as its own
+    /// nearest, and the grid cells within that distance hold the answer (the k-d tree answers
+    /// the first point of each run of [`SEEDED_RUN`] and where the cells would be too many).
+    /// A point whose nearest target point lay beyond the gate by more than it has moved since is
+    /// not searched: it still has none within the gate (a whole frame's edges and background,
+    /// searched from scratch on every pass otherwise). The pairs are those of a search of every
+    /// point.
+    fn pairs(
+        &self,
+        source: &[Point3],
+        tracks: &mut [Track],
+        t: &Pose,
+        searched_at: Option<&Pose>,
+    ) -> Vec<(Point3, usize, f64)> {
+        let gate = self.max_d2.sqrt();
         source
             .par_chunks(SEEDED_RUN)
-            .zip(partner.par_chunks_mut(SEEDED_RUN))
-            .flat_map_iter(|(source, partner)| {
+            .zip(tracks.par_chunks_mut(SEEDED_RUN))
+            .flat_map_iter(|(source, tracks)| {
                 let mut seed = u32::MAX;
-                source.iter().zip(partner).filter_map(move |(s, last)| {
+                source.iter().zip(tracks).filter_map(move |(s, last)| {
                     let x = t * s;
-                    let n = self.nearest(&x, if *last == u32::MAX { seed } else { *last });
+                    if let Some(before) = searched_at.filter(|_| last.far > 0.0) {
+                        let bound = last.far - (x - before * s).norm();
+                        if bound > gate * (1.0 + FAR_MARGIN) {
+                            last.far = bound;
+                            return None;
+                        }
+                    }
+                    let n = self.nearest(&x, if last.partner == u32::MAX { seed } else { last.partner });
                     seed = n.map_or(u32::MAX, |n| n.index as u32);
-                    let n = n.filter(|n| n.dist2 <= self.max_d2);
-                    *last = n.map_or(u32::MAX, |n| n.index as u32);
-                    n.map(|n| (x, n.index, n.dist2.sqrt()))
+                    *last = match n {
+                        Some(n) if n.dist2 <= self.max_d2 => Track { partner: n.index as u32, far: 0.0 },
+                        Some(n) => Track { partner: u32::MAX, far: n.dist2.sqrt() },
+                        None => Track::UNKNOWN,
+                    };
+                    n.filter(|n| n.dist2 <= self.max_d2).map(|n| (x, n.index, n.dist2.sqrt()))
                 })
             })
             .collect()
@@ -330,20 +371,56 @@ mod tests {
         let mut with_lists = Matcher::new(&target, 0.25);
         let mut tree_only = Matcher::new(&target, 0.25);
         tree_only.grid = None;
-        let (mut last_a, mut last_b) = (vec![u32::MAX; source.len()], vec![u32::MAX; source.len()]);
+        let mut tracks = vec![Track::UNKNOWN; source.len()];
         // Poses approaching the truth, as ICP's estimates do, then settling around it.
         let mut listed_passes = 0;
-        for k in 0..=16 {
-            let f = (k as f64 / 10.0).min(1.0);
-            let wobble = if k > 10 { 1e-4 * (k as f64).sin() } else { 0.0 };
-            let t = Pose::identity().lerp_slerp(&truth, f) * Translation3::new(wobble, -wobble, 0.0);
-            let a = with_lists.pairs(&source, &mut last_a, &t);
-            let b = tree_only.pairs(&source, &mut last_b, &t);
+        let mut before = None;
+        for (k, t) in approaching(&truth).into_iter().enumerate() {
+            let a = with_lists.pairs(&source, &mut tracks, &t, before.as_ref());
+            let b = tree_only.pairs(&source, &mut vec![Track::UNKNOWN; source.len()], &t, None);
             assert_eq!(a, b, "pass {k}");
             listed_passes += usize::from(with_lists.lists.is_some());
             with_lists.prepare(&a);
+            before = Some(t);
         }
         assert!(listed_passes >= 5, "the neighbourhoods answered {listed_passes} passes");
         assert!(tree_only.lists.is_none());
+    }
+
+    /// Poses approaching `truth` from the identity, as ICP's estimates do, then settling around it.
+    fn approaching(truth: &Pose) -> Vec<Pose> {
+        (0..=16)
+            .map(|k| {
+                let f = (k as f64 / 10.0).min(1.0);
+                let wobble = if k > 10 { 1e-4 * (k as f64).sin() } else { 0.0 };
+                Pose::identity().lerp_slerp(truth, f) * Translation3::new(wobble, -wobble, 0.0)
+            })
+            .collect()
+    }
+
+    /// A source reaching far past the target (a whole frame's background) under a 1 cm gate: the
+    /// points beyond it are skipped on later passes, and the pairs are still a full search's.
+    #[test]
+    fn points_far_beyond_the_gate_are_skipped_with_the_same_pairs() {
+        let target = patch(4000, 0.0);
+        let truth = Pose::from_parts(
+            Translation3::new(0.01, -0.02, 0.005),
+            UnitQuaternion::from_scaled_axis(Vector3::new(0.1, -0.25, 0.2)),
+        );
+        // Three times the target's extent: most of the source has nothing within the gate.
+        let wide: Vec<Point3> =
+            patch(3000, 0.5).iter().map(|p| Point3::new(3.0 * p.x - 0.1, 3.0 * p.y - 0.1, p.z)).collect();
+        let source: Vec<Point3> = wide.iter().map(|p| truth.inverse() * p).collect();
+        let matcher = Matcher::new(&target, 0.01);
+        let mut tracks = vec![Track::UNKNOWN; source.len()];
+        let mut before = None;
+        for (k, t) in approaching(&truth).into_iter().enumerate() {
+            let a = matcher.pairs(&source, &mut tracks, &t, before.as_ref());
+            let b = matcher.pairs(&source, &mut vec![Track::UNKNOWN; source.len()], &t, None);
+            assert_eq!(a, b, "pass {k}");
+            before = Some(t);
+        }
+        let far = tracks.iter().filter(|t| t.far > 0.01).count();
+        assert!(far > source.len() / 2, "{far} of {} points known to be far", source.len());
     }
 }

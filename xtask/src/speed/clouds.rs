@@ -1,6 +1,7 @@
 //! The registration inputs of `bench-speed`: Kinect-sized pairs of a wavy surface seen from
 //! the front (a sensor's single view), the target moved by a known motion, resampled and noisy,
-//! written as PLY (the target with normals) for ours and the peers alike.
+//! and real pairs (two frames of a posed RGB-D sequence as the depth stage turns them into
+//! clouds), written as PLY (the target with normals) for ours and the peers alike.
 
 use anyhow::Context;
 use flowfilter_pipeline::depth::cloud::knn_normals;
@@ -27,6 +28,9 @@ pub struct CloudPair {
     pub target: PathBuf,
     /// The source-to-target motion.
     pub truth: Pose,
+    /// Whether `truth` is exact (a synthetic pair) or a calibration's (a real pair: ours and the
+    /// peer are then compared with each other, not held to it).
+    pub exact_truth: bool,
 }
 
 /// A point of the wavy surface at `(u, v)` (metres; the surface spans 1.2 x 0.9 m, 1.5 m from
@@ -77,7 +81,7 @@ pub fn write_pair(dir: &Path, n: usize, seed: u64) -> anyhow::Result<CloudPair> 
     for (cloud, path) in [(&source, &source_path), (&target, &target_path)] {
         write_ply(cloud, path, PlyFormat::BinaryLittleEndian).with_context(|| format!("writing {}", path.display()))?;
     }
-    Ok(CloudPair { name, source: source_path, target: target_path, truth })
+    Ok(CloudPair { name, source: source_path, target: target_path, truth, exact_truth: true })
 }
 
 #[cfg(test)]
@@ -102,4 +106,48 @@ mod tests {
         let n = t1.normals.as_ref().unwrap();
         assert!(n.iter().zip(&t1.points).all(|(n, p)| n.dot(&p.coords) < 0.0));
     }
+}
+
+/// The voxel real clouds are thinned to (metres): a 640x480 RealSense frame's organised cloud
+/// (150-200k points after registration to colour and hole filling) becomes 30-60k points, the
+/// size of a Kinect frame's PLY in Open3D's tutorials.
+pub const REAL_VOXEL_M: f64 = 0.004;
+
+/// Write the real pair `frames.0 -> frames.1` of the posed sequence in `sequence` (as
+/// `bench-real` reads it) into `dir`: each frame's whole-frame cloud from the depth stage
+/// (default configuration; normals from the organised grid), thinned to [`REAL_VOXEL_M`], the
+/// source moved by the calibrated motion so that the registration starts where a tracker's
+/// prediction would (the calibration's own error, 0.5-1 deg, is what is left to find). The
+/// pair's truth is then the identity, up to that error.
+///
+/// # Errors
+/// Frames that cannot be read or prepared; a file that cannot be written.
+pub fn write_real_pair(dir: &Path, sequence: &Path, frames: (u32, u32)) -> anyhow::Result<CloudPair> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let posed = crate::realsense::PosedFrames::open_with_truth(sequence, &crate::realsense::Truth::Calibrated)
+        .map_err(anyhow::Error::msg)?;
+    let stage = flowfilter_pipeline::depth::DepthStage::new(flowfilter_pipeline::DepthConfig::default())?;
+    let cloud = |im: u32| -> anyhow::Result<PointCloud> {
+        let frame = posed.frame(im).map_err(anyhow::Error::msg)?;
+        let p = stage
+            .process(&frame.depth, &frame.color, &frame.mask, &frame.sensor)
+            .with_context(|| format!("{}: frame {im}", sequence.display()))?;
+        let mut thinned = flowfilter_pipeline::depth::cloud::voxel_downsample(&p.cloud, REAL_VOXEL_M);
+        thinned.colors = None;
+        Ok(thinned)
+    };
+    let motion = posed.calibrated_motion(frames.0, frames.1).map_err(anyhow::Error::msg)?;
+    let mut source = cloud(frames.0)?;
+    source.points.iter_mut().for_each(|p| *p = motion * *p);
+    if let Some(normals) = source.normals.as_mut() {
+        normals.iter_mut().for_each(|n| *n = motion.rotation * *n);
+    }
+    let target = cloud(frames.1)?;
+    let sequence_name = sequence.file_name().map_or_else(|| "real".into(), |n| n.to_string_lossy().into_owned());
+    let name = format!("real-{sequence_name}-{}-{}", frames.0, frames.1);
+    let (source_path, target_path) = (dir.join(format!("{name}_source.ply")), dir.join(format!("{name}_target.ply")));
+    for (cloud, path) in [(&source, &source_path), (&target, &target_path)] {
+        write_ply(cloud, path, PlyFormat::BinaryLittleEndian).with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(CloudPair { name, source: source_path, target: target_path, truth: Pose::identity(), exact_truth: false })
 }

@@ -28,9 +28,17 @@ pub struct SpeedArgs {
     /// pairs from its first base angle.
     #[arg(long)]
     pub quick: bool,
-    /// Source points of the registration pairs (the target has 11/12 of them).
+    /// Source points of the synthetic registration pairs (the target has 11/12 of them)
+    /// [default: 20000,40000,60000, or 5000 with --quick; none when --real is given].
     #[arg(long, value_delimiter = ',')]
     pub sizes: Option<Vec<usize>>,
+    /// Real RGB-D sequences (folders of frames with `poses.json` and `camera.json`, as
+    /// `bench-real` reads them), comma separated: each one's first two frames join the
+    /// registration pairs as real clouds (the depth stage's whole-frame clouds with their normals,
+    /// thinned to a 4 mm voxel, the source moved by the calibrated motion). Their truth is a
+    /// calibration's: ours and the peer are compared with each other.
+    #[arg(long, value_delimiter = ',')]
+    pub real: Vec<PathBuf>,
     /// Thread counts, each run in turn (ours in a rayon pool of that size; the peers with
     /// OMP_NUM_THREADS, OPENBLAS_NUM_THREADS, MKL_NUM_THREADS and OpenCV's setNumThreads).
     #[arg(long, value_delimiter = ',', default_value = "1,2")]
@@ -79,11 +87,16 @@ pub fn run(args: &SpeedArgs) -> anyhow::Result<()> {
     let repeat = args.repeat.unwrap_or(if args.quick { 1 } else { 3 });
     let repeats =
         ours::Repeats { min: repeat, budget_s: args.min_seconds.unwrap_or(if args.quick { 0.0 } else { 1.0 }) };
-    let sizes =
-        args.sizes.clone().unwrap_or_else(|| if args.quick { vec![5000] } else { vec![20_000, 40_000, 60_000] });
+    let sizes = args.sizes.clone().unwrap_or_else(|| match (args.quick, args.real.is_empty()) {
+        (_, false) => vec![],
+        (true, true) => vec![5000],
+        (false, true) => vec![20_000, 40_000, 60_000],
+    });
     let wants = |s: &str| args.sections.iter().any(|x| x == s);
-    let pairs = if wants("registration") {
-        sizes.iter().map(|&n| clouds::write_pair(&dir.join("clouds"), n, n as u64)).collect::<anyhow::Result<_>>()?
+    let pairs: Vec<clouds::CloudPair> = if wants("registration") {
+        let synthetic = sizes.iter().map(|&n| clouds::write_pair(&dir.join("clouds"), n, n as u64));
+        let real = args.real.iter().map(|seq| clouds::write_real_pair(&dir.join("clouds"), seq, real_frames(seq)?));
+        synthetic.chain(real).collect::<anyhow::Result<_>>()?
     } else {
         vec![]
     };
@@ -101,7 +114,7 @@ pub fn run(args: &SpeedArgs) -> anyhow::Result<()> {
         for pair in &pairs {
             for (method, t) in ours::registration(pair, &config, &pool, repeats)? {
                 let peer = peer_rows.iter().find(|r| r.pair.as_deref() == Some(&pair.name) && r.method == method);
-                report.rows.push(Row::registration(&pair.name, &method, threads, t, peer, &pair.truth));
+                report.rows.push(Row::registration(pair, &method, threads, t, peer));
             }
             bar.inc(1);
         }
@@ -125,6 +138,16 @@ pub fn run(args: &SpeedArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The first two frames of a real sequence.
+fn real_frames(sequence: &Path) -> anyhow::Result<(u32, u32)> {
+    let posed = crate::realsense::PosedFrames::open_with_truth(sequence, &crate::realsense::Truth::Calibrated)
+        .map_err(|e| anyhow::anyhow!("--real: {e}"))?;
+    match posed.ids()[..] {
+        [a, b, ..] => Ok((a, b)),
+        _ => anyhow::bail!("--real: {}: two posed frames expected, found one", sequence.display()),
+    }
+}
+
 /// Options that cannot work are refused before anything runs.
 fn validate(args: &SpeedArgs) -> anyhow::Result<()> {
     if let Some(s) = args.sections.iter().find(|s| !SECTIONS.contains(&s.as_str())) {
@@ -132,6 +155,9 @@ fn validate(args: &SpeedArgs) -> anyhow::Result<()> {
     }
     if args.threads.is_empty() || args.threads.contains(&0) {
         anyhow::bail!("--threads: thread counts of at least 1 expected, found {:?}", args.threads);
+    }
+    if let Some(dir) = args.real.iter().find(|d| !crate::realsense::is_posed_folder(d)) {
+        anyhow::bail!("--real: {} is not a posed sequence (camera.json and poses.json expected)", dir.display());
     }
     if let Some(n) = args.sizes.iter().flatten().find(|&&n| n < 100) {
         anyhow::bail!("--sizes: at least 100 points per cloud expected, found {n}");

@@ -27,6 +27,8 @@ pub struct Timed {
     pub translation_m: Option<f64>,
     /// Iterations, for registration.
     pub iterations: Option<usize>,
+    /// The registration's pose.
+    pub pose: Option<Pose>,
 }
 
 /// The parameters both sides run with: probreg's FilterReg (`w = 0.2`, 100 iterations, tolerance
@@ -135,7 +137,13 @@ pub fn registration(
             let (deg, metres) = pose_errors(&r.transform, &pair.truth);
             Ok((
                 method.to_string(),
-                Timed { seconds, error: deg, translation_m: Some(metres), iterations: Some(r.iterations) },
+                Timed {
+                    seconds,
+                    error: deg,
+                    translation_m: Some(metres),
+                    iterations: Some(r.iterations),
+                    pose: Some(r.transform),
+                },
             ))
         })
         .collect()
@@ -156,5 +164,5 @@ pub fn flow(sintel_root: &Path, case: &str, pool: &rayon::ThreadPool, repeats: R
     let (seconds, field) = fastest(pool, repeats, || Ok(dis.dense(&a, &b, None)?))?;
     let (epe, _) = flowfilter_pipeline::flow::metrics::epe(&field, &pair.flow, None)
         .context("the flow and its ground truth differ in size")?;
-    Ok(Timed { seconds, error: epe, translation_m: None, iterations: None })
+    Ok(Timed { seconds, error: epe, translation_m: None, iterations: None, pose: None })
 }
