@@ -253,6 +253,7 @@ mod tests {
         SpeedArgs {
             quick: true,
             sizes: Some(vec![1500]),
+            real: vec![],
             threads: vec![1, 2],
             repeat: Some(1),
             min_seconds: None,
@@ -287,6 +288,34 @@ mod tests {
         assert!(std::fs::read_to_string(dir.join("speed.md")).unwrap().contains("| wavy-1500 | cpd | 2 |"));
     }
 
+    /// A real sequence's first two frames become a cloud pair: the target with normals, the
+    /// source moved by the calibrated motion onto it (most points within 1 cm of the target), and
+    /// rows that the truth check does not hold to the calibration.
+    #[test]
+    fn a_real_sequence_gives_a_real_cloud_pair() {
+        let Some(seq) = crate::shared_or_skip("data/realsense-shelf/shelf-D") else { return };
+        let tmp = tempfile::tempdir().unwrap();
+        let pair = clouds::write_real_pair(tmp.path(), &seq, (0, 1)).unwrap();
+        assert_eq!(pair.name, "real-shelf-D-0-1");
+        assert!(!pair.exact_truth);
+        let read = |p: &Path| flowfilter_pipeline::depth::ply::read_ply(p).unwrap();
+        let (source, target) = (read(&pair.source), read(&pair.target));
+        assert!(target.normals.is_some());
+        assert!((10_000..80_000).contains(&source.len()), "{} source points", source.len());
+        let index = flowfilter_pipeline::geometry::KnnIndex::new(&target.points);
+        let near = source.points.iter().filter(|p| index.nearest(p).is_some_and(|n| n.dist2 < 1e-4)).count();
+        assert!(near * 10 > source.len() * 6, "{near} of {} source points within 1 cm", source.len());
+        // Only the real pair with --real and no --sizes; one thread, ours only.
+        let a = SpeedArgs { sizes: None, real: vec![seq], threads: vec![1], no_peers: true, ..args(tmp.path()) };
+        run(&a).unwrap();
+        let dir = std::fs::read_dir(tmp.path()).unwrap().flatten().find(|e| e.path().join("speed.json").is_file());
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.unwrap().path().join("speed.json")).unwrap()).unwrap();
+        let rows = v["rows"].as_array().unwrap();
+        assert_eq!(rows.len(), ours::REGISTRATION_METHODS.len());
+        assert!(rows.iter().all(|r| r["case"] == "real-shelf-D-0-1" && r["exact_truth"] == false), "{rows:?}");
+    }
+
     #[test]
     fn options_that_cannot_work_are_refused() {
         let tmp = tempfile::tempdir().unwrap();
@@ -294,6 +323,7 @@ mod tests {
             (SpeedArgs { sections: vec!["gpu".into()], ..args(tmp.path()) }, "unknown section 'gpu'"),
             (SpeedArgs { threads: vec![0], ..args(tmp.path()) }, "--threads"),
             (SpeedArgs { sizes: Some(vec![10]), ..args(tmp.path()) }, "--sizes"),
+            (SpeedArgs { real: vec![tmp.path().to_path_buf()], ..args(tmp.path()) }, "--real"),
             (SpeedArgs { repeat: Some(0), ..args(tmp.path()) }, "--repeat"),
             (SpeedArgs { min_seconds: Some(-1.0), ..args(tmp.path()) }, "--min-seconds"),
             (SpeedArgs { min_seconds: Some(f64::NAN), ..args(tmp.path()) }, "--min-seconds"),
@@ -364,28 +394,30 @@ mod tests {
         assert!(v["pipeline_pairs"].as_str().unwrap().contains("no-judge-no-align.toml"), "{v}");
     }
 
-    /// A check fails on a registration that ends far from the truth.
+    /// A check fails on a registration that ends far from the truth, unless that truth is a
+    /// calibration's (a real pair).
     #[test]
     fn the_check_refuses_a_wrong_pose() {
         let mut report = SpeedReport::new(&args(Path::new("x")), &[1500], ours::Repeats { min: 1, budget_s: 0.0 });
-        let t = ours::Timed { seconds: 0.1, error: 0.01, translation_m: Some(0.0), iterations: Some(3) };
-        report.rows.push(Row::registration(
-            "wavy-1500",
-            "icp-pt2pl",
-            1,
-            t.clone(),
-            None,
-            &flowfilter_pipeline::Pose::identity(),
-        ));
+        let t = ours::Timed { seconds: 0.1, error: 0.01, translation_m: Some(0.0), iterations: Some(3), pose: None };
+        let pair = |name: &str, exact_truth| clouds::CloudPair {
+            name: name.into(),
+            source: PathBuf::new(),
+            target: PathBuf::new(),
+            truth: flowfilter_pipeline::Pose::identity(),
+            exact_truth,
+        };
+        report.rows.push(Row::registration(&pair("wavy-1500", true), "icp-pt2pl", 1, t.clone(), None));
         report.check().unwrap();
         report.rows.push(Row::registration(
-            "wavy-1500",
+            &pair("real-x-0-1", false),
             "cpd",
             1,
-            ours::Timed { error: 3.0, ..t },
+            ours::Timed { error: 3.0, ..t.clone() },
             None,
-            &flowfilter_pipeline::Pose::identity(),
         ));
+        report.check().unwrap();
+        report.rows.push(Row::registration(&pair("wavy-1500", true), "cpd", 1, ours::Timed { error: 3.0, ..t }, None));
         assert!(report.check().unwrap_err().to_string().contains("3.000 deg"));
     }
 }
