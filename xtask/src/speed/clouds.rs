@@ -84,30 +84,6 @@ pub fn write_pair(dir: &Path, n: usize, seed: u64) -> anyhow::Result<CloudPair> 
     Ok(CloudPair { name, source: source_path, target: target_path, truth, exact_truth: true })
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn pairs_are_seeded_and_carry_the_stated_motion() {
-        let (s1, t1, truth) = make_pair(2000, 3);
-        let (s2, t2, _) = make_pair(2000, 3);
-        assert_eq!(s1.points, s2.points);
-        assert_eq!(t1.points, t2.points);
-        assert_eq!((s1.len(), t1.len()), (2000, 1833));
-        let deg = truth.rotation.angle().to_degrees();
-        assert!((deg - 4.47).abs() < 0.01, "{deg}");
-        // Every target point lies within noise of the moved surface: its pre-image is on it.
-        for p in t1.points.iter().take(200) {
-            let q = truth.inverse() * p;
-            assert!((surface(q.x, q.y).z - q.z).abs() < 0.015, "{q:?}");
-        }
-        // Normals face the camera at the origin.
-        let n = t1.normals.as_ref().unwrap();
-        assert!(n.iter().zip(&t1.points).all(|(n, p)| n.dot(&p.coords) < 0.0));
-    }
-}
-
 /// The voxel real clouds are thinned to (metres): a 640x480 RealSense frame's organised cloud
 /// (150-200k points after registration to colour and hole filling) becomes 30-60k points, the
 /// size of a Kinect frame's PLY in Open3D's tutorials.
@@ -150,4 +126,28 @@ pub fn write_real_pair(dir: &Path, sequence: &Path, frames: (u32, u32)) -> anyho
         write_ply(cloud, path, PlyFormat::BinaryLittleEndian).with_context(|| format!("writing {}", path.display()))?;
     }
     Ok(CloudPair { name, source: source_path, target: target_path, truth: Pose::identity(), exact_truth: false })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pairs_are_seeded_and_carry_the_stated_motion() {
+        let (s1, t1, truth) = make_pair(2000, 3);
+        let (s2, t2, _) = make_pair(2000, 3);
+        assert_eq!(s1.points, s2.points);
+        assert_eq!(t1.points, t2.points);
+        assert_eq!((s1.len(), t1.len()), (2000, 1833));
+        let deg = truth.rotation.angle().to_degrees();
+        assert!((deg - 4.47).abs() < 0.01, "{deg}");
+        // Every target point lies within noise of the moved surface: its pre-image is on it.
+        for p in t1.points.iter().take(200) {
+            let q = truth.inverse() * p;
+            assert!((surface(q.x, q.y).z - q.z).abs() < 0.015, "{q:?}");
+        }
+        // Normals face the camera at the origin.
+        let n = t1.normals.as_ref().unwrap();
+        assert!(n.iter().zip(&t1.points).all(|(n, p)| n.dot(&p.coords) < 0.0));
+    }
 }
