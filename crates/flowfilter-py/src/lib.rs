@@ -51,10 +51,23 @@ fn default_config(py: Python<'_>) -> PyResult<Bound<'_, PyAny>> {
     arrays::json_object(py, &flowfilter_pipeline::PipelineConfig::default())
 }
 
+/// Freed pages go back to the kernel after a second, not 10 ms (the workspace manifest says
+/// why), unless `MIMALLOC_PURGE_DELAY` says otherwise.
+fn keep_freed_pages() {
+    /// `mi_option_purge_delay` (the same slot in mimalloc v2 and v3; libmimalloc-sys does not
+    /// name it).
+    const PURGE_DELAY: libmimalloc_sys::mi_option_t = 15;
+    if std::env::var_os("MIMALLOC_PURGE_DELAY").is_none() {
+        // SAFETY: sets one of mimalloc's integer options; it is read on the allocator's next purge.
+        unsafe { libmimalloc_sys::mi_option_set(PURGE_DELAY, 1000) };
+    }
+}
+
 /// Relative 6-DoF pose of partially seen rigid objects from RGB-D: Flow Filter and the
 /// registration baselines (ICP, CPD, FilterReg), with NumPy arrays in and out.
 #[pymodule]
 fn _flowfilter(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    keep_freed_pages();
     let py = m.py();
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add("METHODS", flowfilter_pipeline::registration::METHOD_NAMES.to_vec())?;
