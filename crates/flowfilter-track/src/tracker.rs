@@ -39,11 +39,11 @@ pub struct TrackerConfig {
     pub recovery_tries: usize,
     /// A doubtful estimate whose only doubts a motion prediction can answer (other turns about
     /// an axis fit as well: `ambiguous_pose`, with or without the wide error bounds those turns
-    /// bring: `wide_bounds`) is taken as tracking when its pose from the first frame lies within this many degrees of the
-    /// constant-velocity prediction (and [`TrackerConfig::motion_gate_m`]) and every other turn
-    /// it names is more than three times this from the estimate, so more than twice this from
-    /// the prediction: the motion tells the poses apart where the images do not (a can's lid
-    /// seen from above). 0: never.
+    /// bring: `wide_bounds`) is taken as tracking when its pose from the first frame lies within
+    /// this many degrees of the constant-velocity prediction (and
+    /// [`TrackerConfig::motion_gate_m`]) and every other turn it names is more than three times
+    /// this from the estimate, so more than twice this from the prediction: the motion tells the
+    /// poses apart where the images do not (a can's lid seen from above). 0: never.
     pub motion_gate_deg: f64,
     /// See [`TrackerConfig::motion_gate_deg`] (metres).
     pub motion_gate_m: f64,
@@ -457,8 +457,9 @@ impl Tracker {
 
     /// Whether the constant-velocity prediction settles a doubtful estimate against a reference
     /// at `reference_pose` ([`TrackerConfig::motion_gate_deg`]): its doubts are other turns that
-    /// fit as well (and the bounds they widen), which a prediction answers, the clouds support it, it lies within the gate of the prediction, and
-    /// the other turns it names lie beyond three gates of it. Never after a loss (no prediction).
+    /// fit as well (and the bounds they widen), which a prediction answers; the clouds support
+    /// it; it lies within the gate of the prediction; the other turns it names lie beyond three
+    /// gates of it. Never after a loss (no prediction).
     fn settled_by_motion(&self, e: &Estimate, reference_pose: &Pose) -> bool {
         let gate_deg = self.config.motion_gate_deg;
         if gate_deg <= 0.0 || self.lost || !plausible(e) {
@@ -512,8 +513,8 @@ impl Tracker {
         }
     }
 
-    /// A converged estimate (or one the motion settled): the pose from the first frame, the mask carried, a keyframe when the
-    /// object moved far enough from the current one.
+    /// A converged estimate (or one the motion settled): the pose from the first frame, the mask
+    /// carried, a keyframe when the object moved far enough from the current one.
     fn accept(
         &mut self,
         index: usize,

@@ -102,10 +102,11 @@ fn the_predicted_mask_replaces_the_propagated_one() {
     }
 }
 
-/// A can seen from above (NP5, the Carmine's effects) turns about its own axis: its lid looks alike at every turn, so
-/// the pipeline warns that other turns fit as well (`ambiguous_pose`) and does not converge.
-/// The constant-velocity prediction tells the turns apart: those frames are tracked, their
-/// reason says so, and no frame is lost. Without the motion gate the same stream is not tracked.
+/// A can seen from above (NP5, the Carmine's effects) turns about its own axis: its lid looks
+/// alike at every turn, so the pipeline warns that other turns fit as well (`ambiguous_pose`) and
+/// does not converge. The constant-velocity prediction tells the turns apart: those frames are
+/// tracked, their reason says so, and no frame is lost. Without the motion gate the same stream is
+/// not tracked.
 #[test]
 fn the_motion_settles_a_symmetric_objects_ambiguous_turns() {
     let stream = Stream::of("can", 5, Some(NoiseProfile::carmine()));
