@@ -360,13 +360,18 @@ mod tests {
             .collect()
     }
 
+    /// The motion between the tests' source and target patches.
+    fn patch_motion() -> Pose {
+        Pose::from_parts(
+            Translation3::new(0.01, -0.02, 0.005),
+            UnitQuaternion::from_scaled_axis(Vector3::new(0.1, -0.25, 0.2)),
+        )
+    }
+
     #[test]
     fn neighbourhood_answers_are_the_tree_answers() {
         let target = patch(4000, 0.0);
-        let truth = Pose::from_parts(
-            Translation3::new(0.01, -0.02, 0.005),
-            UnitQuaternion::from_scaled_axis(Vector3::new(0.1, -0.25, 0.2)),
-        );
+        let truth = patch_motion();
         let source: Vec<Point3> = patch(3000, 0.5).iter().map(|p| truth.inverse() * p).collect();
         let mut with_lists = Matcher::new(&target, 0.25);
         let mut tree_only = Matcher::new(&target, 0.25);
@@ -403,10 +408,7 @@ mod tests {
     #[test]
     fn points_far_beyond_the_gate_are_skipped_with_the_same_pairs() {
         let target = patch(4000, 0.0);
-        let truth = Pose::from_parts(
-            Translation3::new(0.01, -0.02, 0.005),
-            UnitQuaternion::from_scaled_axis(Vector3::new(0.1, -0.25, 0.2)),
-        );
+        let truth = patch_motion();
         // Three times the target's extent: most of the source has nothing within the gate.
         let wide: Vec<Point3> =
             patch(3000, 0.5).iter().map(|p| Point3::new(3.0 * p.x - 0.1, 3.0 * p.y - 0.1, p.z)).collect();
