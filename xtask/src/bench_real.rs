@@ -742,8 +742,6 @@ mod tests {
         assert!(usable >= 20 && right * 10 >= usable * 8, "{right} of {usable} right; sets {sources:?}");
     }
 
-    /// A region's true mask covers the ball's visible surface in both frames of a pair, and its
-    /// network mask differs from it by the drawn defects only (the same seed, the same mask).
     /// `--mask-defects` keeps only the defects it names, at the network model's strength;
     /// none named is the exact model, all named the network's.
     #[test]
@@ -758,6 +756,8 @@ mod tests {
         assert_eq!(mask_model(true, None), NetworkMaskModel::EXACT);
     }
 
+    /// A region's true mask covers the ball's visible surface in both frames of a pair, and its
+    /// network mask differs from it by the drawn defects only (the same seed, the same mask).
     #[test]
     fn region_masks_follow_the_scene_and_the_seed() {
         let Some(data) = shelf("shelf-A") else { return };

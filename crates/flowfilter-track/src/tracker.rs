@@ -473,7 +473,8 @@ impl Tracker {
             PipelineWarning::Registration(RegistrationWarning::IterationLimit { .. }) => false,
             other => !other.is_doubtful(),
         };
-        if !ambiguous || !e.warnings.iter().filter(|w| w.code() != "wide_bounds").all(answerable) {
+        let widened = |w: &&PipelineWarning| matches!(w, PipelineWarning::WideBounds { .. });
+        if !ambiguous || !e.warnings.iter().filter(|w| !widened(w)).all(answerable) {
             return false;
         }
         let off = (self.velocity * self.last_pose).inverse() * (e.pose * reference_pose);

@@ -84,12 +84,11 @@ pub fn write_pair(dir: &Path, n: usize, seed: u64) -> anyhow::Result<CloudPair> 
     Ok(CloudPair { name, source: source_path, target: target_path, truth, exact_truth: true })
 }
 
-/// The voxel real clouds are thinned to (metres): a 640x480 RealSense frame's organised cloud
-/// (150-200k points after registration to colour and hole filling) becomes 30-60k points, the
-/// size of a Kinect frame's PLY in Open3D's tutorials.
+/// The voxel real clouds are thinned to (metres): a whole 640x480 RealSense frame of the shared
+/// sequences becomes 13-17k points.
 pub const REAL_VOXEL_M: f64 = 0.004;
 
-/// Write the real pair `frames.0 -> frames.1` of the posed sequence in `sequence` (as
+/// Write the real pair of the first two frames of the posed sequence in `sequence` (as
 /// `bench-real` reads it) into `dir`: each frame's whole-frame cloud from the depth stage
 /// (default configuration; normals from the organised grid), thinned to [`REAL_VOXEL_M`], the
 /// source moved by the calibrated motion so that the registration starts where a tracker's
@@ -97,11 +96,16 @@ pub const REAL_VOXEL_M: f64 = 0.004;
 /// pair's truth is then the identity, up to that error.
 ///
 /// # Errors
-/// Frames that cannot be read or prepared; a file that cannot be written.
-pub fn write_real_pair(dir: &Path, sequence: &Path, frames: (u32, u32)) -> anyhow::Result<CloudPair> {
+/// A folder that is not a posed sequence of two frames or more; frames that cannot be read or
+/// prepared; a file that cannot be written.
+pub fn write_real_pair(dir: &Path, sequence: &Path) -> anyhow::Result<CloudPair> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let posed = crate::realsense::PosedFrames::open_with_truth(sequence, &crate::realsense::Truth::Calibrated)
         .map_err(anyhow::Error::msg)?;
+    let frames = match posed.ids()[..] {
+        [a, b, ..] => (a, b),
+        _ => anyhow::bail!("{}: two posed frames expected, found one", sequence.display()),
+    };
     let stage = flowfilter_pipeline::depth::DepthStage::new(flowfilter_pipeline::DepthConfig::default())?;
     let cloud = |im: u32| -> anyhow::Result<PointCloud> {
         let frame = posed.frame(im).map_err(anyhow::Error::msg)?;
