@@ -81,6 +81,11 @@ pub struct RealBenchArgs {
     /// built-in profile (`carmine`, `xtion-sample`) or a TOML profile file.
     #[arg(long, default_value = "sr300-shelf")]
     pub twin_noise: String,
+    /// The depth sensor's own error to correct the frames by: `none`; `self`, each sequence's
+    /// field fitted from its own frames by tracking them without any truth (`flowfilter
+    /// calibrate-depth`); or a camera file holding a `depth_bias` (from `calibrate-depth`).
+    #[arg(long, default_value = "none")]
+    pub depth_bias: String,
     /// CI-sized: the first 4 frames of each sequence, gap 1, one region per pair.
     #[arg(long)]
     pub quick: bool,
@@ -172,11 +177,12 @@ pub fn run(args: &RealBenchArgs) -> anyhow::Result<()> {
     }
     let twin_noise = NoiseProfile::resolve(&args.twin_noise).map_err(|e| anyhow::anyhow!("--twin-noise: {e}"))?;
     let twin_options = crate::real_twin::twin_options(args.seed, twin_noise);
+    let depth_bias = DepthBiasSource::parse(&args.depth_bias)?;
     let mut results: Vec<PairResult> = vec![];
     let mut skipped: Vec<(String, String)> = vec![];
     for dir in &dirs {
         let label = dir_name(dir);
-        let seq = match PosedFrames::open_with_truth(dir, &truth) {
+        let mut seq = match PosedFrames::open_with_truth(dir, &truth) {
             Ok(s) => s,
             Err(e) => {
                 tracing::warn!(sequence = %label, error = %e, "skipping sequence");
@@ -185,16 +191,22 @@ pub fn run(args: &RealBenchArgs) -> anyhow::Result<()> {
             }
         };
         let ids: Vec<u32> = seq.ids().into_iter().take(if args.quick { 4 } else { usize::MAX }).collect();
-        let whole: BTreeMap<u32, RgbdFrame> = ids
-            .par_iter()
-            .filter_map(|&im| match seq.frame(im) {
-                Ok(f) => Some((im, f)),
-                Err(e) => {
-                    tracing::warn!(sequence = %label, frame = im, error = %e, "skipping frame");
-                    None
-                }
-            })
-            .collect();
+        let load_whole = |seq: &PosedFrames| -> BTreeMap<u32, RgbdFrame> {
+            ids.par_iter()
+                .filter_map(|&im| match seq.frame(im) {
+                    Ok(f) => Some((im, f)),
+                    Err(e) => {
+                        tracing::warn!(sequence = %label, frame = im, error = %e, "skipping frame");
+                        None
+                    }
+                })
+                .collect()
+        };
+        let mut whole = load_whole(&seq);
+        if let Some(bias) = depth_bias.field(&whole, &args.pipeline, &label)? {
+            seq.set_depth_bias(bias);
+            whole = load_whole(&seq);
+        }
         let save_masks = args.save_masks.as_ref().map(|d| d.join(&label));
         let mut plan = Plan {
             seq: &seq,
@@ -246,12 +258,13 @@ pub fn run(args: &RealBenchArgs) -> anyhow::Result<()> {
                 "seed": twin_options.seed,
             })),
             "quick": args.quick,
+            "depth_bias": args.depth_bias,
             "methods": args.methods,
             "pipeline": args.pipeline,
             "voxel": args.run.voxel,
         }),
         protocol_line: format!(
-            "{}{} sequence(s), gaps {:?}, {} region(s) per pair{}, masks {}, seed {}, pipeline {}, truth {}",
+            "{}{} sequence(s), gaps {:?}, {} region(s) per pair{}, masks {}, seed {}, pipeline {}, truth {}, depth bias {}",
             if args.twin {
                 format!("the synthetic twins (noise {}) of the pairs of ", args.twin_noise)
             } else {
@@ -268,7 +281,8 @@ pub fn run(args: &RealBenchArgs) -> anyhow::Result<()> {
             },
             args.seed,
             args.pipeline.display(),
-            truth.describe()
+            truth.describe(),
+            args.depth_bias
         ),
         step_label: "frame gap",
         methods: &args.methods,
@@ -280,6 +294,62 @@ pub fn run(args: &RealBenchArgs) -> anyhow::Result<()> {
     methods.finish_recording()?;
     write_outputs(&spec, &results, &skipped, started.elapsed().as_secs_f64())?;
     Ok(())
+}
+
+/// Where a run's depth correction comes from (`--depth-bias`).
+enum DepthBiasSource {
+    /// No correction.
+    None,
+    /// Each sequence's own field, fitted from its frames without truth.
+    OwnFrames,
+    /// One field for every sequence, from a camera file.
+    Given(flowfilter_pipeline::camera::DepthBias),
+}
+
+impl DepthBiasSource {
+    fn parse(text: &str) -> anyhow::Result<Self> {
+        Ok(match text {
+            "none" => Self::None,
+            "self" => Self::OwnFrames,
+            path => {
+                let camera = flowfilter_pipeline::CameraFile::from_file(Path::new(path)).context("--depth-bias")?;
+                let bias = camera.depth_bias.with_context(|| {
+                    format!("--depth-bias: {path} holds no depth_bias (expected none, self or such a file)")
+                })?;
+                Self::Given(bias)
+            }
+        })
+    }
+
+    /// The field for the sequence `label` whose uncorrected frames are `whole`.
+    fn field(
+        &self,
+        whole: &BTreeMap<u32, RgbdFrame>,
+        pipeline: &Path,
+        label: &str,
+    ) -> anyhow::Result<Option<flowfilter_pipeline::camera::DepthBias>> {
+        use flowfilter_track::depth_calibration::{DepthCalibrationConfig, calibrate_depth};
+        match self {
+            Self::None => Ok(None),
+            Self::Given(bias) => Ok(Some(bias.clone())),
+            Self::OwnFrames => {
+                let frames: Vec<RgbdFrame> = whole.values().cloned().collect();
+                let mut config = flowfilter_pipeline::PipelineConfig::from_file(&in_repo(pipeline))?;
+                config.method = "flowfilter".into();
+                let pipeline = flowfilter_pipeline::Pipeline::from_config(config)?;
+                let c = calibrate_depth(&frames, pipeline, &DepthCalibrationConfig::default())
+                    .with_context(|| format!("--depth-bias self: sequence {label}"))?;
+                tracing::info!(
+                    sequence = %label,
+                    pairs = c.pairs.iter().filter(|p| p.left_out.is_none()).count(),
+                    rms_before_mm = c.fit.rms_before_m * 1e3,
+                    rms_after_mm = c.fit.rms_after_m * 1e3,
+                    "depth bias fitted from the sequence's own frames"
+                );
+                Ok(Some(c.fit.bias))
+            }
+        }
+    }
 }
 
 /// Geodesic error beyond which an estimate is wrong, not imprecise (degrees).

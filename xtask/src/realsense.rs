@@ -216,6 +216,11 @@ impl PosedFrames {
         }
     }
 
+    /// Correct every frame read from now on by `bias` (the depth sensor's own error).
+    pub fn set_depth_bias(&mut self, bias: flowfilter_pipeline::camera::DepthBias) {
+        self.camera.depth_bias = Some(bias);
+    }
+
     /// The frame ids, in order.
     pub fn ids(&self) -> Vec<u32> {
         self.poses.keys().copied().collect()

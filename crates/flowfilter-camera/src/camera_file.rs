@@ -14,11 +14,14 @@
 //! colour camera's, 16 numbers row-major or 4 rows of 4, translation in metres. The depth stage
 //! then registers depth to colour; without them depth is taken as registered and is not moved.
 //!
+//! Any layout may add `depth_bias` ([`DepthBias`]: `cols`, `rows`, `width`, `height`, `metres`),
+//! the depth sensor's own error over its depth image, as `flowfilter calibrate-depth` writes it.
+//!
 //! A BOP `scene_camera.json` holds one entry per image (`{"0": {...}, "1": {...}}`): pass the
 //! entry, e.g. with [`CameraFile::from_json_value`]. Without `width` and `height` the images give
 //! the size ([`CameraFile::model`]).
 
-use crate::{CameraError, CameraModel, Distortion, ImageSize, Intrinsics, RgbdSensor};
+use crate::{CameraError, CameraModel, DepthBias, Distortion, ImageSize, Intrinsics, RgbdSensor};
 use flowfilter_geometry::{Pose, rigid_from_matrix};
 use nalgebra::{Matrix3, Matrix4};
 use serde_json::Value;
@@ -116,6 +119,9 @@ pub struct CameraFile {
     pub metres_per_unit: Option<f64>,
     /// A separate depth camera and its pose, when depth is not registered to colour.
     pub depth: Option<DepthCamera>,
+    /// The depth sensor's own error over its image (`depth_bias`), when the file gives it:
+    /// frames read with this camera have their raw depth corrected by it.
+    pub depth_bias: Option<DepthBias>,
     /// The file, for messages.
     pub origin: String,
 }
@@ -218,7 +224,8 @@ impl CameraFile {
             };
             return Err(r.camera_error(field, CameraError::BadDepthScale { value: unit }));
         }
-        Ok(Self { layout, intrinsics, distortion, size, metres_per_unit, depth, origin: origin.into() })
+        let depth_bias = object.get("depth_bias").map(|v| r.depth_bias(v)).transpose()?;
+        Ok(Self { layout, intrinsics, distortion, size, metres_per_unit, depth, depth_bias, origin: origin.into() })
     }
 
     /// A whole BOP `scene_camera.json` (entries keyed by image id) stands for its camera when
@@ -426,6 +433,23 @@ impl Reader<'_> {
         Ok(DepthCamera { intrinsics, distortion, size, color_from_depth })
     }
 
+    /// The `depth_bias` object: `cols`, `rows`, `width`, `height` and `metres` (row-major).
+    fn depth_bias(&self, entry: &Value) -> Result<DepthBias, CameraFileError> {
+        let bias: DepthBias = serde_json::from_value(entry.clone()).map_err(|e| CameraFileError::Field {
+            path: self.origin.into(),
+            field: "depth_bias",
+            expected: "an object with cols, rows, width, height and metres (rows * cols numbers)",
+            found: e.to_string(),
+        })?;
+        bias.validate().map_err(|e| CameraFileError::Field {
+            path: self.origin.into(),
+            field: "depth_bias",
+            expected: "a field of at most 128 x 128 finite values within 0.1 m",
+            found: e.to_string(),
+        })?;
+        Ok(bias)
+    }
+
     fn numbers(&self, field: &'static str, n: usize) -> Result<Vec<f64>, CameraFileError> {
         let v = self.get(field)?;
         let expected = if n == 9 { "an array of 9 numbers" } else { "an array of 5 numbers" };
@@ -539,5 +563,21 @@ mod tests {
         let c = CameraFile::from_json_str(sized, "c.json").unwrap();
         let e = c.model(Some((320, 240))).unwrap_err().to_string();
         assert!(e.contains("640x480") && e.contains("320x240"), "{e}");
+    }
+
+    #[test]
+    fn a_depth_bias_is_read_and_a_bad_one_named() {
+        let text = r#"{"K": [500, 0, 320, 0, 500, 240, 0, 0, 1], "depth_unit_m": 0.001,
+            "depth_bias": {"cols": 2, "rows": 1, "width": 640, "height": 480, "metres": [0.001, -0.002]}}"#;
+        let camera = CameraFile::from_json_str(text, "cam.json").unwrap();
+        let bias = camera.depth_bias.unwrap();
+        assert_eq!((bias.cols, bias.rows), (2, 1));
+        assert!((bias.at(639.0, 0.0) + 0.002).abs() < 1e-12);
+        let short = text.replace("[0.001, -0.002]", "[0.001]");
+        let e = CameraFile::from_json_str(&short, "cam.json").unwrap_err().to_string();
+        assert!(e.contains("cam.json") && e.contains("depth_bias") && e.contains("2 values"), "{e}");
+        let missing = text.replace(r#""rows": 1, "#, "");
+        let e = CameraFile::from_json_str(&missing, "cam.json").unwrap_err().to_string();
+        assert!(e.contains("depth_bias") && e.contains("rows"), "{e}");
     }
 }

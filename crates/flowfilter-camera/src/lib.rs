@@ -10,12 +10,14 @@
 //!   barycentrics), shared by the renderer and by depth registration.
 //! - [`RgbdSensor`]: a depth camera and a colour camera calibrated against each other, with the
 //!   raw-depth scale; maps depth pixels into the colour image.
+//! - [`DepthBias`]: a depth sensor's own error over its image, fitted from its stream.
 //! - [`CameraFile`]: a camera from a JSON file (this project's layout, a BOP `scene_camera.json`
 //!   entry or `camera.json`, Open3D's `PinholeCameraIntrinsic`).
 
 #![warn(missing_docs)]
 
 mod camera_file;
+mod depth_bias;
 mod distortion;
 mod error;
 mod intrinsics;
@@ -25,6 +27,7 @@ mod rays;
 mod sensor;
 
 pub use camera_file::{CameraFile, CameraFileError, CameraFileLayout};
+pub use depth_bias::{DepthBias, DepthBiasError, MAX_BIAS_CELLS, MAX_BIAS_M};
 pub use distortion::Distortion;
 pub use error::CameraError;
 pub use intrinsics::Intrinsics;

@@ -10,11 +10,14 @@
 //! - [`interpolate`]: filling mask pixels without depth (nearest, separable linear).
 //! - [`cloud`]: organised clouds, normals (organised and k-NN PCA), voxel downsampling and
 //!   statistical outlier removal.
+//! - [`bias_fit`]: the depth sensor's own error over its image ([`flowfilter_camera::DepthBias`])
+//!   fitted from views of a static scene with known motions.
 //! - [`ply`]: PLY import/export (ASCII and binary little-endian).
 //! - [`DepthStage`]: the whole stage, configured by [`DepthConfig`] (serde/TOML).
 
 #![warn(missing_docs)]
 
+pub mod bias_fit;
 pub mod cloud;
 mod config;
 mod error;

@@ -46,7 +46,9 @@ impl RgbdFrame {
     /// # Errors
     /// [`ImagesError::Depth`] for depth of the wrong size, [`ImagesError::Mask`] for a mask of
     /// another size than the colour image or without any object pixel, [`ImagesError::Camera`]
-    /// when the camera does not fit the images (no depth unit, another size).
+    /// when the camera does not fit the images (no depth unit, another size). A camera with a
+    /// `depth_bias` corrects the raw depth by it ([`flowfilter_camera::DepthBias::correct`]);
+    /// depth of another size than the field's is an [`ImagesError::Depth`].
     ///
     /// ```
     /// use flowfilter_pipeline::{CameraFile, RawDepth, RgbdFrame};
@@ -63,7 +65,7 @@ impl RgbdFrame {
     pub fn from_images(
         label: &str,
         color: RgbImage,
-        depth: RawDepth,
+        mut depth: RawDepth,
         mask: Option<Mask>,
         camera: &CameraFile,
     ) -> Result<Self, ImagesError> {
@@ -77,6 +79,10 @@ impl RgbdFrame {
             )));
         }
         let sensor = camera.sensor(Some((w, h)), Some((dw, dh)))?;
+        if let Some(bias) = &camera.depth_bias {
+            bias.correct(&mut depth, sensor.metres_per_unit)
+                .map_err(|e| ImagesError::Depth(format!("{e} (the depth_bias of {})", camera.origin)))?;
+        }
         let mask = match mask {
             Some(m) => checked_mask(m, (w, h))?,
             None if camera.is_registered() => Mask::from_fn(w as usize, h as usize, |x, y| *depth.at(x, y) > 0),

@@ -258,9 +258,9 @@ impl Pipeline {
         // correspondence stage finds the pyramid's own flow split (`flow.wide.settled_*`).
         let coarse = propagate.then(|| CoarseView::new(model, target, wide));
         let propagated = coarse.as_ref().map(|view| {
-            let placed = view.found.is_some();
+            let (frame, placed) = crate::propagate::with_propagated_mask(model, target, view.found.as_ref());
             warnings.push(PipelineWarning::MaskPropagated { frame: target.label.clone(), placed });
-            crate::propagate::with_propagated_mask(model, target, view.found.as_ref())
+            frame
         });
         if let (Some(t), Some(p)) = (trace.as_deref_mut(), propagated.as_ref()) {
             t.propagated_mask = Some(p.mask.clone());

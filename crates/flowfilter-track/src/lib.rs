@@ -9,6 +9,8 @@
 //!   scene is tracked (camera odometry).
 //! - [`FrameFolder`]: the frames of a folder (`frame-NNNNNN.color.png` + `.depth.png`,
 //!   YCB-Video's `NNNNNN-color.png` + `-depth.png`).
+//! - [`depth_calibration`]: the depth sensor's own error ([`flowfilter_pipeline::camera::DepthBias`])
+//!   fitted from a stream of a static scene, without truth.
 //! - [`tum`]: the TUM trajectory format and the true motion from a TUM file or `poses.json`.
 //!
 //! The `flowfilter track` command runs it on a folder (docs/tracking.md).
@@ -17,6 +19,7 @@
 
 pub mod boxed;
 pub mod carry;
+pub mod depth_calibration;
 mod folder;
 mod tracker;
 pub mod tum;

@@ -6,6 +6,7 @@
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
 mod args;
+mod calibrate_depth;
 mod estimate;
 mod estimate_batch;
 mod flow;
@@ -46,6 +47,9 @@ enum Command {
     TruthFlow(truth_flow::TruthFlowArgs),
     /// Track an object (or the whole scene) through a folder of RGB-D frames from one mask.
     Track(track::TrackArgs),
+    /// Fit the depth sensor's own error over its image (`depth_bias` in the camera file) from a
+    /// folder of frames of a static scene, without any truth.
+    CalibrateDepth(calibrate_depth::CalibrateDepthArgs),
 }
 
 /// `--method` of `register` and `estimate`: the registration backends' names (checked and
@@ -125,6 +129,7 @@ fn main() -> ExitCode {
         Command::Flow(args) => flow::run(&args),
         Command::TruthFlow(args) => truth_flow::run(&args),
         Command::Track(args) => track::run(&args),
+        Command::CalibrateDepth(args) => calibrate_depth::run(&args),
     };
     match result {
         Ok(code) => code,

@@ -1,0 +1,264 @@
+//! Calibrating a depth sensor from its own stream: the [`DepthBias`] its readings are off by,
+//! fitted without any truth.
+//!
+//! 1. The whole scene is tracked ([`Tracker`] without a mask): each frame's camera motion.
+//! 2. Each consecutive pair of tracked frames is registered again on the depth camera's own
+//!    readings (point-to-plane ICP from the tracked motion, gates narrowing to 8 mm), so that
+//!    what is left between the two views is the sensor's error and the noise.
+//! 3. [`fit_depth_bias`] finds the field over the depth image those differences follow.
+//!
+//! A pair whose registration moved more than [`DepthCalibrationConfig::max_refinement_deg`]
+//! from the tracked motion, or overlaps too little, is left out (and reported).
+
+use crate::{TrackError, TrackState, Tracker, TrackerConfig};
+use flowfilter_pipeline::camera::DepthBias;
+use flowfilter_pipeline::depth::bias_fit::{BiasFit, BiasFitConfig, BiasFitError, ViewPair, fit_depth_bias};
+use flowfilter_pipeline::depth::cloud::{knn_normals, voxel_downsample};
+use flowfilter_pipeline::registration::{Icp, IcpConfig, IcpVariant, Registrar, RegistrationError};
+use flowfilter_pipeline::{Pipeline, Point3, PointCloud, Pose, RawDepth, RgbdFrame, RgbdSensor};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// How a stream calibrates its depth sensor.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DepthCalibrationConfig {
+    /// The field's grid and the fit.
+    pub fit: BiasFitConfig,
+    /// Voxel of the clouds the pairs are registered on, metres.
+    pub voxel_m: f64,
+    /// ICP's correspondence gates, one registration after the other, metres.
+    pub gates_m: Vec<f64>,
+    /// A pair whose registration turned the tracked motion by more than this is left out, degrees.
+    pub max_refinement_deg: f64,
+    /// A pair whose registration paired fewer than this fraction of the points is left out.
+    pub min_overlap: f64,
+    /// Readings farther than this are not registered, metres (beyond, the sensor's noise
+    /// outweighs its bias).
+    pub far_m: f64,
+}
+
+impl Default for DepthCalibrationConfig {
+    fn default() -> Self {
+        Self {
+            fit: BiasFitConfig::default(),
+            voxel_m: 0.004,
+            gates_m: vec![0.03, 0.015, 0.008],
+            max_refinement_deg: 5.0,
+            min_overlap: 0.3,
+            far_m: 1.5,
+        }
+    }
+}
+
+/// One consecutive pair of the stream.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CalibrationPair {
+    /// Stream index of the first frame.
+    pub from: usize,
+    /// Stream index of the second.
+    pub to: usize,
+    /// How far the registration turned the tracked motion, degrees.
+    pub refinement_deg: f64,
+    /// Fraction of the first frame's points paired within the last gate.
+    pub overlap: f64,
+    /// Why the pair was left out, if it was.
+    pub left_out: Option<String>,
+}
+
+/// What a stream's calibration found.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DepthCalibration {
+    /// The fitted field and how much of the pairs' differences it explains.
+    pub fit: BiasFit,
+    /// Frames the tracker followed (of those given).
+    pub frames_tracked: usize,
+    /// Frames given.
+    pub frames: usize,
+    /// The consecutive pairs of tracked frames.
+    pub pairs: Vec<CalibrationPair>,
+}
+
+/// Why a stream cannot calibrate its sensor.
+#[derive(Debug, thiserror::Error)]
+pub enum CalibrationError {
+    /// Fewer than two frames.
+    #[error("depth calibration needs at least two frames, found {0}")]
+    TooFewFrames(usize),
+    /// The frames are not of one sensor.
+    #[error("depth calibration: frame '{0}' is of another sensor or size than the first frame")]
+    MixedSensors(String),
+    /// The first frame cannot be tracked from.
+    #[error(transparent)]
+    Track(#[from] TrackError),
+    /// A pair cannot be registered.
+    #[error("depth calibration: registering frames {from} -> {to}: {source}")]
+    Registration {
+        /// Stream index of the first frame.
+        from: usize,
+        /// Stream index of the second.
+        to: usize,
+        /// Why.
+        #[source]
+        source: RegistrationError,
+    },
+    /// The field cannot be fitted (too few pairs kept, too little overlap).
+    #[error(transparent)]
+    Fit(#[from] BiasFitError),
+}
+
+/// Calibrate the depth sensor of `frames` (one static scene, the camera moving; their masks
+/// are ignored: the whole scene is used) with `pipeline` for the tracking.
+///
+/// # Errors
+/// [`CalibrationError`]: too few frames, frames of several sensors, a first frame the tracker
+/// cannot prepare, or too few kept pairs to fit the field.
+///
+/// ```no_run
+/// use flowfilter_pipeline::{CameraFile, FrameFiles, MaskSource, Pipeline, PipelineConfig};
+/// use flowfilter_track::depth_calibration::{DepthCalibrationConfig, calibrate_depth};
+/// let dir = std::path::Path::new("../shared/data/realsense-shelf/shelf-A");
+/// let camera = CameraFile::from_file(&dir.join("camera.json"))?;
+/// let frames = (0..15)
+///     .map(|i| {
+///         let files = FrameFiles {
+///             color: dir.join(format!("frame-{i:06}.color.png")),
+///             depth: dir.join(format!("frame-{i:06}.depth.png")),
+///             mask: MaskSource::None,
+///         };
+///         files.load(&camera, &format!("frame-{i:06}"))
+///     })
+///     .collect::<Result<Vec<_>, _>>()?;
+/// let pipeline = Pipeline::from_config(PipelineConfig::default())?;
+/// let calibration = calibrate_depth(&frames, pipeline, &DepthCalibrationConfig::default())?;
+/// println!("{:.2} -> {:.2} mm", calibration.fit.rms_before_m * 1e3, calibration.fit.rms_after_m * 1e3);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+pub fn calibrate_depth(
+    frames: &[RgbdFrame],
+    pipeline: Pipeline,
+    config: &DepthCalibrationConfig,
+) -> Result<DepthCalibration, CalibrationError> {
+    let first = frames.first().ok_or(CalibrationError::TooFewFrames(0))?;
+    if frames.len() < 2 {
+        return Err(CalibrationError::TooFewFrames(frames.len()));
+    }
+    let sensor = first.sensor;
+    if let Some(f) = frames.iter().find(|f| f.sensor != sensor || f.depth.dims() != first.depth.dims()) {
+        return Err(CalibrationError::MixedSensors(f.label.clone()));
+    }
+    let tracked = track_whole_frames(frames, pipeline)?;
+    let mut pairs = vec![];
+    let mut kept = vec![];
+    for w in tracked.windows(2) {
+        let ((a, pose_a), (b, pose_b)) = (w[0], w[1]);
+        let motion = depth_motion(&sensor, &(pose_b * pose_a.inverse()));
+        let (pair, refined) = refine(&frames[a].depth, &frames[b].depth, &sensor, motion, config)
+            .map_err(|source| CalibrationError::Registration { from: a, to: b, source })?;
+        let pair = CalibrationPair { from: a, to: b, ..pair };
+        if pair.left_out.is_none() {
+            kept.push(ViewPair { from: a, to: b, motion: refined });
+        }
+        pairs.push(pair);
+    }
+    let views: Vec<RawDepth> = frames.iter().map(|f| f.depth.clone()).collect();
+    let fit = fit_depth_bias(&views, sensor.metres_per_unit, &sensor.depth, &kept, &config.fit)?;
+    Ok(DepthCalibration { fit, frames_tracked: tracked.len(), frames: frames.len(), pairs })
+}
+
+impl DepthCalibration {
+    /// The field to correct the sensor's raw depth by: this fit's, added to `before` (the field
+    /// the frames were already corrected by, if any).
+    ///
+    /// # Errors
+    /// A message when `before`'s grid differs from the fit's.
+    pub fn total_bias(&self, before: Option<&DepthBias>) -> Result<DepthBias, String> {
+        let Some(before) = before else { return Ok(self.fit.bias.clone()) };
+        let b = &self.fit.bias;
+        if (before.cols, before.rows, before.width, before.height) != (b.cols, b.rows, b.width, b.height) {
+            return Err(format!(
+                "the camera's depth_bias is a {}x{} grid over {}x{}; the fit's is {}x{} over {}x{}",
+                before.cols, before.rows, before.width, before.height, b.cols, b.rows, b.width, b.height
+            ));
+        }
+        let metres = before.metres.iter().zip(&b.metres).map(|(x, y)| x + y).collect();
+        Ok(DepthBias { metres, ..b.clone() })
+    }
+}
+
+/// The frames the tracker followed (tracking or recovered) with their motion from the first
+/// (colour camera frame).
+fn track_whole_frames(frames: &[RgbdFrame], pipeline: Pipeline) -> Result<Vec<(usize, Pose)>, CalibrationError> {
+    let unmasked = |f: &RgbdFrame| {
+        let mut f = f.clone();
+        f.mask.as_mut_slice().fill(true);
+        f
+    };
+    let mut tracker = Tracker::new(pipeline, TrackerConfig::default(), &unmasked(&frames[0]))?;
+    let mut out = vec![(0, Pose::identity())];
+    for (i, f) in frames.iter().enumerate().skip(1) {
+        let t = tracker.update(Ok(unmasked(f)));
+        if matches!(t.state, TrackState::Tracking | TrackState::Recovered) {
+            out.push((i, t.pose));
+        }
+    }
+    Ok(out)
+}
+
+/// The motion of the depth camera's frame for a motion of the colour camera's frame.
+fn depth_motion(sensor: &RgbdSensor, color: &Pose) -> Pose {
+    sensor.color_from_depth.inverse() * color * sensor.color_from_depth
+}
+
+/// Register `from`'s readings onto `to`'s from `motion` (depth camera frames).
+fn refine(
+    from: &RawDepth,
+    to: &RawDepth,
+    sensor: &RgbdSensor,
+    motion: Pose,
+    config: &DepthCalibrationConfig,
+) -> Result<(CalibrationPair, Pose), RegistrationError> {
+    let source = voxel_downsample(&depth_cloud(from, sensor, config.far_m), config.voxel_m);
+    let mut target = voxel_downsample(&depth_cloud(to, sensor, config.far_m), config.voxel_m);
+    target.normals = Some(knn_normals(&target.points, 20, &Point3::origin()));
+    let mut pose = motion;
+    let mut overlap = 0.0;
+    for &gate in &config.gates_m {
+        let icp = Icp::new(IcpConfig {
+            variant: IcpVariant::PointToPlane,
+            max_correspondence_distance: gate,
+            ..IcpConfig::default()
+        })?;
+        let problem =
+            flowfilter_pipeline::registration::RegistrationProblem::new(source.clone(), target.clone()).with_init(pose);
+        let r = icp.register(&problem)?;
+        (pose, overlap) = (r.transform, r.fitness);
+    }
+    let refinement_deg = (pose * motion.inverse()).rotation.angle().to_degrees();
+    let left_out = if refinement_deg > config.max_refinement_deg {
+        Some(format!(
+            "the depth moved the tracked motion by {refinement_deg:.1} deg (more than {})",
+            config.max_refinement_deg
+        ))
+    } else if overlap < config.min_overlap {
+        Some(format!("{:.0}% of the points paired (fewer than {:.0}%)", overlap * 100.0, config.min_overlap * 100.0))
+    } else {
+        None
+    };
+    Ok((CalibrationPair { from: 0, to: 0, refinement_deg, overlap, left_out }, pose))
+}
+
+/// The depth camera's readings nearer than `far_m` as points of its own frame.
+fn depth_cloud(depth: &RawDepth, sensor: &RgbdSensor, far_m: f64) -> PointCloud {
+    let (w, h) = depth.dims();
+    let points: Vec<Point3> = (0..h)
+        .into_par_iter()
+        .flat_map_iter(|y| {
+            (0..w).filter_map(move |x| {
+                let z = sensor.metric_depth(*depth.at(x, y)).filter(|&z| z < far_m)?;
+                sensor.depth.backproject(&flowfilter_pipeline::camera::Pixel::new(x as f64, y as f64), z)
+            })
+        })
+        .collect();
+    PointCloud::from_points(points)
+}
