@@ -566,6 +566,7 @@ mod tests {
             save_masks: None,
             twin: false,
             twin_noise: "sr300-shelf".into(),
+            depth_bias: "none".into(),
             quick: true,
             run: RunArgs { out, voxel: None, check: true, shard: None, rerun: None, rerun_limit: 20 },
         }
@@ -602,6 +603,36 @@ mod tests {
         }
         let masks = std::fs::read_dir(tmp.path().join("masks/shelf-G")).unwrap().count();
         assert_eq!(masks, 2 * of(REGION, "flowfilter").len());
+    }
+
+    /// `--depth-bias self` fits the sequence's field from its own frames and reads every frame
+    /// corrected by it (the regions' estimates move, the run records it); a camera file without
+    /// a field is refused by name.
+    #[test]
+    fn a_sequence_runs_with_its_own_depth_field() {
+        let Some(data) = shelf("shelf-G") else { return };
+        let tmp = tempfile::tempdir().unwrap();
+        let errors = |dir: &Path| -> Vec<f64> {
+            let run_dir = std::fs::read_dir(dir).unwrap().next().unwrap().unwrap().path();
+            let v: serde_json::Value =
+                serde_json::from_str(&std::fs::read_to_string(run_dir.join("results.json")).unwrap()).unwrap();
+            assert!(v["protocol"]["depth_bias"].is_string(), "{}", v["protocol"]);
+            let pairs = v["pairs"].as_array().unwrap().iter().filter(|p| p["method"] == "flowfilter");
+            pairs.map(|p| p["errors"]["geodesic_error_deg"].as_f64().unwrap()).collect()
+        };
+        let mut a = args(data.clone(), tmp.path().join("none"));
+        a.run.check = false;
+        run(&a).unwrap();
+        a.depth_bias = "self".into();
+        a.run.out = tmp.path().join("self");
+        run(&a).unwrap();
+        let (before, after) = (errors(&tmp.path().join("none")), errors(&tmp.path().join("self")));
+        assert_eq!(before.len(), after.len());
+        assert!(before.iter().zip(&after).any(|(b, a)| (b - a).abs() > 1e-6), "{before:?} {after:?}");
+        assert!(after.iter().all(|e| e.is_finite()));
+        a.depth_bias = data.join("camera.json").display().to_string();
+        let e = run(&a).unwrap_err().to_string();
+        assert!(e.contains("--depth-bias") && e.contains("holds no depth_bias"), "{e}");
     }
 
     /// `--twin` runs the same pairs and regions on their twins: the whole frames' twins are
