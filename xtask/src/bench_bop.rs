@@ -8,7 +8,7 @@
 //! 1, 5, 10 are 3, 15 and 30 degrees) and scene `100 + k` (camera NP2, angles 0, 0.25, ..., 2.5:
 //! 0.25, 1.25 and 2.5 degrees), with Carmine depth noise and the real-sensor frame effects.
 
-use crate::dataset::{BopSceneSpec, DefaultObject, embedded_objects, ensure_bop_scene};
+use crate::dataset::{BopSceneSpec, DefaultObject, SceneSensor, embedded_objects, ensure_bop_scene};
 use crate::pairs::{Methods, PairJob, PairResult, RunArgs, progress};
 use crate::report::{ReportSpec, ShardRun, write_outputs};
 use crate::sequence::{Sequence, is_sequence, open_sequence};
@@ -17,6 +17,8 @@ use crate::{dir_name, in_repo};
 use anyhow::{Context, bail};
 use clap::Args;
 use flowfilter_bigbird::SensorId;
+use flowfilter_pipeline::RgbdFrame;
+use flowfilter_synth::NetworkMaskModel;
 use rayon::prelude::*;
 use std::collections::BTreeMap;
 use std::fmt;
@@ -54,9 +56,55 @@ pub struct BopBenchArgs {
     /// (default: ../shared/data/ycb when present; not used with --quick).
     #[arg(long)]
     pub meshes: Option<PathBuf>,
+    /// The sensor the embedded scenes are rendered with: `carmine` (the default dataset), or
+    /// `sr300-shelf`, a twin of the shared RealSense SR300 shelf sequences (their noise profile
+    /// with its depth warp, exposure and white-balance changes; masks with a segmentation
+    /// network's defects, `NetworkMaskModel::SHELF_NETWORK` without missing masks), cached apart.
+    #[arg(long, value_enum, default_value_t = SensorProfile::Carmine)]
+    pub sensor_profile: SensorProfile,
     /// Outputs, voxel size, check.
     #[command(flatten)]
     pub run: RunArgs,
+}
+
+/// The sensor of the embedded scenes (`--sensor-profile`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum SensorProfile {
+    /// The default dataset's Carmine-like sensor.
+    Carmine,
+    /// A twin of the shared SR300 shelf sequences' sensor and masks.
+    Sr300Shelf,
+}
+
+impl SensorProfile {
+    fn sensor(self) -> SceneSensor {
+        match self {
+            Self::Carmine => SceneSensor::carmine(),
+            Self::Sr300Shelf => SceneSensor::sr300_shelf(),
+        }
+    }
+
+    /// Cache folder of the embedded scenes.
+    fn folder(self, quick: bool) -> &'static str {
+        match (self, quick) {
+            (Self::Carmine, true) => "bop-quick",
+            (Self::Carmine, false) => "bop-default",
+            (Self::Sr300Shelf, true) => "bop-sr300-shelf-quick",
+            (Self::Sr300Shelf, false) => "bop-sr300-shelf",
+        }
+    }
+
+    /// The frame's mask as this sensor's segmentation gives it.
+    fn mask(self, frame: &mut RgbdFrame, scene: &str, key: BopKey) {
+        if self == Self::Sr300Shelf {
+            let seed = crate::bench_real::seed_of(scene, 0, &[u64::from(key.im_id), u64::from(key.obj_id)]);
+            if let Some(mask) =
+                crate::realsense::network_mask(&frame.mask, &NetworkMaskModel::SHELF_NETWORK, seed, true)
+            {
+                frame.mask = mask;
+            }
+        }
+    }
 }
 
 /// A frame of a scene: an image and the object whose mask it uses.
@@ -106,7 +154,13 @@ pub fn run(args: &BopBenchArgs) -> anyhow::Result<()> {
         let mut frames: Vec<BopKey> = jobs.iter().flat_map(|j| [j.model, j.target]).collect();
         frames.sort();
         frames.dedup();
-        let load = |k: BopKey| scene.frame(k.im_id, k.obj_id);
+        let profile = if args.data.is_none() { args.sensor_profile } else { SensorProfile::Carmine };
+        let load = |k: BopKey| {
+            scene.frame(k.im_id, k.obj_id).map(|mut f| {
+                profile.mask(&mut f, &label, k);
+                f
+            })
+        };
         let prepared = methods.prepare(&frames, &load, &format!("scene {label}"));
         results.append(&mut methods.run(&jobs, &prepared, &load, &format!("scene {label}"))?);
     }
@@ -118,7 +172,7 @@ pub fn run(args: &BopBenchArgs) -> anyhow::Result<()> {
     let spec = ReportSpec {
         bench: "bench-bop",
         dataset: args.data.as_ref().map_or_else(
-            || format!("embedded synthetic BOP scenes ({})", default_root(args.quick).display()),
+            || format!("embedded synthetic BOP scenes ({})", default_root(args).display()),
             |d| d.display().to_string(),
         ),
         protocol: serde_json::json!({
@@ -128,6 +182,7 @@ pub fn run(args: &BopBenchArgs) -> anyhow::Result<()> {
             "pipeline": args.pipeline,
             "min_visib": args.min_visib,
             "voxel": args.run.voxel,
+            "sensor_profile": args.data.is_none().then(|| format!("{:?}", args.sensor_profile)),
         }),
         protocol_line: format!(
             "{} scene(s), gaps {:?}, visible fraction >= {}, pipeline {}",
@@ -198,8 +253,8 @@ fn scene_jobs(
 }
 
 /// Where the embedded dataset is cached.
-fn default_root(quick: bool) -> PathBuf {
-    in_repo(&Path::new("target").join(if quick { "bop-quick" } else { "bop-default" }).join("test"))
+fn default_root(args: &BopBenchArgs) -> PathBuf {
+    in_repo(&Path::new("target").join(args.sensor_profile.folder(args.quick)).join("test"))
 }
 
 /// The run's scenes: every scene (labels, in order), this shard's folders, and the object names
@@ -265,7 +320,8 @@ fn default_scenes(k: u32, quick: bool) -> [BopSceneSpec; 2] {
 /// Synthesise (once, cached) the embedded dataset's scenes of this shard.
 fn default_dataset(args: &BopBenchArgs, shard: Shard) -> anyhow::Result<Scenes> {
     let objects: Vec<DefaultObject> = embedded_objects(args.quick, args.meshes.as_deref());
-    let root = default_root(args.quick);
+    let root = default_root(args);
+    let sensor = args.sensor_profile.sensor();
     let mut work: Vec<(u32, &DefaultObject, BopSceneSpec)> = objects
         .iter()
         .zip(1u32..)
@@ -283,7 +339,7 @@ fn default_dataset(args: &BopBenchArgs, shard: Shard) -> anyhow::Result<Scenes> 
     let dirs = mine
         .par_iter()
         .map(|(k, o, spec)| {
-            let d = ensure_bop_scene(&root, o, *k, spec, 7);
+            let d = ensure_bop_scene(&root, o, *k, spec, 7, &sensor);
             bar.inc(1);
             d
         })
@@ -316,8 +372,56 @@ mod tests {
             min_visib: 0.1,
             quick: false,
             meshes: None,
+            sensor_profile: SensorProfile::Carmine,
             run: RunArgs { out, voxel: Some(0.002), check: true, shard: None, rerun: None, rerun_limit: 20 },
         }
+    }
+
+    /// `--sensor-profile sr300-shelf`: the embedded scenes rendered again with the SR300's
+    /// cameras, noise and sparse registered depth (cached apart from the default ones), the
+    /// masks with a segmentation network's defects, the profile in the report.
+    #[test]
+    fn the_sr300_profile_renders_its_own_scenes() {
+        let tmp = tempfile::tempdir().unwrap();
+        let args = BopBenchArgs {
+            data: None,
+            scenes: Some(vec![1]),
+            gaps: Some(vec![4]),
+            methods: vec!["icp-pt2pl".into()],
+            pipeline: PathBuf::from("configs/flowfilter.toml"),
+            min_visib: 0.1,
+            quick: true,
+            meshes: None,
+            sensor_profile: SensorProfile::Sr300Shelf,
+            run: RunArgs {
+                out: tmp.path().into(),
+                voxel: None,
+                check: true,
+                shard: None,
+                rerun: None,
+                rerun_limit: 20,
+            },
+        };
+        run(&args).unwrap();
+        let run_dir = std::fs::read_dir(tmp.path()).unwrap().next().unwrap().unwrap().path();
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(run_dir.join("results.json")).unwrap()).unwrap();
+        assert_eq!(v["protocol"]["sensor_profile"], "Sr300Shelf");
+        let scene = default_root(&args).join("000001");
+        assert!(scene.ends_with("bop-sr300-shelf-quick/test/000001"), "{}", scene.display());
+        let depth = image::open(scene.join("depth/000000.png")).unwrap().into_luma16();
+        assert_eq!(depth.dimensions(), (640, 480));
+        let mask = image::open(scene.join("mask_visib/000000_000000.png")).unwrap().into_luma8();
+        let inside: Vec<u16> =
+            depth.pixels().zip(mask.pixels()).filter(|(_, m)| m.0[0] > 0).map(|(d, _)| d.0[0]).collect();
+        let valid = inside.iter().filter(|&&d| d > 0).count() as f64 / inside.len() as f64;
+        assert!((0.2..0.45).contains(&valid), "{valid}");
+        // The network's defects move the masks the pipeline is given.
+        let frame = open_sequence(&scene).unwrap().frame(0, 1).unwrap();
+        let mut defective = frame.clone();
+        args.sensor_profile.mask(&mut defective, "000001", BopKey { im_id: 0, obj_id: 1 });
+        assert_eq!(defective.mask.dims(), frame.mask.dims());
+        assert_ne!(defective.mask.as_slice(), frame.mask.as_slice());
     }
 
     /// The BOP fixture (written by tools/peers/bop_fixture.py) beside a scene without
@@ -384,6 +488,7 @@ mod real_frames {
             min_visib: 0.1,
             quick: false,
             meshes: None,
+            sensor_profile: SensorProfile::Carmine,
             run: RunArgs {
                 out: tmp.path().to_path_buf(),
                 voxel: None,

@@ -3,10 +3,14 @@
 
 use anyhow::Context;
 use flowfilter_bigbird::SensorId;
+use flowfilter_pipeline::RgbdSensor;
+use flowfilter_pipeline::camera::{CameraModel, Distortion, ImageSize, Intrinsics};
+use flowfilter_pipeline::{Point3, Pose};
 use flowfilter_synth::{
-    BopSceneOptions, CaptureOptions, FrameEffects, NoiseProfile, Rig, Scene, TexturedMesh, procedural, write_bop_scene,
-    write_capture,
+    BopSceneOptions, CaptureOptions, FrameEffects, NoiseProfile, Rig, RigSensor, Scene, TexturedMesh, look_at,
+    procedural, write_bop_scene, write_capture,
 };
+use nalgebra::Vector3;
 use std::path::{Path, PathBuf};
 
 /// Bumped whenever the synthesiser's output changes, to invalidate caches.
@@ -130,34 +134,120 @@ pub struct BopSceneSpec {
     pub angles_deg: Vec<f64>,
 }
 
-/// Make sure `root/<scene_id:06>` holds the BOP scene of `object` (id `obj_id`): Carmine noise,
-/// real-sensor frame effects, depth in 0.1 mm units, fixed seed.
+/// The sensor a synthetic scene is rendered with: noise, frame effects, camera and how much of
+/// its registered depth is kept.
+pub struct SceneSensor {
+    /// The depth and colour noise.
+    pub noise: NoiseProfile,
+    /// The per-frame effects.
+    pub effects: FrameEffects,
+    /// An SR300-like camera this far from the turntable's centre on the rig camera's line of
+    /// sight, instead of the rig's own camera (metres).
+    pub sr300_at_m: Option<f64>,
+}
+
+impl SceneSensor {
+    /// The default datasets' sensor: Carmine noise, real-sensor frame effects, the rig's camera.
+    pub fn carmine() -> Self {
+        Self { noise: NoiseProfile::carmine(), effects: FrameEffects::REAL_SENSOR, sr300_at_m: None }
+    }
+
+    /// The SR300 of the shared shelf sequences: its two cameras (640 x 480 colour at 612 px,
+    /// depth at 477 px, the shelf sequences' calibration) 0.55 m from the object, the twins'
+    /// noise profile (with its depth warp) and frame effects, and its registered depth's
+    /// sparsity ([`sr300_depth_kept`]).
+    pub fn sr300_shelf() -> Self {
+        Self { noise: NoiseProfile::sr300_shelf(), effects: FrameEffects::SR300_SHELF, sr300_at_m: Some(0.55) }
+    }
+
+    /// The rig sensor that takes the scene of rig camera `id`.
+    fn rig_sensor(&self, id: SensorId) -> anyhow::Result<RigSensor> {
+        let rig = Rig::bigbird_like();
+        let base = rig.sensors[&id].clone();
+        let Some(distance) = self.sr300_at_m else { return Ok(base) };
+        let target = Point3::new(0.0, 0.0, 0.08);
+        let eye_before = base.h_color_from_world.inverse() * Point3::origin();
+        let eye = target + (eye_before - target).normalize() * distance;
+        let color = CameraModel::new(
+            Intrinsics::new(611.686, 611.686, 317.676, 243.152)?,
+            Distortion::NONE,
+            ImageSize::new(640, 480)?,
+        );
+        let depth = CameraModel::new(
+            Intrinsics::new(477.425, 477.425, 322.314, 245.856)?,
+            Distortion::NONE,
+            ImageSize::new(640, 480)?,
+        );
+        let color_from_depth =
+            Pose::new(Vector3::new(0.0247, 0.00126, 0.00456), Vector3::new(-0.00231, 0.00096, -0.00038));
+        let rgbd = RgbdSensor::new(depth, color, color_from_depth, 1e-3)?;
+        Ok(RigSensor { rgbd, h_color_from_world: look_at(eye, target), projector_baseline: 0.05, ir_depth_scale: 10.0 })
+    }
+}
+
+/// Whether registered depth pixel `(x, y)` of an SR300-like frame holds a reading: the colour
+/// grid (612 px) samples the depth camera's (477 px) where a depth pixel's centre lands, about
+/// 61% of the pixels in rows and columns with regular gaps; of those, blocks of 4 x 4 depth
+/// pixels read nothing with probability one half (dark and glossy patches, the projector's
+/// shadow), leaving about 30%, as the real registered frames hold (25-35% at 0.5 m).
+pub fn sr300_depth_kept(x: usize, y: usize, seed: u64) -> bool {
+    let ratio = 477.425 / 611.686;
+    let (ud, vd) = (((x as f64 - 317.676) * ratio + 322.314).round(), ((y as f64 - 243.152) * ratio + 245.856).round());
+    let back = |d: f64, cd: f64, cc: f64| ((d - cd) / ratio + cc).round();
+    let on_lattice = back(ud, 322.314, 317.676) == x as f64 && back(vd, 245.856, 243.152) == y as f64;
+    let block = ((ud.max(0.0) as u64) / 4, (vd.max(0.0) as u64) / 4);
+    let h = crate::bench_real::seed_of("sr300 depth", seed, &[block.0, block.1]);
+    on_lattice && h % 2 == 0
+}
+
+/// Make sure `root/<scene_id:06>` holds the BOP scene of `object` (id `obj_id`): `sensor`'s noise and
+/// frame effects, depth in 0.1 mm units, fixed seed.
 pub fn ensure_bop_scene(
     root: &Path,
     object: &DefaultObject,
     obj_id: u32,
     spec: &BopSceneSpec,
     seed: u64,
+    sensor: &SceneSensor,
 ) -> anyhow::Result<PathBuf> {
     let dir = root.join(format!("{:06}", spec.scene_id));
-    let signature = format!(
+    let mut signature = format!(
         "{DATASET_VERSION}\nBOP scene of {} (obj_id {obj_id})\nseed {seed}\nsensor {}\nangles {:?}\neffects {:?}\n",
-        object.name,
-        spec.sensor,
-        spec.angles_deg,
-        FrameEffects::REAL_SENSOR
+        object.name, spec.sensor, spec.angles_deg, sensor.effects,
     );
+    // The default sensor's scenes keep the signature they were cached under.
+    if sensor.noise.name != NoiseProfile::carmine().name {
+        signature.push_str(&format!("noise {}\ncamera {:?}\n", sensor.noise.name, sensor.sr300_at_m));
+    }
     cached(&dir, &signature, || {
         let opts = BopSceneOptions {
             angles_deg: spec.angles_deg.clone(),
-            noise: Some(NoiseProfile::carmine()),
-            effects: FrameEffects::REAL_SENSOR,
+            noise: Some(sensor.noise.clone()),
+            effects: sensor.effects,
             seed,
             obj_id,
             depth_scale_mm: 0.1,
         };
-        let rig = Rig::bigbird_like();
-        Ok(write_bop_scene(&dir, &object.scene(seed)?, &rig.sensors[&spec.sensor], &opts, &|_, _| {})?)
+        write_bop_scene(&dir, &object.scene(seed)?, &sensor.rig_sensor(spec.sensor)?, &opts, &|_, _| {})?;
+        if sensor.sr300_at_m.is_some() {
+            sparsify_depth(&dir, seed)?;
+        }
+        Ok(())
     })?;
     Ok(dir)
+}
+
+/// Keep only the readings [`sr300_depth_kept`] keeps in every depth image of the BOP scene `dir`.
+fn sparsify_depth(dir: &Path, seed: u64) -> anyhow::Result<()> {
+    for entry in std::fs::read_dir(dir.join("depth"))? {
+        let path = entry?.path();
+        let mut depth = image::open(&path).with_context(|| format!("reading {}", path.display()))?.into_luma16();
+        for (x, y, p) in depth.enumerate_pixels_mut() {
+            if !sr300_depth_kept(x as usize, y as usize, seed) {
+                p.0[0] = 0;
+            }
+        }
+        depth.save(&path).with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(())
 }

@@ -363,7 +363,8 @@ mod tests {
     fn bad_input_is_named() {
         let v = RawDepth::from_fn(320, 240, |_, _| 1000);
         let pair = ViewPair { from: 0, to: 3, motion: Pose::identity() };
-        let e = fit_depth_bias(std::slice::from_ref(&v), 0.001, &camera(), &[pair], &BiasFitConfig::default()).unwrap_err();
+        let e =
+            fit_depth_bias(std::slice::from_ref(&v), 0.001, &camera(), &[pair], &BiasFitConfig::default()).unwrap_err();
         assert!(e.to_string().contains("there are 1"), "{e}");
         let small = RawDepth::from_fn(32, 24, |_, _| 1000);
         let e = fit_depth_bias(&[small], 0.001, &camera(), &[], &BiasFitConfig::default()).unwrap_err();
