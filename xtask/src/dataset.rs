@@ -197,7 +197,7 @@ pub fn sr300_depth_kept(x: usize, y: usize, seed: u64) -> bool {
     let on_lattice = back(ud, 322.314, 317.676) == x as f64 && back(vd, 245.856, 243.152) == y as f64;
     let block = ((ud.max(0.0) as u64) / 4, (vd.max(0.0) as u64) / 4);
     let h = crate::bench_real::seed_of("sr300 depth", seed, &[block.0, block.1]);
-    on_lattice && h % 2 == 0
+    on_lattice && h.is_multiple_of(2)
 }
 
 /// Make sure `root/<scene_id:06>` holds the BOP scene of `object` (id `obj_id`): `sensor`'s noise and
