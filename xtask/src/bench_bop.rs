@@ -362,6 +362,18 @@ mod tests {
         }
     }
 
+    /// Outputs to `out`, checked, whole (no shard, no recording).
+    pub(super) fn checked_run(out: PathBuf) -> RunArgs {
+        RunArgs { out, voxel: None, check: true, shard: None, rerun: None, rerun_limit: 20 }
+    }
+
+    /// Run `args` and read the `results.json` it wrote (the only run in its output folder).
+    pub(super) fn run_results(args: &BopBenchArgs) -> serde_json::Value {
+        run(args).unwrap();
+        let run_dir = std::fs::read_dir(&args.run.out).unwrap().next().unwrap().unwrap().path();
+        serde_json::from_str(&std::fs::read_to_string(run_dir.join("results.json")).unwrap()).unwrap()
+    }
+
     fn args(data: PathBuf, out: PathBuf) -> BopBenchArgs {
         BopBenchArgs {
             data: Some(data),
@@ -393,19 +405,9 @@ mod tests {
             quick: true,
             meshes: None,
             sensor_profile: SensorProfile::Sr300Shelf,
-            run: RunArgs {
-                out: tmp.path().into(),
-                voxel: None,
-                check: true,
-                shard: None,
-                rerun: None,
-                rerun_limit: 20,
-            },
+            run: checked_run(tmp.path().into()),
         };
-        run(&args).unwrap();
-        let run_dir = std::fs::read_dir(tmp.path()).unwrap().next().unwrap().unwrap().path();
-        let v: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(run_dir.join("results.json")).unwrap()).unwrap();
+        let v = run_results(&args);
         assert_eq!(v["protocol"]["sensor_profile"], "Sr300Shelf");
         let scene = default_root(&args).join("000001");
         assert!(scene.ends_with("bop-sr300-shelf-quick/test/000001"), "{}", scene.display());
@@ -470,6 +472,7 @@ mod tests {
 
 #[cfg(test)]
 mod real_frames {
+    use super::tests::{checked_run, run_results};
     use super::*;
 
     /// The real YCB-Video frames of `../shared/data/ycb-video/0001` (skipped with a message when
@@ -489,19 +492,9 @@ mod real_frames {
             quick: false,
             meshes: None,
             sensor_profile: SensorProfile::Carmine,
-            run: RunArgs {
-                out: tmp.path().to_path_buf(),
-                voxel: None,
-                check: true,
-                shard: None,
-                rerun: None,
-                rerun_limit: 20,
-            },
+            run: checked_run(tmp.path().into()),
         };
-        run(&args).unwrap();
-        let run_dir = std::fs::read_dir(tmp.path()).unwrap().next().unwrap().unwrap().path();
-        let v: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(run_dir.join("results.json")).unwrap()).unwrap();
+        let v = run_results(&args);
         let mut objects: Vec<&str> =
             v["pairs"].as_array().unwrap().iter().map(|p| p["object"].as_str().unwrap()).collect();
         objects.dedup();
