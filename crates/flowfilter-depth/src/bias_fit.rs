@@ -26,6 +26,9 @@ pub struct BiasFitConfig {
     /// Weight of the grid's smoothness (squared differences of neighbouring values) against the
     /// data, per sample a control value sees on average.
     pub smoothness: f64,
+    /// Weight pulling every value towards 0, on the same scale: where the differences are thin
+    /// (the image's edges, what few pairs saw) the field stays small instead of following them.
+    pub shrinkage: f64,
     /// Differences larger than this are other surfaces (occlusion, edges), not the sensor's
     /// error, metres.
     pub max_difference_m: f64,
@@ -39,7 +42,16 @@ pub struct BiasFitConfig {
 
 impl Default for BiasFitConfig {
     fn default() -> Self {
-        Self { cols: 32, rows: 24, smoothness: 0.04, max_difference_m: 0.01, pixel_step: 2, near_m: 0.1, far_m: 4.0 }
+        Self {
+            cols: 32,
+            rows: 24,
+            smoothness: 0.04,
+            shrinkage: 0.2,
+            max_difference_m: 0.01,
+            pixel_step: 2,
+            near_m: 0.1,
+            far_m: 4.0,
+        }
     }
 }
 
@@ -153,6 +165,9 @@ fn validate(
     if !(config.smoothness.is_finite() && config.smoothness >= 0.0) {
         return bad(format!("smoothness must be finite and >= 0, found {}", config.smoothness));
     }
+    if !(config.shrinkage.is_finite() && config.shrinkage >= 0.0) {
+        return bad(format!("shrinkage must be finite and >= 0, found {}", config.shrinkage));
+    }
     if !(config.max_difference_m.is_finite() && config.max_difference_m > 0.0) {
         return bad(format!("max_difference_m must be positive, found {}", config.max_difference_m));
     }
@@ -231,8 +246,7 @@ fn compare(
     out
 }
 
-/// Least squares over the samples with the grid's smoothness term (and a faint pull towards 0
-/// for what the data leave free).
+/// Least squares over the samples with the grid's smoothness term and the pull towards 0.
 fn solve(samples: &[Sample], config: &BiasFitConfig) -> DVector<f64> {
     let (cols, rows) = (config.cols, config.rows);
     let n = cols * rows;
@@ -272,7 +286,7 @@ fn solve(samples: &[Sample], config: &BiasFitConfig) -> DVector<f64> {
         }
     }
     for i in 0..n {
-        normal[(i, i)] += 1e-6 * per_value.max(1.0);
+        normal[(i, i)] += config.shrinkage.max(1e-6) * per_value.max(1.0);
     }
     let solution = normal.clone().cholesky().map(|c| c.solve(&rhs)).unwrap_or_else(|| {
         // Semi-definite only when no reading was compared at all (the pull keeps it definite).
