@@ -14,7 +14,9 @@ use crate::{TrackError, TrackState, Tracker, TrackerConfig};
 use flowfilter_pipeline::camera::DepthBias;
 use flowfilter_pipeline::depth::bias_fit::{BiasFit, BiasFitConfig, BiasFitError, ViewPair, fit_depth_bias};
 use flowfilter_pipeline::depth::cloud::{knn_normals, voxel_downsample};
-use flowfilter_pipeline::registration::{Icp, IcpConfig, IcpVariant, Registrar, RegistrationError};
+use flowfilter_pipeline::registration::{
+    Icp, IcpConfig, IcpVariant, Registrar, RegistrationError, RegistrationProblem,
+};
 use flowfilter_pipeline::{Pipeline, Point3, PointCloud, Pose, RawDepth, RgbdFrame, RgbdSensor};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -47,6 +49,46 @@ impl Default for DepthCalibrationConfig {
             max_refinement_deg: 5.0,
             min_overlap: 0.3,
             far_m: 1.5,
+        }
+    }
+}
+
+impl DepthCalibrationConfig {
+    /// Check the values.
+    ///
+    /// # Errors
+    /// [`CalibrationError::Config`] naming the value out of range.
+    pub fn validate(&self) -> Result<(), CalibrationError> {
+        let bad = |m: String| Err(CalibrationError::Config(m));
+        if !(self.voxel_m.is_finite() && self.voxel_m > 0.0) {
+            return bad(format!("voxel_m must be positive, found {}", self.voxel_m));
+        }
+        if self.gates_m.is_empty() || self.gates_m.iter().any(|g| !(g.is_finite() && *g > 0.0)) {
+            return bad(format!("gates_m must be one or more positive distances, found {:?}", self.gates_m));
+        }
+        if !(self.max_refinement_deg.is_finite() && self.max_refinement_deg > 0.0) {
+            return bad(format!("max_refinement_deg must be positive, found {}", self.max_refinement_deg));
+        }
+        if !(0.0..=1.0).contains(&self.min_overlap) {
+            return bad(format!("min_overlap must be in [0, 1], found {}", self.min_overlap));
+        }
+        if !(self.far_m.is_finite() && self.far_m > 0.0) {
+            return bad(format!("far_m must be positive, found {}", self.far_m));
+        }
+        Ok(())
+    }
+
+    /// Why a pair registered with these values is left out, if it is.
+    fn leaves_out(&self, refinement_deg: f64, overlap: f64) -> Option<String> {
+        if refinement_deg > self.max_refinement_deg {
+            Some(format!(
+                "the depth moved the tracked motion by {refinement_deg:.1} deg (more than {})",
+                self.max_refinement_deg
+            ))
+        } else if overlap < self.min_overlap {
+            Some(format!("{:.0}% of the points paired (fewer than {:.0}%)", overlap * 100.0, self.min_overlap * 100.0))
+        } else {
+            None
         }
     }
 }
@@ -91,17 +133,9 @@ pub enum CalibrationError {
     /// The first frame cannot be tracked from.
     #[error(transparent)]
     Track(#[from] TrackError),
-    /// A pair cannot be registered.
-    #[error("depth calibration: registering frames {from} -> {to}: {source}")]
-    Registration {
-        /// Stream index of the first frame.
-        from: usize,
-        /// Stream index of the second.
-        to: usize,
-        /// Why.
-        #[source]
-        source: RegistrationError,
-    },
+    /// A configuration value is out of range.
+    #[error("depth calibration: {0}")]
+    Config(String),
     /// The field cannot be fitted (too few pairs kept, too little overlap).
     #[error(transparent)]
     Fit(#[from] BiasFitError),
@@ -111,8 +145,9 @@ pub enum CalibrationError {
 /// are ignored: the whole scene is used) with `pipeline` for the tracking.
 ///
 /// # Errors
-/// [`CalibrationError`]: too few frames, frames of several sensors, a first frame the tracker
-/// cannot prepare, or too few kept pairs to fit the field.
+/// [`CalibrationError`]: too few frames, frames of several sensors, a bad configuration, a
+/// first frame the tracker cannot prepare, or too few kept pairs to fit the field (a pair whose
+/// depth cannot be registered is left out, with the reason).
 ///
 /// ```no_run
 /// use flowfilter_pipeline::{CameraFile, FrameFiles, MaskSource, Pipeline, PipelineConfig};
@@ -147,17 +182,25 @@ pub fn calibrate_depth(
     if let Some(f) = frames.iter().find(|f| f.sensor != sensor || f.depth.dims() != first.depth.dims()) {
         return Err(CalibrationError::MixedSensors(f.label.clone()));
     }
+    config.validate()?;
     let tracked = track_whole_frames(frames, pipeline)?;
     let mut pairs = vec![];
     let mut kept = vec![];
     for w in tracked.windows(2) {
-        let ((a, pose_a), (b, pose_b)) = (w[0], w[1]);
+        let ((from, pose_a), (to, pose_b)) = (w[0], w[1]);
         let motion = depth_motion(&sensor, &(pose_b * pose_a.inverse()));
-        let (pair, refined) = refine(&frames[a].depth, &frames[b].depth, &sensor, motion, config)
-            .map_err(|source| CalibrationError::Registration { from: a, to: b, source })?;
-        let pair = CalibrationPair { from: a, to: b, ..pair };
+        let (pair, refined) = match refine(&frames[from].depth, &frames[to].depth, &sensor, motion, config) {
+            Ok(Refined { pose, refinement_deg, overlap }) => {
+                let left_out = config.leaves_out(refinement_deg, overlap);
+                (CalibrationPair { from, to, refinement_deg, overlap, left_out }, pose)
+            }
+            Err(e) => {
+                let left_out = Some(format!("the depth could not be registered: {e}"));
+                (CalibrationPair { from, to, refinement_deg: 0.0, overlap: 0.0, left_out }, motion)
+            }
+        };
         if pair.left_out.is_none() {
-            kept.push(ViewPair { from: a, to: b, motion: refined });
+            kept.push(ViewPair { from, to, motion: refined });
         }
         pairs.push(pair);
     }
@@ -210,6 +253,16 @@ fn depth_motion(sensor: &RgbdSensor, color: &Pose) -> Pose {
     sensor.color_from_depth.inverse() * color * sensor.color_from_depth
 }
 
+/// A pair registered on the depth camera's readings.
+struct Refined {
+    /// The motion between the two depth cameras.
+    pose: Pose,
+    /// How far it turned the tracked motion, degrees.
+    refinement_deg: f64,
+    /// Fraction of the first frame's points paired within the last gate.
+    overlap: f64,
+}
+
 /// Register `from`'s readings onto `to`'s from `motion` (depth camera frames).
 fn refine(
     from: &RawDepth,
@@ -217,35 +270,23 @@ fn refine(
     sensor: &RgbdSensor,
     motion: Pose,
     config: &DepthCalibrationConfig,
-) -> Result<(CalibrationPair, Pose), RegistrationError> {
+) -> Result<Refined, RegistrationError> {
     let source = voxel_downsample(&depth_cloud(from, sensor, config.far_m), config.voxel_m);
     let mut target = voxel_downsample(&depth_cloud(to, sensor, config.far_m), config.voxel_m);
     target.normals = Some(knn_normals(&target.points, 20, &Point3::origin()));
-    let mut pose = motion;
-    let mut overlap = 0.0;
+    let mut refined = Refined { pose: motion, refinement_deg: 0.0, overlap: 0.0 };
     for &gate in &config.gates_m {
         let icp = Icp::new(IcpConfig {
             variant: IcpVariant::PointToPlane,
             max_correspondence_distance: gate,
             ..IcpConfig::default()
         })?;
-        let problem =
-            flowfilter_pipeline::registration::RegistrationProblem::new(source.clone(), target.clone()).with_init(pose);
+        let problem = RegistrationProblem::new(source.clone(), target.clone()).with_init(refined.pose);
         let r = icp.register(&problem)?;
-        (pose, overlap) = (r.transform, r.fitness);
+        (refined.pose, refined.overlap) = (r.transform, r.fitness);
     }
-    let refinement_deg = (pose * motion.inverse()).rotation.angle().to_degrees();
-    let left_out = if refinement_deg > config.max_refinement_deg {
-        Some(format!(
-            "the depth moved the tracked motion by {refinement_deg:.1} deg (more than {})",
-            config.max_refinement_deg
-        ))
-    } else if overlap < config.min_overlap {
-        Some(format!("{:.0}% of the points paired (fewer than {:.0}%)", overlap * 100.0, config.min_overlap * 100.0))
-    } else {
-        None
-    };
-    Ok((CalibrationPair { from: 0, to: 0, refinement_deg, overlap, left_out }, pose))
+    refined.refinement_deg = (refined.pose * motion.inverse()).rotation.angle().to_degrees();
+    Ok(refined)
 }
 
 /// The depth camera's readings nearer than `far_m` as points of its own frame.
@@ -261,4 +302,49 @@ fn depth_cloud(depth: &RawDepth, sensor: &RgbdSensor, far_m: f64) -> PointCloud 
         })
         .collect();
     PointCloud::from_points(points)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use flowfilter_pipeline::{CameraFile, PipelineConfig};
+
+    fn frame(label: &str, width: u32) -> RgbdFrame {
+        let camera = CameraFile::from_json_str(
+            r#"{"K": [100, 0, 31.5, 0, 100, 23.5, 0, 0, 1], "depth_unit_m": 0.001}"#,
+            "camera.json",
+        )
+        .unwrap();
+        let color = image::RgbImage::new(width, 48);
+        let depth = RawDepth::from_fn(width as usize, 48, |_, _| 800);
+        RgbdFrame::from_images(label, color, depth, None, &camera).unwrap()
+    }
+
+    fn pipeline() -> Pipeline {
+        Pipeline::from_config(PipelineConfig::default()).unwrap()
+    }
+
+    #[test]
+    fn bad_streams_and_settings_are_named() {
+        let config = DepthCalibrationConfig::default();
+        let e = calibrate_depth(&[], pipeline(), &config).unwrap_err();
+        assert!(matches!(e, CalibrationError::TooFewFrames(0)), "{e}");
+        let e = calibrate_depth(&[frame("a", 64)], pipeline(), &config).unwrap_err();
+        assert!(matches!(e, CalibrationError::TooFewFrames(1)), "{e}");
+        let e = calibrate_depth(&[frame("a", 64), frame("b", 80)], pipeline(), &config).unwrap_err();
+        assert!(e.to_string().contains("'b'"), "{e}");
+        let bad = DepthCalibrationConfig { gates_m: vec![], ..config.clone() };
+        let e = calibrate_depth(&[frame("a", 64), frame("b", 64)], pipeline(), &bad).unwrap_err();
+        assert!(e.to_string().contains("gates_m"), "{e}");
+        let bad = DepthCalibrationConfig { voxel_m: 0.0, ..config };
+        assert!(bad.validate().unwrap_err().to_string().contains("voxel_m"));
+    }
+
+    #[test]
+    fn a_pair_is_left_out_for_a_large_turn_or_a_small_overlap() {
+        let config = DepthCalibrationConfig::default();
+        assert!(config.leaves_out(1.0, 0.9).is_none());
+        assert!(config.leaves_out(6.0, 0.9).unwrap().contains("6.0 deg"));
+        assert!(config.leaves_out(1.0, 0.1).unwrap().contains("10%"));
+    }
 }
