@@ -12,7 +12,7 @@
 //! and the pipeline then propagates the model's: `mask_propagated`).
 
 use crate::pairs::{Methods, PairJob, PairResult, RunArgs};
-use crate::realsense::{PosedFrames, Region, Truth, TruthRecord, network_mask, posed_folders};
+use crate::realsense::{DepthBiasSource, PosedFrames, Region, Truth, TruthRecord, network_mask, posed_folders};
 use crate::report::{ReportSpec, ShardRun, write_outputs};
 use crate::shard::Shard;
 use crate::{dir_name, in_repo};
@@ -203,7 +203,8 @@ pub fn run(args: &RealBenchArgs) -> anyhow::Result<()> {
                 .collect()
         };
         let mut whole = load_whole(&seq);
-        if let Some(bias) = depth_bias.field(&whole, &args.pipeline, &label)? {
+        let frames: Vec<RgbdFrame> = whole.values().cloned().collect();
+        if let Some(bias) = depth_bias.field(&frames, &args.pipeline, &label)? {
             seq.set_depth_bias(bias);
             whole = load_whole(&seq);
         }
@@ -294,62 +295,6 @@ pub fn run(args: &RealBenchArgs) -> anyhow::Result<()> {
     methods.finish_recording()?;
     write_outputs(&spec, &results, &skipped, started.elapsed().as_secs_f64())?;
     Ok(())
-}
-
-/// Where a run's depth correction comes from (`--depth-bias`).
-enum DepthBiasSource {
-    /// No correction.
-    None,
-    /// Each sequence's own field, fitted from its frames without truth.
-    OwnFrames,
-    /// One field for every sequence, from a camera file.
-    Given(flowfilter_pipeline::camera::DepthBias),
-}
-
-impl DepthBiasSource {
-    fn parse(text: &str) -> anyhow::Result<Self> {
-        Ok(match text {
-            "none" => Self::None,
-            "self" => Self::OwnFrames,
-            path => {
-                let camera = flowfilter_pipeline::CameraFile::from_file(Path::new(path)).context("--depth-bias")?;
-                let bias = camera.depth_bias.with_context(|| {
-                    format!("--depth-bias: {path} holds no depth_bias (expected none, self or such a file)")
-                })?;
-                Self::Given(bias)
-            }
-        })
-    }
-
-    /// The field for the sequence `label` whose uncorrected frames are `whole`.
-    fn field(
-        &self,
-        whole: &BTreeMap<u32, RgbdFrame>,
-        pipeline: &Path,
-        label: &str,
-    ) -> anyhow::Result<Option<flowfilter_pipeline::camera::DepthBias>> {
-        use flowfilter_track::depth_calibration::{DepthCalibrationConfig, calibrate_depth};
-        match self {
-            Self::None => Ok(None),
-            Self::Given(bias) => Ok(Some(bias.clone())),
-            Self::OwnFrames => {
-                let frames: Vec<RgbdFrame> = whole.values().cloned().collect();
-                let mut config = flowfilter_pipeline::PipelineConfig::from_file(&in_repo(pipeline))?;
-                config.method = "flowfilter".into();
-                let pipeline = flowfilter_pipeline::Pipeline::from_config(config)?;
-                let c = calibrate_depth(&frames, pipeline, &DepthCalibrationConfig::default())
-                    .with_context(|| format!("--depth-bias self: sequence {label}"))?;
-                tracing::info!(
-                    sequence = %label,
-                    pairs = c.pairs.iter().filter(|p| p.left_out.is_none()).count(),
-                    rms_before_mm = c.fit.rms_before_m * 1e3,
-                    rms_after_mm = c.fit.rms_after_m * 1e3,
-                    "depth bias fitted from the sequence's own frames"
-                );
-                Ok(Some(c.fit.bias))
-            }
-        }
-    }
 }
 
 /// Geodesic error beyond which an estimate is wrong, not imprecise (degrees).

@@ -10,7 +10,7 @@
 //! over one frame) and the last frame's rotation error (a loop's closure error).
 
 use crate::bench_real::seed_of;
-use crate::realsense::{PosedFrames, Truth, TruthRecord, network_mask, posed_folders};
+use crate::realsense::{DepthBiasSource, PosedFrames, Truth, TruthRecord, network_mask, posed_folders};
 use crate::sequence::{Sequence, YcbVideoFrames};
 use anyhow::Context;
 use clap::Args;
@@ -67,6 +67,11 @@ pub struct TrackBenchArgs {
     /// Seed of the regions and masks.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// The real sequences' depth correction, as `bench-real --depth-bias`: `none`, `self` (each
+    /// sequence's field fitted from its own frames without truth) or a camera file with a
+    /// `depth_bias`.
+    #[arg(long, default_value = "none")]
+    pub depth_bias: String,
     /// CI-sized: a 30-degree arc of the box, the first 4 frames of one real sequence.
     #[arg(long)]
     pub quick: bool,
@@ -170,7 +175,7 @@ pub fn run(args: &TrackBenchArgs) -> anyhow::Result<()> {
         }
     }
     std::fs::write(dir.join("results.json"), serde_json::to_string_pretty(&results)?)?;
-    let summary = summary(&results, started.elapsed().as_secs_f64(), truth.as_ref());
+    let summary = summary(&results, started.elapsed().as_secs_f64(), truth.as_ref(), &args.depth_bias);
     std::fs::write(dir.join("summary.md"), &summary)?;
     println!("{summary}\nresults in {}", dir.display());
     if args.check {
@@ -232,16 +237,23 @@ fn real_streams(args: &TrackBenchArgs) -> anyhow::Result<(Vec<Stream>, Option<Tr
     if args.quick {
         dirs.truncate(1);
     }
+    let depth_bias = DepthBiasSource::parse(&args.depth_bias)?;
     let mut out = vec![];
     for dir in dirs {
         let label = dir.file_name().map_or_else(String::new, |n| n.to_string_lossy().into_owned());
-        let seq = PosedFrames::open_with_truth(&dir, &truth).map_err(anyhow::Error::msg)?;
+        let mut seq = PosedFrames::open_with_truth(&dir, &truth).map_err(anyhow::Error::msg)?;
         let mut ids = seq.ids();
         if args.quick {
             ids.truncate(4);
         }
-        let frames: Vec<RgbdFrame> =
-            ids.iter().map(|&i| seq.frame(i)).collect::<Result<_, _>>().map_err(anyhow::Error::msg)?;
+        let read = |seq: &PosedFrames| -> anyhow::Result<Vec<RgbdFrame>> {
+            ids.iter().map(|&i| seq.frame(i)).collect::<Result<_, _>>().map_err(anyhow::Error::msg)
+        };
+        let mut frames = read(&seq)?;
+        if let Some(bias) = depth_bias.field(&frames, &args.pipeline, &label)? {
+            seq.set_depth_bias(bias);
+            frames = read(&seq)?;
+        }
         let truth: Vec<Pose> = ids
             .iter()
             .map(|&i| seq.relative_motion(ids[0], i))
@@ -437,8 +449,10 @@ fn result(
     }
 }
 
-fn summary(results: &[StreamResult], seconds: f64, truth: Option<&Truth>) -> String {
-    let truth = truth.map_or_else(String::new, |t| format!(" The real sequences' truth: {}.", t.describe()));
+fn summary(results: &[StreamResult], seconds: f64, truth: Option<&Truth>, depth_bias: &str) -> String {
+    let truth = truth.map_or_else(String::new, |t| {
+        format!(" The real sequences' truth: {}; their depth bias: {depth_bias}.", t.describe())
+    });
     let mut out = format!(
         "# bench-track\n\n{} stream runs in {seconds:.0} s. States: tracking / uncertain / lost / recovered. \
          ATE: position RMSE after rigid alignment; RPE: over one frame; last: the last frame's error.{truth}\n\n\

@@ -16,6 +16,8 @@
 //! segmentation network's defects ([`NetworkMaskModel`]), drawn from a seed per frame and
 //! region.
 
+use crate::in_repo;
+use anyhow::Context;
 use flowfilter_eval::hand_eye::{MotionPair, MountFit, fit_mount};
 use flowfilter_pipeline::camera::RgbdSensor;
 use flowfilter_pipeline::{CameraFile, FrameFiles, Mask, MaskSource, Point3, Pose, RgbdFrame};
@@ -342,4 +344,67 @@ fn depth_points<'a>(sensor: &'a RgbdSensor, frame: &'a RgbdFrame) -> impl Iterat
         let c = sensor.color.project(&p)?;
         Some((p, (c.x, c.y)))
     })
+}
+
+/// Where a run's depth correction comes from (`--depth-bias`).
+pub enum DepthBiasSource {
+    /// No correction.
+    None,
+    /// Each sequence's own field, fitted from its frames without truth.
+    OwnFrames,
+    /// One field for every sequence, from a camera file.
+    Given(flowfilter_pipeline::camera::DepthBias),
+}
+
+impl DepthBiasSource {
+    /// `none`, `self` or a camera file holding a `depth_bias`.
+    ///
+    /// # Errors
+    /// A camera file that cannot be read or holds no field.
+    pub fn parse(text: &str) -> anyhow::Result<Self> {
+        Ok(match text {
+            "none" => Self::None,
+            "self" => Self::OwnFrames,
+            path => {
+                let camera = flowfilter_pipeline::CameraFile::from_file(Path::new(path)).context("--depth-bias")?;
+                let bias = camera.depth_bias.with_context(|| {
+                    format!("--depth-bias: {path} holds no depth_bias (expected none, self or such a file)")
+                })?;
+                Self::Given(bias)
+            }
+        })
+    }
+
+    /// The field for the sequence `label` whose uncorrected frames are `frames` (in order),
+    /// tracked with the pipeline configuration `pipeline` when it is the sequence's own.
+    ///
+    /// # Errors
+    /// A configuration that cannot be read, or a stream that cannot be calibrated.
+    pub fn field(
+        &self,
+        frames: &[RgbdFrame],
+        pipeline: &Path,
+        label: &str,
+    ) -> anyhow::Result<Option<flowfilter_pipeline::camera::DepthBias>> {
+        use flowfilter_track::depth_calibration::{DepthCalibrationConfig, calibrate_depth};
+        match self {
+            Self::None => Ok(None),
+            Self::Given(bias) => Ok(Some(bias.clone())),
+            Self::OwnFrames => {
+                let mut config = flowfilter_pipeline::PipelineConfig::from_file(&in_repo(pipeline))?;
+                config.method = "flowfilter".into();
+                let pipeline = flowfilter_pipeline::Pipeline::from_config(config)?;
+                let c = calibrate_depth(frames, pipeline, &DepthCalibrationConfig::default())
+                    .with_context(|| format!("--depth-bias self: sequence {label}"))?;
+                tracing::info!(
+                    sequence = %label,
+                    pairs = c.pairs.iter().filter(|p| p.left_out.is_none()).count(),
+                    rms_before_mm = c.fit.rms_before_m * 1e3,
+                    rms_after_mm = c.fit.rms_after_m * 1e3,
+                    "depth bias fitted from the sequence's own frames"
+                );
+                Ok(Some(c.fit.bias))
+            }
+        }
+    }
 }
