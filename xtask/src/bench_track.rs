@@ -496,6 +496,38 @@ fn check(results: &[StreamResult]) -> anyhow::Result<()> {
 mod tests {
     use super::*;
 
+    /// `--depth-bias self`: the quick real stream (shelf-J's first 4 frames) is read corrected by
+    /// the field its own frames give; `none` reads the files as they are.
+    #[test]
+    fn a_real_stream_is_read_with_its_own_depth_field() {
+        let Some(data) = crate::shared_or_skip("data/realsense-shelf") else { return };
+        let mut args = TrackBenchArgs {
+            data,
+            sequences: Some(vec!["shelf-J".into()]),
+            ycb_video: PathBuf::from("absent"),
+            objects: vec![],
+            real_only: true,
+            steps: vec![3],
+            cameras: vec![],
+            pipeline: crate::repo_root().join("configs/flowfilter.toml"),
+            tracker: None,
+            truth: TruthRecord::Calibrated,
+            seed: 0,
+            depth_bias: "none".into(),
+            quick: true,
+            out: PathBuf::from("unused"),
+            check: false,
+        };
+        let (plain, _) = real_streams(&args).unwrap();
+        args.depth_bias = "self".into();
+        let (corrected, _) = real_streams(&args).unwrap();
+        assert_eq!((plain.len(), corrected.len()), (1, 1));
+        let (a, b) = (&plain[0].frames[1].depth, &corrected[0].frames[1].depth);
+        let moved = a.as_slice().iter().zip(b.as_slice()).filter(|(x, y)| x != y).count();
+        assert!(moved > a.as_slice().len() / 20, "{moved} readings moved");
+        assert!(a.as_slice().iter().zip(b.as_slice()).all(|(x, y)| (*x == 0) == (*y == 0)));
+    }
+
     /// The YCB-Video sample's objects as streams: the first frame masked, the later ones whole,
     /// the annotation's motion as the truth.
     #[test]
