@@ -240,13 +240,16 @@ impl Frame {
     }
 
     /// The pipeline's frame, with `camera` (required for frames made from arrays; for frames
-    /// read from a dataset it replaces their calibration).
+    /// read from a dataset it replaces their calibration). A camera's `depth_bias` corrects
+    /// depth once: arrays here, files when they are read (a frame read with a corrected camera
+    /// is not corrected again).
     pub fn rgbd(&self, camera: Option<&CameraFile>) -> PyResult<RgbdFrame> {
         match (&self.content, camera) {
             (Content::Read(f), None) => Ok((**f).clone()),
             (Content::Read(f), Some(camera)) => {
                 let mut camera = camera.clone();
                 camera.metres_per_unit = camera.metres_per_unit.or(Some(f.sensor.metres_per_unit));
+                camera.depth_bias = None;
                 self.build(f.color.clone(), f.depth.clone(), Some(f.mask.clone()), &camera)
             }
             (Content::Arrays { .. }, None) => Err(input(format!(
