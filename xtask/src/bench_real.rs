@@ -182,7 +182,7 @@ pub fn run(args: &RealBenchArgs) -> anyhow::Result<()> {
     let mut skipped: Vec<(String, String)> = vec![];
     for dir in &dirs {
         let label = dir_name(dir);
-        let mut seq = match PosedFrames::open_with_truth(dir, &truth) {
+        let seq = match PosedFrames::open_with_truth(dir, &truth) {
             Ok(s) => s,
             Err(e) => {
                 tracing::warn!(sequence = %label, error = %e, "skipping sequence");
@@ -191,23 +191,17 @@ pub fn run(args: &RealBenchArgs) -> anyhow::Result<()> {
             }
         };
         let ids: Vec<u32> = seq.ids().into_iter().take(if args.quick { 4 } else { usize::MAX }).collect();
-        let load_whole = |seq: &PosedFrames| -> BTreeMap<u32, RgbdFrame> {
-            ids.par_iter()
-                .filter_map(|&im| match seq.frame(im) {
-                    Ok(f) => Some((im, f)),
-                    Err(e) => {
-                        tracing::warn!(sequence = %label, frame = im, error = %e, "skipping frame");
-                        None
-                    }
-                })
-                .collect()
-        };
-        let mut whole = load_whole(&seq);
-        let frames: Vec<RgbdFrame> = whole.values().cloned().collect();
-        if let Some(bias) = depth_bias.field(&frames, &args.pipeline, &label)? {
-            seq.set_depth_bias(bias);
-            whole = load_whole(&seq);
-        }
+        let mut whole: BTreeMap<u32, RgbdFrame> = ids
+            .par_iter()
+            .filter_map(|&im| match seq.frame(im) {
+                Ok(f) => Some((im, f)),
+                Err(e) => {
+                    tracing::warn!(sequence = %label, frame = im, error = %e, "skipping frame");
+                    None
+                }
+            })
+            .collect();
+        depth_bias.correct(whole.values_mut().collect(), &args.pipeline, &label)?;
         let save_masks = args.save_masks.as_ref().map(|d| d.join(&label));
         let mut plan = Plan {
             seq: &seq,

@@ -241,19 +241,14 @@ fn real_streams(args: &TrackBenchArgs) -> anyhow::Result<(Vec<Stream>, Option<Tr
     let mut out = vec![];
     for dir in dirs {
         let label = dir.file_name().map_or_else(String::new, |n| n.to_string_lossy().into_owned());
-        let mut seq = PosedFrames::open_with_truth(&dir, &truth).map_err(anyhow::Error::msg)?;
+        let seq = PosedFrames::open_with_truth(&dir, &truth).map_err(anyhow::Error::msg)?;
         let mut ids = seq.ids();
         if args.quick {
             ids.truncate(4);
         }
-        let read = |seq: &PosedFrames| -> anyhow::Result<Vec<RgbdFrame>> {
-            ids.iter().map(|&i| seq.frame(i)).collect::<Result<_, _>>().map_err(anyhow::Error::msg)
-        };
-        let mut frames = read(&seq)?;
-        if let Some(bias) = depth_bias.field(&frames, &args.pipeline, &label)? {
-            seq.set_depth_bias(bias);
-            frames = read(&seq)?;
-        }
+        let mut frames: Vec<RgbdFrame> =
+            ids.iter().map(|&i| seq.frame(i)).collect::<Result<_, _>>().map_err(anyhow::Error::msg)?;
+        depth_bias.correct(frames.iter_mut().collect(), &args.pipeline, &label)?;
         let truth: Vec<Pose> = ids
             .iter()
             .map(|&i| seq.relative_motion(ids[0], i))

@@ -168,33 +168,34 @@ impl SceneSensor {
         let target = Point3::new(0.0, 0.0, 0.08);
         let eye_before = base.h_color_from_world.inverse() * Point3::origin();
         let eye = target + (eye_before - target).normalize() * distance;
-        let color = CameraModel::new(
-            Intrinsics::new(611.686, 611.686, 317.676, 243.152)?,
-            Distortion::NONE,
-            ImageSize::new(640, 480)?,
-        );
-        let depth = CameraModel::new(
-            Intrinsics::new(477.425, 477.425, 322.314, 245.856)?,
-            Distortion::NONE,
-            ImageSize::new(640, 480)?,
-        );
-        let color_from_depth =
-            Pose::new(Vector3::new(0.0247, 0.00126, 0.00456), Vector3::new(-0.00231, 0.00096, -0.00038));
-        let rgbd = RgbdSensor::new(depth, color, color_from_depth, 1e-3)?;
+        let rgbd = sr300_rgbd()?;
         Ok(RigSensor { rgbd, h_color_from_world: look_at(eye, target), projector_baseline: 0.05, ir_depth_scale: 10.0 })
     }
 }
 
-/// Whether registered depth pixel `(x, y)` of an SR300-like frame holds a reading: the colour
-/// grid (612 px) samples the depth camera's (477 px) where a depth pixel's centre lands, about
-/// 61% of the pixels in rows and columns with regular gaps; of those, blocks of 4 x 4 depth
-/// pixels read nothing with probability one half (dark and glossy patches, the projector's
-/// shadow), leaving about 30%, as the real registered frames hold (25-35% at 0.5 m).
-pub fn sr300_depth_kept(x: usize, y: usize, seed: u64) -> bool {
-    let ratio = 477.425 / 611.686;
-    let (ud, vd) = (((x as f64 - 317.676) * ratio + 322.314).round(), ((y as f64 - 243.152) * ratio + 245.856).round());
-    let back = |d: f64, cd: f64, cc: f64| ((d - cd) / ratio + cc).round();
-    let on_lattice = back(ud, 322.314, 317.676) == x as f64 && back(vd, 245.856, 243.152) == y as f64;
+/// The SR300 of the shared shelf sequences: their `camera.json` (640 x 480 colour at 612 px,
+/// depth at 477 px, the extrinsic), 1 mm depth units.
+fn sr300_rgbd() -> anyhow::Result<RgbdSensor> {
+    let camera = |fx, cx, cy| -> anyhow::Result<CameraModel> {
+        Ok(CameraModel::new(Intrinsics::new(fx, fx, cx, cy)?, Distortion::NONE, ImageSize::new(640, 480)?))
+    };
+    let color_from_depth = Pose::new(Vector3::new(0.0247, 0.00126, 0.00456), Vector3::new(-0.00231, 0.00096, -0.00038));
+    let (depth, color) = (camera(477.425, 322.314, 245.856)?, camera(611.686, 317.676, 243.152)?);
+    Ok(RgbdSensor::new(depth, color, color_from_depth, 1e-3)?)
+}
+
+/// Whether registered depth pixel `(x, y)` of `sensor`'s frames holds a reading: the colour
+/// grid samples the depth camera's (SR300: 477 px onto 612) where a depth pixel's centre lands,
+/// about 61% of the pixels in rows and columns with regular gaps; of those, blocks of 4 x 4
+/// depth pixels read nothing with probability one half (dark and glossy patches, the
+/// projector's shadow), leaving about 30%, as the real registered frames hold (25-35% at 0.5 m).
+pub fn sr300_depth_kept(x: usize, y: usize, seed: u64, sensor: &RgbdSensor) -> bool {
+    let (c, d) = (&sensor.color.intrinsics, &sensor.depth.intrinsics);
+    let ratio = d.fx / c.fx;
+    let to_depth = |v: f64, cc: f64, cd: f64| ((v - cc) * ratio + cd).round();
+    let to_color = |v: f64, cd: f64, cc: f64| ((v - cd) / ratio + cc).round();
+    let (ud, vd) = (to_depth(x as f64, c.cx, d.cx), to_depth(y as f64, c.cy, d.cy));
+    let on_lattice = to_color(ud, d.cx, c.cx) == x as f64 && to_color(vd, d.cy, c.cy) == y as f64;
     let block = ((ud.max(0.0) as u64) / 4, (vd.max(0.0) as u64) / 4);
     let h = crate::bench_real::seed_of("sr300 depth", seed, &[block.0, block.1]);
     on_lattice && h.is_multiple_of(2)
@@ -230,7 +231,7 @@ pub fn ensure_bop_scene(
         };
         write_bop_scene(&dir, &object.scene(seed)?, &sensor.rig_sensor(spec.sensor)?, &opts, &|_, _| {})?;
         if sensor.sr300_at_m.is_some() {
-            sparsify_depth(&dir, seed)?;
+            sparsify_depth(&dir, seed, &sr300_rgbd()?)?;
         }
         Ok(())
     })?;
@@ -238,12 +239,12 @@ pub fn ensure_bop_scene(
 }
 
 /// Keep only the readings [`sr300_depth_kept`] keeps in every depth image of the BOP scene `dir`.
-fn sparsify_depth(dir: &Path, seed: u64) -> anyhow::Result<()> {
+fn sparsify_depth(dir: &Path, seed: u64, sensor: &RgbdSensor) -> anyhow::Result<()> {
     for entry in std::fs::read_dir(dir.join("depth"))? {
         let path = entry?.path();
         let mut depth = image::open(&path).with_context(|| format!("reading {}", path.display()))?.into_luma16();
         for (x, y, p) in depth.enumerate_pixels_mut() {
-            if !sr300_depth_kept(x as usize, y as usize, seed) {
+            if !sr300_depth_kept(x as usize, y as usize, seed, sensor) {
                 p.0[0] = 0;
             }
         }

@@ -218,11 +218,6 @@ impl PosedFrames {
         }
     }
 
-    /// Correct every frame read from now on by `bias` (the depth sensor's own error).
-    pub fn set_depth_bias(&mut self, bias: flowfilter_pipeline::camera::DepthBias) {
-        self.camera.depth_bias = Some(bias);
-    }
-
     /// The frame ids, in order.
     pub fn ids(&self) -> Vec<u32> {
         self.poses.keys().copied().collect()
@@ -375,26 +370,25 @@ impl DepthBiasSource {
         })
     }
 
-    /// The field for the sequence `label` whose uncorrected frames are `frames` (in order),
-    /// tracked with the pipeline configuration `pipeline` when it is the sequence's own.
+    /// Correct the frames of the sequence `label` (in order; read without a field) in place:
+    /// by the given field, or by the field fitted from them (tracked with the pipeline
+    /// configuration `pipeline`) when it is the sequence's own. Nothing is done for `none`.
     ///
     /// # Errors
-    /// A configuration that cannot be read, or a stream that cannot be calibrated.
-    pub fn field(
-        &self,
-        frames: &[RgbdFrame],
-        pipeline: &Path,
-        label: &str,
-    ) -> anyhow::Result<Option<flowfilter_pipeline::camera::DepthBias>> {
+    /// A configuration that cannot be read, a stream that cannot be calibrated, or a field of
+    /// another size than the frames' depth.
+    pub fn correct(&self, mut frames: Vec<&mut RgbdFrame>, pipeline: &Path, label: &str) -> anyhow::Result<()> {
         use flowfilter_track::depth_calibration::{DepthCalibrationConfig, calibrate_depth};
-        match self {
-            Self::None => Ok(None),
-            Self::Given(bias) => Ok(Some(bias.clone())),
+        let fitted;
+        let bias = match self {
+            Self::None => return Ok(()),
+            Self::Given(bias) => bias,
             Self::OwnFrames => {
                 let mut config = flowfilter_pipeline::PipelineConfig::from_file(&in_repo(pipeline))?;
                 config.method = "flowfilter".into();
                 let pipeline = flowfilter_pipeline::Pipeline::from_config(config)?;
-                let c = calibrate_depth(frames, pipeline, &DepthCalibrationConfig::default())
+                let uncorrected: Vec<RgbdFrame> = frames.iter().map(|f| (**f).clone()).collect();
+                let c = calibrate_depth(&uncorrected, pipeline, &DepthCalibrationConfig::default())
                     .with_context(|| format!("--depth-bias self: sequence {label}"))?;
                 tracing::info!(
                     sequence = %label,
@@ -403,8 +397,14 @@ impl DepthBiasSource {
                     rms_after_mm = c.fit.rms_after_m * 1e3,
                     "depth bias fitted from the sequence's own frames"
                 );
-                Ok(Some(c.fit.bias))
+                fitted = c.fit.bias;
+                &fitted
             }
+        };
+        for f in &mut frames {
+            bias.correct(&mut f.depth, f.sensor.metres_per_unit)
+                .with_context(|| format!("--depth-bias: sequence {label}, {}", f.label))?;
         }
+        Ok(())
     }
 }

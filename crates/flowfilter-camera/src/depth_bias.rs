@@ -123,6 +123,22 @@ impl DepthBias {
         self.weights(u, v).iter().map(|&(i, w)| w * self.metres[i]).sum()
     }
 
+    /// This field and `other` together (a field fitted on frames already corrected by this one).
+    ///
+    /// # Errors
+    /// [`DepthBiasError::Invalid`] when the two grids differ in shape or image.
+    pub fn plus(&self, other: &DepthBias) -> Result<DepthBias, DepthBiasError> {
+        let shape = |b: &DepthBias| (b.cols, b.rows, b.width, b.height);
+        if shape(self) != shape(other) {
+            return Err(DepthBiasError::Invalid(format!(
+                "a {}x{} grid over {}x{} cannot be added to a {}x{} grid over {}x{}",
+                other.cols, other.rows, other.width, other.height, self.cols, self.rows, self.width, self.height
+            )));
+        }
+        let metres = self.metres.iter().zip(&other.metres).map(|(a, b)| a + b).collect();
+        Ok(DepthBias { metres, ..self.clone() })
+    }
+
     /// The largest correction, metres.
     pub fn max_abs(&self) -> f64 {
         self.metres.iter().fold(0.0, |m, v| m.max(v.abs()))
@@ -179,6 +195,17 @@ mod tests {
         assert_eq!(d.as_slice(), &[0, 497, 497, 497, 0, 497, 497, 497]);
         let mut other = RawDepth::from_fn(3, 2, |_, _| 500);
         assert!(matches!(b.correct(&mut other, 0.001), Err(DepthBiasError::Size { .. })));
+    }
+
+    #[test]
+    fn fields_of_one_grid_add_up() {
+        let mut a = DepthBias::zeros(2, 1, 4, 2).unwrap();
+        a.metres = vec![0.001, -0.002];
+        let mut b = a.clone();
+        b.metres = vec![0.003, 0.001];
+        assert_eq!(a.plus(&b).unwrap().metres, vec![0.004, -0.001]);
+        let other = DepthBias::zeros(1, 1, 4, 2).unwrap();
+        assert!(a.plus(&other).unwrap_err().to_string().contains("1x1 grid"));
     }
 
     #[test]

@@ -126,12 +126,12 @@ struct Sample {
 /// let wall = RawDepth::from_fn(80, 60, |_, _| 1000);
 /// let motion = Pose::from_parts(Translation3::new(0.05, 0.0, 0.0), UnitQuaternion::identity());
 /// let config = BiasFitConfig { cols: 4, rows: 3, pixel_step: 1, ..BiasFitConfig::default() };
-/// let fit = fit_depth_bias(&[wall.clone(), wall], 0.001, &camera, &[ViewPair { from: 0, to: 1, motion }], &config)?;
+/// let fit = fit_depth_bias(&[&wall, &wall], 0.001, &camera, &[ViewPair { from: 0, to: 1, motion }], &config)?;
 /// assert!(fit.bias.max_abs() < 1e-9);
 /// # Ok::<(), Box<dyn std::error::Error>>(())
 /// ```
 pub fn fit_depth_bias(
-    views: &[RawDepth],
+    views: &[&RawDepth],
     metres_per_unit: f64,
     camera: &CameraModel,
     pairs: &[ViewPair],
@@ -157,7 +157,7 @@ pub fn fit_depth_bias(
 
 fn validate(
     config: &BiasFitConfig,
-    views: &[RawDepth],
+    views: &[&RawDepth],
     camera: &CameraModel,
     pairs: &[ViewPair],
 ) -> Result<(), BiasFitError> {
@@ -201,14 +201,14 @@ fn validate(
 
 /// The compared readings of one pair.
 fn compare(
-    views: &[RawDepth],
+    views: &[&RawDepth],
     unit: f64,
     camera: &CameraModel,
     pair: &ViewPair,
     config: &BiasFitConfig,
     grid: &DepthBias,
 ) -> Vec<Sample> {
-    let (from, to) = (&views[pair.from], &views[pair.to]);
+    let (from, to) = (views[pair.from], views[pair.to]);
     let (w, h) = (from.width(), from.height());
     let rotation = pair.motion.rotation;
     let reading = |d: &RawDepth, x: usize, y: usize| {
@@ -342,7 +342,8 @@ mod tests {
     #[test]
     fn the_field_of_a_biased_sensor_is_recovered_from_its_views() {
         let poses = poses();
-        let views: Vec<RawDepth> = poses.iter().map(|p| view(p, true)).collect();
+        let biased: Vec<RawDepth> = poses.iter().map(|p| view(p, true)).collect();
+        let views: Vec<&RawDepth> = biased.iter().collect();
         let pairs: Vec<ViewPair> = (0..6)
             .flat_map(|a| (0..6).map(move |b| (a, b)))
             .filter(|(a, b)| a != b)
@@ -370,6 +371,7 @@ mod tests {
         assert_eq!(with_threads(1), with_threads(3));
         // A sensor without a field gets (nearly) none.
         let clean: Vec<RawDepth> = poses.iter().map(|p| view(p, false)).collect();
+        let clean: Vec<&RawDepth> = clean.iter().collect();
         let none = fit_depth_bias(&clean, 0.001, &camera(), &pairs, &config).unwrap();
         assert!(none.bias.max_abs() < 0.0006, "{}", none.bias.max_abs());
     }
@@ -378,13 +380,12 @@ mod tests {
     fn bad_input_is_named() {
         let v = RawDepth::from_fn(320, 240, |_, _| 1000);
         let pair = ViewPair { from: 0, to: 3, motion: Pose::identity() };
-        let e =
-            fit_depth_bias(std::slice::from_ref(&v), 0.001, &camera(), &[pair], &BiasFitConfig::default()).unwrap_err();
+        let e = fit_depth_bias(&[&v], 0.001, &camera(), &[pair], &BiasFitConfig::default()).unwrap_err();
         assert!(e.to_string().contains("there are 1"), "{e}");
         let small = RawDepth::from_fn(32, 24, |_, _| 1000);
-        let e = fit_depth_bias(&[small], 0.001, &camera(), &[], &BiasFitConfig::default()).unwrap_err();
+        let e = fit_depth_bias(&[&small], 0.001, &camera(), &[], &BiasFitConfig::default()).unwrap_err();
         assert!(e.to_string().contains("32x24"), "{e}");
-        let e = fit_depth_bias(&[v], 0.001, &camera(), &[], &BiasFitConfig::default()).unwrap_err();
+        let e = fit_depth_bias(&[&v], 0.001, &camera(), &[], &BiasFitConfig::default()).unwrap_err();
         assert!(matches!(e, BiasFitError::TooFewSamples { found: 0, .. }), "{e}");
         let bad = BiasFitConfig { pixel_step: 0, ..BiasFitConfig::default() };
         assert!(fit_depth_bias(&[], 0.001, &camera(), &[], &bad).is_err());

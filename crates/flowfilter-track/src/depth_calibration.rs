@@ -11,15 +11,17 @@
 //! from the tracked motion, or overlaps too little, is left out (and reported).
 
 use crate::{TrackError, TrackState, Tracker, TrackerConfig};
-use flowfilter_pipeline::camera::DepthBias;
+use flowfilter_pipeline::camera::RayTable;
 use flowfilter_pipeline::depth::bias_fit::{BiasFit, BiasFitConfig, BiasFitError, ViewPair, fit_depth_bias};
-use flowfilter_pipeline::depth::cloud::{knn_normals, voxel_downsample};
+use flowfilter_pipeline::depth::cloud::{knn_normals, organized_cloud, voxel_downsample};
+use flowfilter_pipeline::depth::filter::metric_depth;
 use flowfilter_pipeline::registration::{
     Icp, IcpConfig, IcpVariant, Registrar, RegistrationError, RegistrationProblem,
 };
 use flowfilter_pipeline::{Pipeline, Point3, PointCloud, Pose, RawDepth, RgbdFrame, RgbdSensor};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
 
 /// How a stream calibrates its depth sensor.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -184,12 +186,16 @@ pub fn calibrate_depth(
     }
     config.validate()?;
     let tracked = track_whole_frames(frames, pipeline)?;
+    // Each tracked frame's cloud once: it is the target of one pair and the source of the next.
+    let rays = RayTable::new(&sensor.depth);
+    let clouds: BTreeMap<usize, PointCloud> =
+        tracked.par_iter().map(|&(i, _)| (i, depth_cloud(&frames[i].depth, &sensor, &rays, config))).collect();
     let mut pairs = vec![];
     let mut kept = vec![];
     for w in tracked.windows(2) {
         let ((from, pose_a), (to, pose_b)) = (w[0], w[1]);
         let motion = depth_motion(&sensor, &(pose_b * pose_a.inverse()));
-        let (pair, refined) = match refine(&frames[from].depth, &frames[to].depth, &sensor, motion, config) {
+        let (pair, refined) = match refine(&clouds[&from], &clouds[&to], motion, config) {
             Ok(Refined { pose, refinement_deg, overlap }) => {
                 let left_out = config.leaves_out(refinement_deg, overlap);
                 (CalibrationPair { from, to, refinement_deg, overlap, left_out }, pose)
@@ -204,29 +210,9 @@ pub fn calibrate_depth(
         }
         pairs.push(pair);
     }
-    let views: Vec<RawDepth> = frames.iter().map(|f| f.depth.clone()).collect();
+    let views: Vec<&RawDepth> = frames.iter().map(|f| &f.depth).collect();
     let fit = fit_depth_bias(&views, sensor.metres_per_unit, &sensor.depth, &kept, &config.fit)?;
     Ok(DepthCalibration { fit, frames_tracked: tracked.len(), frames: frames.len(), pairs })
-}
-
-impl DepthCalibration {
-    /// The field to correct the sensor's raw depth by: this fit's, added to `before` (the field
-    /// the frames were already corrected by, if any).
-    ///
-    /// # Errors
-    /// A message when `before`'s grid differs from the fit's.
-    pub fn total_bias(&self, before: Option<&DepthBias>) -> Result<DepthBias, String> {
-        let Some(before) = before else { return Ok(self.fit.bias.clone()) };
-        let b = &self.fit.bias;
-        if (before.cols, before.rows, before.width, before.height) != (b.cols, b.rows, b.width, b.height) {
-            return Err(format!(
-                "the camera's depth_bias is a {}x{} grid over {}x{}; the fit's is {}x{} over {}x{}",
-                before.cols, before.rows, before.width, before.height, b.cols, b.rows, b.width, b.height
-            ));
-        }
-        let metres = before.metres.iter().zip(&b.metres).map(|(x, y)| x + y).collect();
-        Ok(DepthBias { metres, ..b.clone() })
-    }
 }
 
 /// The frames the tracker followed (tracking or recovered) with their motion from the first
@@ -263,17 +249,13 @@ struct Refined {
     overlap: f64,
 }
 
-/// Register `from`'s readings onto `to`'s from `motion` (depth camera frames).
+/// Register `source` onto `target` (depth camera frames) from `motion`.
 fn refine(
-    from: &RawDepth,
-    to: &RawDepth,
-    sensor: &RgbdSensor,
+    source: &PointCloud,
+    target: &PointCloud,
     motion: Pose,
     config: &DepthCalibrationConfig,
 ) -> Result<Refined, RegistrationError> {
-    let source = voxel_downsample(&depth_cloud(from, sensor, config.far_m), config.voxel_m);
-    let mut target = voxel_downsample(&depth_cloud(to, sensor, config.far_m), config.voxel_m);
-    target.normals = Some(knn_normals(&target.points, 20, &Point3::origin()));
     let mut refined = Refined { pose: motion, refinement_deg: 0.0, overlap: 0.0 };
     for &gate in &config.gates_m {
         let icp = Icp::new(IcpConfig {
@@ -289,19 +271,13 @@ fn refine(
     Ok(refined)
 }
 
-/// The depth camera's readings nearer than `far_m` as points of its own frame.
-fn depth_cloud(depth: &RawDepth, sensor: &RgbdSensor, far_m: f64) -> PointCloud {
-    let (w, h) = depth.dims();
-    let points: Vec<Point3> = (0..h)
-        .into_par_iter()
-        .flat_map_iter(|y| {
-            (0..w).filter_map(move |x| {
-                let z = sensor.metric_depth(*depth.at(x, y)).filter(|&z| z < far_m)?;
-                sensor.depth.backproject(&flowfilter_pipeline::camera::Pixel::new(x as f64, y as f64), z)
-            })
-        })
-        .collect();
-    PointCloud::from_points(points)
+/// A frame's depth readings nearer than [`DepthCalibrationConfig::far_m`] as points of the
+/// depth camera's frame, on the voxel grid, with normals.
+fn depth_cloud(depth: &RawDepth, sensor: &RgbdSensor, rays: &RayTable, config: &DepthCalibrationConfig) -> PointCloud {
+    let near = metric_depth(depth, sensor.metres_per_unit).map(|&z| if f64::from(z) < config.far_m { z } else { 0.0 });
+    let mut cloud = voxel_downsample(&organized_cloud(&near, rays, None, None).0, config.voxel_m);
+    cloud.normals = Some(knn_normals(&cloud.points, 20, &Point3::origin()));
+    cloud
 }
 
 #[cfg(test)]

@@ -43,7 +43,8 @@ pub fn run(args: &CalibrateDepthArgs) -> anyhow::Result<ExitCode> {
     let text = std::fs::read_to_string(&args.camera).with_context(|| format!("reading {}", args.camera.display()))?;
     let mut json: serde_json::Value =
         serde_json::from_str(&text).with_context(|| format!("{}: not JSON", args.camera.display()))?;
-    let camera = CameraFile::from_file(&args.camera)?;
+    // The file is read once: its keys are written back beside the field.
+    let camera = CameraFile::from_json_value(&json, &args.camera.display().to_string())?;
     let mut folder = FrameFolder::open_any(&args.frames)?;
     if let Some(n) = args.max_frames {
         folder.frames.truncate(n.max(2));
@@ -66,7 +67,11 @@ pub fn run(args: &CalibrateDepthArgs) -> anyhow::Result<ExitCode> {
     let pipeline = crate::estimate::pipeline(args.config.as_deref(), None)?;
     let calibration = calibrate_depth(&frames, pipeline, &DepthCalibrationConfig::default())?;
     spinner.finish_and_clear();
-    let bias = calibration.total_bias(camera.depth_bias.as_ref()).map_err(anyhow::Error::msg)?;
+    // Frames read with a camera that had a field were corrected by it: the fit is what is left.
+    let bias = match &camera.depth_bias {
+        Some(before) => before.plus(&calibration.fit.bias).context("--camera's depth_bias")?,
+        None => calibration.fit.bias.clone(),
+    };
     json.as_object_mut()
         .context("the camera file is not a JSON object")?
         .insert("depth_bias".into(), serde_json::to_value(&bias)?);
