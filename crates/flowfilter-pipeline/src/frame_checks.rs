@@ -115,7 +115,8 @@ fn covered_fraction(mask: &Mask) -> f64 {
 }
 
 /// Whether a frame came without an object mask: its mask covers (nearly) the whole image, or
-/// is exactly its pixels with depth (what a frame of registered depth gets without a mask).
+/// is exactly its pixels with depth (what a frame of registered depth got without a mask before
+/// masks covered the whole image).
 pub fn is_unmasked(frame: &RgbdFrame) -> bool {
     let mask = frame.mask.as_slice();
     covered_fraction(&frame.mask) >= FULL_MASK_FRACTION

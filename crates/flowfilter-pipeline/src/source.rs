@@ -5,7 +5,7 @@
 //! - Colour: any PNG or JPEG (converted to 8-bit RGB).
 //! - Depth: a 16-bit single-channel PNG, metres = value x the camera file's depth unit; 0 = no
 //!   reading. Other depth encodings are refused with a message.
-//! - Mask, on the colour image's grid: none (the object is then every pixel with depth: the whole
+//! - Mask, on the colour image's grid: none (the object is then the whole image: the whole
 //!   visible scene, so the registration aligns the scene, not the object), a binary PNG (any
 //!   non-zero value is the object), or a label image (8- or 16-bit PNG) and the object's id.
 //! - Camera: a [`CameraFile`] (this project's JSON, a BOP `scene_camera.json` entry or
@@ -23,7 +23,7 @@ use std::path::{Path, PathBuf};
 /// Where a frame's object mask comes from.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum MaskSource {
-    /// No mask: every pixel with depth.
+    /// No mask: the whole image (the scene).
     None,
     /// A binary image: non-zero pixels are the object.
     Binary(PathBuf),

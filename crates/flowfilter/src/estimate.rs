@@ -44,7 +44,7 @@ pub struct EstimateArgs {
     #[arg(long)]
     pub model_depth: Option<PathBuf>,
     /// Object mask of the model frame: a binary PNG, or a label image with --label. Without a
-    /// mask the object is every pixel with depth (the registration then aligns the whole scene).
+    /// mask the object is the whole image (the registration then aligns the whole scene).
     #[arg(long)]
     pub model_mask: Option<PathBuf>,
     /// Colour image of the target frame.
