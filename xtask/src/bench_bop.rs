@@ -8,7 +8,7 @@
 //! 1, 5, 10 are 3, 15 and 30 degrees) and scene `100 + k` (camera NP2, angles 0, 0.25, ..., 2.5:
 //! 0.25, 1.25 and 2.5 degrees), with Carmine depth noise and the real-sensor frame effects.
 
-use crate::dataset::{BopSceneSpec, DefaultObject, SceneSensor, embedded_objects, ensure_bop_scene};
+use crate::dataset::{BopSceneSpec, DefaultObject, SensorProfile, embedded_objects, ensure_bop_scene};
 use crate::pairs::{Methods, PairJob, PairResult, RunArgs, progress};
 use crate::report::{ReportSpec, ShardRun, write_outputs};
 use crate::sequence::{Sequence, is_sequence, open_sequence};
@@ -17,8 +17,6 @@ use crate::{dir_name, in_repo};
 use anyhow::{Context, bail};
 use clap::Args;
 use flowfilter_bigbird::SensorId;
-use flowfilter_pipeline::RgbdFrame;
-use flowfilter_synth::NetworkMaskModel;
 use rayon::prelude::*;
 use std::collections::BTreeMap;
 use std::fmt;
@@ -65,46 +63,6 @@ pub struct BopBenchArgs {
     /// Outputs, voxel size, check.
     #[command(flatten)]
     pub run: RunArgs,
-}
-
-/// The sensor of the embedded scenes (`--sensor-profile`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum SensorProfile {
-    /// The default dataset's Carmine-like sensor.
-    Carmine,
-    /// A twin of the shared SR300 shelf sequences' sensor and masks.
-    Sr300Shelf,
-}
-
-impl SensorProfile {
-    fn sensor(self) -> SceneSensor {
-        match self {
-            Self::Carmine => SceneSensor::carmine(),
-            Self::Sr300Shelf => SceneSensor::sr300_shelf(),
-        }
-    }
-
-    /// Cache folder of the embedded scenes.
-    fn folder(self, quick: bool) -> &'static str {
-        match (self, quick) {
-            (Self::Carmine, true) => "bop-quick",
-            (Self::Carmine, false) => "bop-default",
-            (Self::Sr300Shelf, true) => "bop-sr300-shelf-quick",
-            (Self::Sr300Shelf, false) => "bop-sr300-shelf",
-        }
-    }
-
-    /// The frame's mask as this sensor's segmentation gives it.
-    fn mask(self, frame: &mut RgbdFrame, scene: &str, key: BopKey) {
-        if self == Self::Sr300Shelf {
-            let seed = crate::bench_real::seed_of(scene, 0, &[u64::from(key.im_id), u64::from(key.obj_id)]);
-            if let Some(mask) =
-                crate::realsense::network_mask(&frame.mask, &NetworkMaskModel::SHELF_NETWORK, seed, true)
-            {
-                frame.mask = mask;
-            }
-        }
-    }
 }
 
 /// A frame of a scene: an image and the object whose mask it uses.
@@ -157,7 +115,7 @@ pub fn run(args: &BopBenchArgs) -> anyhow::Result<()> {
         let profile = if args.data.is_none() { args.sensor_profile } else { SensorProfile::Carmine };
         let load = |k: BopKey| {
             scene.frame(k.im_id, k.obj_id).map(|mut f| {
-                profile.mask(&mut f, &label, k);
+                profile.mask(&mut f, &label, (k.im_id, k.obj_id));
                 f
             })
         };
@@ -421,7 +379,7 @@ mod tests {
         // The network's defects move the masks the pipeline is given.
         let frame = open_sequence(&scene).unwrap().frame(0, 1).unwrap();
         let mut defective = frame.clone();
-        args.sensor_profile.mask(&mut defective, "000001", BopKey { im_id: 0, obj_id: 1 });
+        args.sensor_profile.mask(&mut defective, "000001", (0, 1));
         assert_eq!(defective.mask.dims(), frame.mask.dims());
         assert_ne!(defective.mask.as_slice(), frame.mask.as_slice());
     }
@@ -438,7 +396,8 @@ mod tests {
         let tmp = tempfile::tempdir().unwrap();
         let object = &embedded_objects(true, None)[0];
         let spec = BopSceneSpec { scene_id: 1, sensor: SensorId::new(3).unwrap(), angles_deg: vec![0.0, 3.0] };
-        let dir = ensure_bop_scene(tmp.path(), object, 1, &spec, 7, &SceneSensor::sr300_shelf()).unwrap();
+        let sensor = crate::dataset::SceneSensor::sr300_shelf();
+        let dir = ensure_bop_scene(tmp.path(), object, 1, &spec, 7, &sensor).unwrap();
         let scene = BopScene::open(&dir).unwrap();
         let (model, masked) = (scene.frame(0, 1).unwrap(), scene.frame(1, 1).unwrap());
         let mut files = scene.files(1, 1).unwrap();

@@ -173,6 +173,50 @@ impl SceneSensor {
     }
 }
 
+/// The sensor of the embedded scenes (`--sensor-profile`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum SensorProfile {
+    /// The default dataset's Carmine-like sensor.
+    Carmine,
+    /// A twin of the shared SR300 shelf sequences' sensor and masks.
+    Sr300Shelf,
+}
+
+impl SensorProfile {
+    /// The sensor's noise, effects and camera.
+    pub fn sensor(self) -> SceneSensor {
+        match self {
+            Self::Carmine => SceneSensor::carmine(),
+            Self::Sr300Shelf => SceneSensor::sr300_shelf(),
+        }
+    }
+
+    /// Cache folder of the embedded scenes.
+    pub fn folder(self, quick: bool) -> &'static str {
+        match (self, quick) {
+            (Self::Carmine, true) => "bop-quick",
+            (Self::Carmine, false) => "bop-default",
+            (Self::Sr300Shelf, true) => "bop-sr300-shelf-quick",
+            (Self::Sr300Shelf, false) => "bop-sr300-shelf",
+        }
+    }
+
+    /// The frame's mask as this sensor's segmentation gives it.
+    pub fn mask(self, frame: &mut flowfilter_pipeline::RgbdFrame, scene: &str, (im_id, obj_id): (u32, u32)) {
+        if self == Self::Sr300Shelf {
+            let seed = crate::bench_real::seed_of(scene, 0, &[u64::from(im_id), u64::from(obj_id)]);
+            if let Some(mask) = crate::realsense::network_mask(
+                &frame.mask,
+                &flowfilter_synth::NetworkMaskModel::SHELF_NETWORK,
+                seed,
+                true,
+            ) {
+                frame.mask = mask;
+            }
+        }
+    }
+}
+
 /// The SR300 of the shared shelf sequences: their `camera.json` (640 x 480 colour at 612 px,
 /// depth at 477 px, the extrinsic), 1 mm depth units.
 fn sr300_rgbd() -> anyhow::Result<RgbdSensor> {
