@@ -29,15 +29,15 @@ pub fn fill_holes_in_place(depth: &mut DepthMap, mask: &Mask, cfg: &Interpolatio
 /// 70% holes) the walks took 14 ms, the passes 2 ms.
 fn reach_along(valid: impl Fn(usize) -> bool, n: usize, r: usize, back: &mut [u16], ahead: &mut [u16]) {
     let mut last: Option<usize> = None;
-    for i in 0..n {
-        back[i] = last.map_or(0, |j| if i - j <= r { (i - j) as u16 } else { 0 });
+    for (i, out) in back.iter_mut().enumerate().take(n) {
+        *out = last.map_or(0, |j| if i - j <= r { (i - j) as u16 } else { 0 });
         if valid(i) {
             last = Some(i);
         }
     }
     last = None;
-    for i in (0..n).rev() {
-        ahead[i] = last.map_or(0, |j| if j - i <= r { (j - i) as u16 } else { 0 });
+    for (i, out) in ahead.iter_mut().enumerate().take(n).rev() {
+        *out = last.map_or(0, |j| if j - i <= r { (j - i) as u16 } else { 0 });
         if valid(i) {
             last = Some(i);
         }
