@@ -401,8 +401,16 @@ fn track(pipeline: Pipeline, config: &TrackerConfig, s: &Stream) -> StreamResult
     let mut references = vec![None];
     match Tracker::new(pipeline, config.clone(), &s.frames[0]) {
         Ok(mut tracker) => {
-            for f in &s.frames[1..] {
-                let r = tracker.update(Ok(f.clone()));
+            // Frame k + 1 is prepared while frame k is estimated, as `flowfilter track` does.
+            let preparer = tracker.preparer();
+            let mut next = s.frames.get(1).map(|f| preparer.prepare(Ok(f.clone())));
+            for k in 1..s.frames.len() {
+                let Some(ready) = next.take() else { break };
+                let (r, upcoming) = rayon::join(
+                    || tracker.update_prepared(ready),
+                    || s.frames.get(k + 1).map(|f| preparer.prepare(Ok(f.clone()))),
+                );
+                next = upcoming;
                 poses.push(r.pose);
                 states.push(r.state);
                 reasons.push(r.reason.unwrap_or_default());

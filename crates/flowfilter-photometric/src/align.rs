@@ -385,10 +385,16 @@ pub fn align(
     if !cfg.symmetric {
         return Alignment::new(model, target, cfg)?.run(start);
     }
-    // Each frame's textures serve both ways.
-    let (model_levels, target_levels) = (LevelTextures::new(model, cfg), LevelTextures::new(target, cfg));
-    let forward = Alignment::with_textures(model, &model_levels, target, &target_levels, cfg)?;
-    let Some(backward) = Alignment::with_textures(target, &target_levels, model, &model_levels, cfg) else {
+    // Each frame's textures serve both ways; the two ways run side by side (each step of
+    // either is the same whatever the thread count).
+    let (model_levels, target_levels) =
+        rayon::join(|| LevelTextures::new(model, cfg), || LevelTextures::new(target, cfg));
+    let (forward, backward) = rayon::join(
+        || Alignment::with_textures(model, &model_levels, target, &target_levels, cfg),
+        || Alignment::with_textures(target, &target_levels, model, &model_levels, cfg),
+    );
+    let forward = forward?;
+    let Some(backward) = backward else {
         return forward.run(start);
     };
     let back_start = start.inverse();
@@ -396,10 +402,12 @@ pub fn align(
         return forward.run(start);
     };
     // The shear is kept both ways or neither, on the evidence of both.
-    let (fd, bd) = (forward.descents(start, fwd_scales), backward.descents(&back_start, bwd_scales));
+    let (fd, bd) = rayon::join(|| forward.descents(start, fwd_scales), || backward.descents(&back_start, bwd_scales));
     let keep = fd.shear_evidence() + bd.shear_evidence() > chi_square_95(4.0);
-    let (forward_pose, report) = forward.finish(start, fwd_scales, fd.chosen(keep));
-    let (back_pose, back_report) = backward.finish(&back_start, bwd_scales, bd.chosen(keep));
+    let ((forward_pose, report), (back_pose, back_report)) = rayon::join(
+        || forward.finish(start, fwd_scales, fd.chosen(keep)),
+        || backward.finish(&back_start, bwd_scales, bd.chosen(keep)),
+    );
     let back = back_report.accepted.then(|| back_pose.inverse());
     let pose = match back {
         Some(back) if report.accepted => midpoint(&forward_pose, &back),

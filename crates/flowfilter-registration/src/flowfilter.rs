@@ -474,12 +474,57 @@ impl FlowFilter {
         if cfg.mode == FlowFilterMode::FlowOnly {
             return Ok(Solved::by_flow(flow_only(pose, agreeing, pairs.len())));
         }
-        let flow_result = self.filterreg_from_flow(p, pairs, pose, inliers)?;
         let settled = chosen.is_some_and(|c| self.config.settles(c.index, agreeing, usable, &pose));
         if !cfg.geometric_check || settled {
-            return Ok(Solved::by_flow(flow_result));
+            return Ok(Solved::by_flow(self.filterreg_from_flow(p, pairs, pose, inliers)?));
         }
-        self.verify(p, pose, flow_result)
+        // The flow result and the flow-free registrations the checks weigh it against do not
+        // depend on one another: they run side by side.
+        let plain = p.geometry_only();
+        let ((flow_result, local), (from_init, icp)) = rayon::join(
+            || rayon::join(|| self.filterreg_from_flow(p, pairs, pose, inliers), || self.local(p, pose)),
+            || rayon::join(|| self.from_init(&plain, p), || self.motion_icp(&plain)),
+        );
+        let alternatives = FlowFree { from_init: from_init?, icp: icp?, local: local? };
+        self.verify(p, &plain, flow_result?, alternatives)
+    }
+
+    /// The clouds alone registered from the initial pose (the prior, when the problem has one).
+    fn from_init(
+        &self,
+        plain: &RegistrationProblem,
+        p: &RegistrationProblem,
+    ) -> Result<Registration, RegistrationError> {
+        match &p.prior {
+            Some(prior) => Ok(prior.clone()),
+            None => FilterReg::new(self.geometric_config(p))?.register(plain),
+        }
+    }
+
+    /// Point-to-plane ICP from the initial pose for the motion check (none when the check is
+    /// off, has no ICP gate or the target has no normals).
+    fn motion_icp(&self, plain: &RegistrationProblem) -> Result<Option<Registration>, RegistrationError> {
+        let cfg = &self.config;
+        if cfg.motion_margin_deg < 0.0 || cfg.motion_icp_distance_m <= 0.0 || plain.target.normals.is_none() {
+            return Ok(None);
+        }
+        let icp = Icp::new(IcpConfig {
+            variant: IcpVariant::PointToPlane,
+            max_correspondence_distance: cfg.motion_icp_distance_m,
+            max_iterations: 50,
+            ..IcpConfig::default()
+        })?;
+        icp.register(plain).map(Some)
+    }
+
+    /// FilterReg from the flow pose without the flow term, for the fit check (joint mode only).
+    fn local(&self, p: &RegistrationProblem, pose: Pose) -> Result<Option<Registration>, RegistrationError> {
+        if self.config.mode != FlowFilterMode::Joint {
+            return Ok(None);
+        }
+        let mut local_cfg = self.geometric_config(p);
+        local_cfg.init_sigma2.get_or_insert(1e-4);
+        FilterReg::new(local_cfg)?.register(&p.geometry_only().with_init(pose)).map(Some)
     }
 
     /// No trusted flow: plain FilterReg on the problem, flagged.
@@ -528,13 +573,14 @@ impl FlowFilter {
         FilterReg::new(fr_cfg)?.register(&problem)
     }
 
-    /// Geometric verification of the flow result against flow-free alternatives: the motion
-    /// check first, then the fit check.
+    /// Geometric verification of the flow result against the flow-free registrations: the
+    /// motion check first, then the fit check.
     fn verify(
         &self,
         p: &RegistrationProblem,
-        pose: Pose,
+        plain: &RegistrationProblem,
         flow_result: Registration,
+        flow_free: FlowFree,
     ) -> Result<Solved, RegistrationError> {
         let cfg = &self.config;
         let index = KnnIndex::new(&p.target.points);
@@ -542,23 +588,15 @@ impl FlowFilter {
         let score = |r: &Registration| {
             visible_residual(&p.source.points, normals, &index, &r.transform, cfg.geometric_tau_m, 0.3)
         };
-        // The clouds alone, copied once for every flow-free registration below.
-        let plain = p.geometry_only();
-        let from_init = match &p.prior {
-            Some(prior) => prior.clone(),
-            None => FilterReg::new(self.geometric_config(p))?.register(&plain)?,
-        };
+        let FlowFree { from_init, icp, local } = flow_free;
         let s_flow = score(&flow_result);
         if cfg.motion_margin_deg >= 0.0
-            && let Some(r) = self.motion_check(&plain, &from_init, &flow_result, s_flow, &score)?
+            && let Some(r) = self.motion_check(plain, &from_init, icp, &flow_result, s_flow, &score)
         {
             return Ok(Solved { registration: r, flow_used: true, overruled: Some(flow_result.transform) });
         }
         let mut alternatives = vec![("FilterReg from the initial pose", from_init)];
-        if cfg.mode == FlowFilterMode::Joint {
-            let mut local_cfg = self.geometric_config(p);
-            local_cfg.init_sigma2.get_or_insert(1e-4);
-            let local = FilterReg::new(local_cfg)?.register(&plain.with_init(pose))?;
+        if let Some(local) = local {
             alternatives.push(("FilterReg from the flow pose without the flow term", local));
         }
         let flow_pose = flow_result.transform;
@@ -568,37 +606,30 @@ impl FlowFilter {
     }
 
     /// The motion check (see [`FlowFilterConfig::motion_margin_deg`]) on the clouds alone
-    /// (`plain`): the geometric registration from the initial pose (FilterReg, and point-to-plane ICP) that qualifies
-    /// and moved furthest, if any.
+    /// (`plain`): the geometric registration from the initial pose (FilterReg, and point-to-plane
+    /// ICP where it ran) that qualifies and moved furthest, if any.
     fn motion_check(
         &self,
         plain: &RegistrationProblem,
         from_init: &Registration,
+        icp: Option<Registration>,
         flow_result: &Registration,
         s_flow: f64,
         score: &dyn Fn(&Registration) -> f64,
-    ) -> Result<Option<Registration>, RegistrationError> {
+    ) -> Option<Registration> {
         let cfg = &self.config;
         let angle = |r: &Registration| (plain.init.inverse() * r.transform).rotation.angle().to_degrees();
         // Point-to-plane ICP's hard gate holds on to small asymmetric features, such as a mug's
         // handle, that the GMM's wide kernels average away.
         let mut candidates = vec![("FilterReg from the initial pose", from_init.clone())];
-        if cfg.motion_icp_distance_m > 0.0 && plain.target.normals.is_some() {
-            let icp = Icp::new(IcpConfig {
-                variant: IcpVariant::PointToPlane,
-                max_correspondence_distance: cfg.motion_icp_distance_m,
-                max_iterations: 50,
-                ..IcpConfig::default()
-            })?;
-            candidates.push(("point-to-plane ICP from the initial pose", icp.register(plain)?));
-        }
+        candidates.extend(icp.map(|r| ("point-to-plane ICP from the initial pose", r)));
         let flow_moved = angle(flow_result);
         let winner = candidates
             .into_iter()
             .map(|(name, r)| (score(&r), angle(&r), name, r))
             .filter(|(s, moved, _, _)| cfg.motion_wins((*s, *moved), (s_flow, flow_moved)))
             .max_by(|a, b| a.1.total_cmp(&b.1));
-        Ok(winner.map(|(s, moved, kept, mut r)| {
+        winner.map(|(s, moved, kept, mut r)| {
             r.warnings.push(RegistrationWarning::MotionCheck {
                 kept,
                 moved_deg: moved,
@@ -607,7 +638,7 @@ impl FlowFilter {
                 flow_residual_m: s_flow,
             });
             r
-        }))
+        })
     }
 
     /// The fit check: the best-fitting alternative replaces the flow result only when it fits
@@ -632,6 +663,16 @@ impl FlowFilter {
         }
         flow_result
     }
+}
+
+/// The flow-free registrations the checks weigh the flow result against.
+struct FlowFree {
+    /// The clouds alone from the initial pose.
+    from_init: Registration,
+    /// Point-to-plane ICP from the initial pose (the motion check's), where it ran.
+    icp: Option<Registration>,
+    /// FilterReg from the flow pose without the flow term (joint mode).
+    local: Option<Registration>,
 }
 
 /// How far apart two poses are: the angle of the rotation between them (degrees) and the distance

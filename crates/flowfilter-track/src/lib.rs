@@ -25,4 +25,6 @@ mod tracker;
 pub mod tum;
 
 pub use folder::{FolderError, FrameEntry, FrameFolder};
-pub use tracker::{TracedPair, TrackError, TrackState, TrackedFrame, Tracker, TrackerConfig};
+pub use tracker::{
+    ReadyFrame, StreamPreparer, TracedPair, TrackError, TrackState, TrackedFrame, Tracker, TrackerConfig,
+};

@@ -8,6 +8,7 @@ use flowfilter_pipeline::{
     RegistrationWarning, RgbdFrame, StageTimes,
 };
 use serde::{Deserialize, Serialize};
+use std::sync::Arc;
 
 /// How the tracker keeps keyframes and carries the mask.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -224,7 +225,7 @@ pub enum TrackError {
 /// back to the previous frame), and gets a state and a reason; after a loss every keyframe is
 /// tried.
 pub struct Tracker {
-    pipeline: Pipeline,
+    pipeline: Arc<Pipeline>,
     config: TrackerConfig,
     keyframes: Vec<Keyframe>,
     current: usize,
@@ -239,6 +240,41 @@ pub struct Tracker {
     velocity: Pose,
     lost: bool,
     uncertain_run: usize,
+}
+
+/// Prepares a stream's frames for its [`Tracker`] ([`Tracker::preparer`]); cheap to clone,
+/// usable from another thread.
+#[derive(Clone)]
+pub struct StreamPreparer {
+    pipeline: Arc<Pipeline>,
+    size: (usize, usize),
+}
+
+/// A frame prepared by a [`StreamPreparer`], or why it could not be (its file could not be read,
+/// another size than the stream's, no usable depth).
+pub struct ReadyFrame {
+    label: Option<String>,
+    prepared: Result<PreparedFrame, String>,
+}
+
+impl StreamPreparer {
+    /// The frame prepared as [`Tracker::update`] prepares it (never fails: a frame that cannot
+    /// be used carries the reason, and the tracker reports it `lost`).
+    pub fn prepare(&self, frame: Result<RgbdFrame, String>) -> ReadyFrame {
+        let label = frame.as_ref().ok().map(|f| f.label.clone());
+        ReadyFrame { label, prepared: frame.and_then(|f| self.prepare_frame(&f)) }
+    }
+
+    fn prepare_frame(&self, frame: &RgbdFrame) -> Result<PreparedFrame, String> {
+        let size = (frame.color.width() as usize, frame.color.height() as usize);
+        if size != self.size {
+            return Err(format!(
+                "a frame of another size: {}x{}, the stream's is {}x{}",
+                size.0, size.1, self.size.0, self.size.1
+            ));
+        }
+        self.pipeline.prepare(frame).map_err(|e| e.to_string())
+    }
 }
 
 impl Tracker {
@@ -276,7 +312,7 @@ impl Tracker {
         let size = frame.gray.dims();
         let previous = Previous { index: 0, frame: frame.clone(), pose: Pose::identity() };
         Ok(Self {
-            pipeline,
+            pipeline: Arc::new(pipeline),
             config,
             keyframes: vec![Keyframe { index: 0, frame, pose: Pose::identity() }],
             current: 0,
@@ -311,11 +347,24 @@ impl Tracker {
     /// The next frame of the stream, or why it could not be read (a missing file): its result.
     /// Never fails: a frame that cannot be used is `lost`, with the reason.
     pub fn update(&mut self, frame: Result<RgbdFrame, String>) -> TrackedFrame {
+        let ready = self.preparer().prepare(frame);
+        self.update_prepared(ready)
+    }
+
+    /// A handle that prepares frames as [`Tracker::update`] does, apart from the tracker: a
+    /// stream's next frame can be read and prepared on another thread while the tracker
+    /// estimates the one before ([`Tracker::update_prepared`]; what `flowfilter track` does).
+    /// The results are the same as `update`'s.
+    pub fn preparer(&self) -> StreamPreparer {
+        StreamPreparer { pipeline: Arc::clone(&self.pipeline), size: self.size }
+    }
+
+    /// [`Tracker::update`] for a frame its [`Tracker::preparer`] prepared.
+    pub fn update_prepared(&mut self, ready: ReadyFrame) -> TrackedFrame {
         let index = self.next;
         self.next += 1;
-        let label = frame.as_ref().map_or_else(|_| format!("#{index}"), |f| f.label.clone());
-        let prepared = frame.and_then(|f| self.prepare(&f));
-        let result = match prepared {
+        let label = ready.label.unwrap_or_else(|| format!("#{index}"));
+        let result = match ready.prepared {
             Ok(target) => self.track(index, target),
             Err(reason) => self.lose(index, reason),
         };
@@ -330,17 +379,6 @@ impl Tracker {
     /// Keyframes held now (stream indices).
     pub fn keyframes(&self) -> Vec<usize> {
         self.keyframes.iter().map(|k| k.index).collect()
-    }
-
-    fn prepare(&self, frame: &RgbdFrame) -> Result<PreparedFrame, String> {
-        let size = (frame.color.width() as usize, frame.color.height() as usize);
-        if size != self.size {
-            return Err(format!(
-                "a frame of another size: {}x{}, the stream's is {}x{}",
-                size.0, size.1, self.size.0, self.size.1
-            ));
-        }
-        self.pipeline.prepare(frame).map_err(|e| e.to_string())
     }
 
     /// The frame estimated against its candidates, its state decided, the keyframes updated:

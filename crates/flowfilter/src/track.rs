@@ -124,11 +124,21 @@ pub fn run(args: &TrackArgs) -> anyhow::Result<ExitCode> {
     bar.set_message("track");
     let mut out: Vec<TrackedFrame> = vec![tracker.first()];
     crate::progress::advance(&bar, 1);
-    for (i, entry) in folder.frames.iter().enumerate().skip(1) {
+    // Frame i + 1 is read and prepared while frame i is estimated.
+    let preparer = tracker.preparer();
+    let keep_colour = args.viz.is_some() || recording.is_some();
+    let read = |entry: &FrameEntry| {
         let frame = load(entry, &camera, MaskSource::None).map_err(|e| format!("{e:#}"));
-        colours.push(recording.as_ref().and_then(|_| frame.as_ref().ok().map(|f| f.color.clone())));
-        let colour = frame.as_ref().ok().filter(|_| args.viz.is_some()).map(|f| f.color.clone());
-        let mut tracked = tracker.update(frame);
+        let colour = frame.as_ref().ok().filter(|_| keep_colour).map(|f| f.color.clone());
+        (colour, preparer.prepare(frame))
+    };
+    let mut next = folder.frames.get(1).map(read);
+    for (i, entry) in folder.frames.iter().enumerate().skip(1) {
+        let Some((colour, ready)) = next.take() else { break };
+        let (mut tracked, upcoming) =
+            rayon::join(|| tracker.update_prepared(ready), || folder.frames.get(i + 1).map(read));
+        next = upcoming;
+        colours.push(recording.as_ref().and(colour.clone()));
         if let (Some(dir), Some(colour)) = (&args.viz, colour) {
             let first = tracker.first_frame();
             let image =
