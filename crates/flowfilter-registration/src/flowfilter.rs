@@ -483,7 +483,7 @@ impl FlowFilter {
         let plain = p.geometry_only();
         let ((flow_result, local), (from_init, icp)) = rayon::join(
             || rayon::join(|| self.filterreg_from_flow(p, pairs, pose, inliers), || self.local(p, pose)),
-            || rayon::join(|| self.from_init(&plain, p), || self.motion_icp(&plain)),
+            || rayon::join(|| self.geometry_from_init(&plain, p), || self.motion_icp(&plain)),
         );
         let alternatives = FlowFree { from_init: from_init?, icp: icp?, local: local? };
         self.verify(p, &plain, flow_result?, alternatives)
