@@ -490,7 +490,7 @@ impl FlowFilter {
     }
 
     /// The clouds alone registered from the initial pose (the prior, when the problem has one).
-    fn from_init(
+    fn geometry_from_init(
         &self,
         plain: &RegistrationProblem,
         p: &RegistrationProblem,
