@@ -55,3 +55,34 @@ fn a_registered_sensor_still_checks_sizes() {
     let e = DepthStage::new(DepthConfig::default()).unwrap().process(&small, &color, &mask, &sensor).unwrap_err();
     assert!(e.to_string().contains("depth image") && e.to_string().contains("160x120"), "{e}");
 }
+
+/// A whole-image mask on a frame whose readings cover only part of it (a scene's object and
+/// table, the rest too far for the sensor): the stage works on the box of the readings, and
+/// still gives every pixel the fill reaches from them. With the nearest-sample fill, holes up
+/// to its radius beyond the readings' edge are filled; none further out.
+#[test]
+fn a_whole_mask_keeps_what_the_fill_reaches_beyond_the_readings() {
+    let (sensor, raw, _, color, _) = frame();
+    let readings =
+        RawDepth::from_fn(
+            160,
+            120,
+            |x, y| {
+                if (60..100).contains(&x) && (40..80).contains(&y) { *raw.at(x, y) } else { 0 }
+            },
+        );
+    let whole = Mask::filled(160, 120, true);
+    let mut cfg = DepthConfig::default();
+    cfg.interpolation.method = flowfilter_depth::InterpolationMethod::Nearest;
+    let r = cfg.interpolation.max_radius_px;
+    let out = DepthStage::new(cfg.clone()).unwrap().process(&readings, &color, &whole, &sensor).unwrap();
+    assert!(*out.depth.at(60 - r, 60) > 0.0 && *out.depth.at(99 + r, 60) > 0.0, "filled up to the radius along rows");
+    assert!(*out.depth.at(80, 40 - r) > 0.0 && *out.depth.at(80, 79 + r) > 0.0, "and along columns");
+    assert_eq!(*out.depth.at(60 - r - 1, 60), 0.0);
+    assert_eq!(*out.depth.at(80, 79 + r + 1), 0.0);
+    // The same depth and cloud as with a mask that covers only the readings' reach.
+    let near = Mask::from_fn(160, 120, |x, y| (60 - r..100 + r).contains(&x) && (40 - r..80 + r).contains(&y));
+    let cut = DepthStage::new(cfg).unwrap().process(&readings, &color, &near, &sensor).unwrap();
+    assert_eq!(out.depth.as_slice(), cut.depth.as_slice());
+    assert_eq!(out.cloud.points, cut.cloud.points);
+}
