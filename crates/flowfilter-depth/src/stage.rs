@@ -104,7 +104,7 @@ fn reading_box(
         let (m, d) = (&mask.row(y)[x0..=x1], &raw.row(y)[x0..=x1]);
         let mut hits = m.iter().zip(d).enumerate().filter(|(_, (m, d))| **m && **d > 0).map(|(i, _)| x0 + i);
         let Some(first) = hits.next() else { continue };
-        let last = hits.last().unwrap_or(first);
+        let last = hits.next_back().unwrap_or(first);
         found = Some(match found {
             None => (first, y, last, y),
             Some((a, b, c, _)) => (a.min(first), b, c.max(last), y),
