@@ -117,8 +117,8 @@ class Frame:
     ) -> None:
         """A frame from arrays (or `open3d.geometry.Image`s). `depth_scale`: raw units per metre for uint16 depth (Open3D's
         convention: 1000.0 for millimetres); without it the camera's depth unit applies. Float
-        depth is metres (NaN, inf and 0: no reading). Without a mask the object is every pixel
-        with depth."""
+        depth is metres (NaN, inf and 0: no reading). Without a mask the object is the whole
+        image."""
     @property
     def name(self) -> str:
         """The frame's name."""
