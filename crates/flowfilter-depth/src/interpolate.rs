@@ -44,6 +44,26 @@ fn reach_along(valid: impl Fn(usize) -> bool, n: usize, r: usize, back: &mut [u1
     }
 }
 
+/// A hole's value from the nearest samples left, right, up and down (`(steps, depth)`, `None`
+/// where none is within reach): the nearest one's (ties in that order), or, linearly, the mean
+/// of the row's and the column's interpolations whose two samples differ by at most `step`
+/// (0: none).
+fn fill_value(dirs: &[Option<(f32, f32)>; 4], method: InterpolationMethod, step: f32) -> f32 {
+    if method == InterpolationMethod::Nearest {
+        return dirs.iter().flatten().min_by(|a, b| a.0.total_cmp(&b.0)).map_or(0.0, |&(_, z)| z);
+    }
+    let mut acc = (0.0f32, 0u32);
+    for (a, b) in [(dirs[0], dirs[1]), (dirs[2], dirs[3])] {
+        if let (Some((da, za)), Some((db, zb))) = (a, b)
+            && (za - zb).abs() <= step
+        {
+            acc.0 += za + (zb - za) * da / (da + db);
+            acc.1 += 1;
+        }
+    }
+    if acc.1 > 0 { acc.0 / acc.1 as f32 } else { 0.0 }
+}
+
 /// [`reach_along`] for columns `xs` of the `w`-wide map `src` over rows `ys` (inclusive), row
 /// by row (the map's order): the reaches up and down, `(rows, columns)` row-major.
 fn column_reaches(
@@ -116,23 +136,7 @@ pub(crate) fn fill_holes_in(
                     sample(du, k.wrapping_sub(usize::from(du) * w)),
                     sample(dd, k + usize::from(dd) * w),
                 ];
-                let z = match cfg.method {
-                    InterpolationMethod::Nearest => {
-                        dirs.iter().flatten().min_by(|a, b| a.0.total_cmp(&b.0)).map_or(0.0, |&(_, z)| z)
-                    }
-                    _ => {
-                        let mut acc = (0.0f32, 0u32);
-                        for (a, b) in [(dirs[0], dirs[1]), (dirs[2], dirs[3])] {
-                            if let (Some((da, za)), Some((db, zb))) = (a, b)
-                                && (za - zb).abs() <= step
-                            {
-                                acc.0 += za + (zb - za) * da / (da + db);
-                                acc.1 += 1;
-                            }
-                        }
-                        if acc.1 > 0 { acc.0 / acc.1 as f32 } else { 0.0 }
-                    }
-                };
+                let z = fill_value(&dirs, cfg.method, step);
                 if z > 0.0 {
                     row.push((k, z));
                 }
@@ -152,7 +156,7 @@ mod tests {
     use super::*;
 
     /// The fill by its definition: from every hole, a walk each way to the nearest original
-    /// sample within the radius.
+    /// sample within the radius (the samples then combined as the stage combines them).
     fn fill_by_walks(depth: &DepthMap, mask: &Mask, cfg: &InterpolationConfig) -> DepthMap {
         let (w, h) = depth.dims();
         let src = depth.as_slice();
@@ -172,23 +176,7 @@ mod tests {
                 return z;
             }
             let dirs = [(-1, 0), (1, 0), (0, -1), (0, 1)].map(|d| walk(x, y, d));
-            match cfg.method {
-                InterpolationMethod::Nearest => {
-                    dirs.iter().flatten().min_by(|a, b| a.0.total_cmp(&b.0)).map_or(0.0, |&(_, z)| z)
-                }
-                _ => {
-                    let mut acc = (0.0f32, 0u32);
-                    for (a, b) in [(dirs[0], dirs[1]), (dirs[2], dirs[3])] {
-                        if let (Some((da, za)), Some((db, zb))) = (a, b)
-                            && (za - zb).abs() <= cfg.max_step_m as f32
-                        {
-                            acc.0 += za + (zb - za) * da / (da + db);
-                            acc.1 += 1;
-                        }
-                    }
-                    if acc.1 > 0 { acc.0 / acc.1 as f32 } else { 0.0 }
-                }
-            }
+            fill_value(&dirs, cfg.method, cfg.max_step_m as f32)
         })
     }
 

@@ -176,10 +176,8 @@ fn frames_prepared_ahead_give_the_same_track() {
     let mut got = vec![];
     for k in 0..frames.len() {
         let ready = next.take().unwrap();
-        let (r, upcoming) = rayon::join(
-            || ahead.update_prepared(ready),
-            || frames.get(k + 1).map(|f| preparer.prepare(Ok(f.clone()))),
-        );
+        let (r, upcoming) =
+            rayon::join(|| ahead.update_prepared(ready), || frames.get(k + 1).map(|f| preparer.prepare(Ok(f.clone()))));
         next = upcoming;
         got.push(r);
     }
