@@ -120,6 +120,7 @@ pub fn run(args: &TrackArgs) -> anyhow::Result<ExitCode> {
         let image = crate::estimate::overlay_cloud(&first.color, &f.sensor.color, &f.cloud.points, &Pose::identity());
         crate::save_image(&image, &dir.join(format!("{}.png", folder.frames[0].label())))?;
     }
+    let started = std::time::Instant::now();
     let bar = crate::progress::bar(folder.frames.len(), "frames");
     bar.set_message("track");
     let mut out: Vec<TrackedFrame> = vec![tracker.first()];
@@ -170,7 +171,8 @@ pub fn run(args: &TrackArgs) -> anyhow::Result<ExitCode> {
             .map(|(t, f)| tum::line(f.timestamp.unwrap_or(f.number as f64 / args.fps), &t.pose));
         write_lines(path, header.chain(lines))?;
     }
-    print_summary(&out, &folder.frames, truth.as_ref());
+    let rate = Rate { frames: out.len() - 1, seconds: started.elapsed().as_secs_f64() };
+    print_summary(&out, &folder.frames, truth.as_ref(), rate);
     Ok(ExitCode::SUCCESS)
 }
 
@@ -300,7 +302,14 @@ fn write_lines(path: &Path, lines: impl Iterator<Item = String>) -> anyhow::Resu
     .with_context(|| format!("writing {}", path.display()))
 }
 
-fn print_summary(out: &[TrackedFrame], frames: &[FrameEntry], truth: Option<&BTreeMap<u64, Pose>>) {
+/// How fast the frames after the first went through: reading, preparing and tracking them
+/// (the overlays and the recording included when asked for).
+struct Rate {
+    frames: usize,
+    seconds: f64,
+}
+
+fn print_summary(out: &[TrackedFrame], frames: &[FrameEntry], truth: Option<&BTreeMap<u64, Pose>>, rate: Rate) {
     for (t, f) in out.iter().zip(frames) {
         let state = serde_json::to_value(t.state).ok().and_then(|v| v.as_str().map(str::to_string)).unwrap_or_default();
         let error = truth.and_then(|m| m.get(&f.number)).map_or(String::new(), |g| {
@@ -317,13 +326,17 @@ fn print_summary(out: &[TrackedFrame], frames: &[FrameEntry], truth: Option<&BTr
         );
     }
     let count = |s: TrackState| out.iter().filter(|t| t.state == s).count();
+    let per_second = if rate.seconds > 0.0 { rate.frames as f64 / rate.seconds } else { 0.0 };
     println!(
-        "{} frames: {} tracking, {} uncertain, {} lost, {} recovered",
+        "{} frames: {} tracking, {} uncertain, {} lost, {} recovered; {:.1} frames per second after the first ({} in {:.2} s, reading included)",
         out.len(),
         count(TrackState::Tracking),
         count(TrackState::Uncertain),
         count(TrackState::Lost),
-        count(TrackState::Recovered)
+        count(TrackState::Recovered),
+        per_second,
+        rate.frames,
+        rate.seconds
     );
     let Some(truth) = truth else { return };
     let paired: Vec<(Pose, Pose)> =

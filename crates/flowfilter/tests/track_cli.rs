@@ -51,6 +51,7 @@ fn a_real_sequence_is_tracked_with_json_lines_and_a_tum_trajectory() {
     ]);
     assert!(ok, "{stderr}");
     assert!(stdout.contains("5 frames: ") && stdout.contains("vs ground truth (5 frames): ATE"), "{stdout}");
+    assert!(stdout.contains("frames per second after the first (4 in "), "{stdout}");
     let rows = json_lines(&json);
     assert_eq!(rows.len(), 5);
     assert_eq!(rows[0]["state"], "tracking");
