@@ -359,12 +359,17 @@ impl Tracker {
         StreamPreparer { pipeline: Arc::clone(&self.pipeline), size: self.size }
     }
 
-    /// [`Tracker::update`] for a frame its [`Tracker::preparer`] prepared.
+    /// [`Tracker::update`] for a frame its [`Tracker::preparer`] prepared (a frame prepared for
+    /// a stream of another size is `lost`, with the reason).
     pub fn update_prepared(&mut self, ready: ReadyFrame) -> TrackedFrame {
         let index = self.next;
         self.next += 1;
         let label = ready.label.unwrap_or_else(|| format!("#{index}"));
-        let result = match ready.prepared {
+        let prepared = ready.prepared.and_then(|p| match p.gray.dims() {
+            size if size == self.size => Ok(p),
+            (w, h) => Err(format!("a frame of another size: {w}x{h}, the stream's is {}x{}", self.size.0, self.size.1)),
+        });
+        let result = match prepared {
             Ok(target) => self.track(index, target),
             Err(reason) => self.lose(index, reason),
         };

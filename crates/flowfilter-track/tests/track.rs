@@ -187,4 +187,28 @@ fn frames_prepared_ahead_give_the_same_track() {
     }
     assert_eq!(got[2].state, TrackState::Lost);
     assert!(got[2].reason.as_deref().unwrap().contains("another size"), "{:?}", got[2].reason);
+    // A frame prepared for another stream (of another size) is refused the same way.
+    let small = small_frame();
+    let other =
+        Tracker::new(Pipeline::from_config(PipelineConfig::default()).unwrap(), TrackerConfig::default(), &small)
+            .unwrap();
+    let r = ahead.update_prepared(other.preparer().prepare(Ok(small)));
+    assert_eq!(r.state, TrackState::Lost);
+    assert!(r.reason.as_deref().unwrap().contains("another size: 160x120"), "{:?}", r.reason);
+}
+
+/// A 160 x 120 frame of registered depth: a textured plane 0.7 m away, a square object mask.
+fn small_frame() -> RgbdFrame {
+    use flowfilter_pipeline::camera::{CameraModel, Distortion, ImageSize, Intrinsics};
+    let size = ImageSize::new(160, 120).unwrap();
+    let camera = CameraModel::new(Intrinsics::new(150.0, 150.0, 79.5, 59.5).unwrap(), Distortion::NONE, size);
+    RgbdFrame {
+        label: "small".into(),
+        color: image::RgbImage::from_fn(160, 120, |x, y| {
+            image::Rgb([(x * 3) as u8, (y * 5) as u8, ((x * y) % 251) as u8])
+        }),
+        depth: flowfilter_geometry::RawDepth::from_fn(160, 120, |_, _| 700),
+        mask: flowfilter_geometry::Mask::from_fn(160, 120, |x, y| (40..120).contains(&x) && (30..90).contains(&y)),
+        sensor: flowfilter_pipeline::RgbdSensor::registered(camera, 1e-3).unwrap(),
+    }
 }
