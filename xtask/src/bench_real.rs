@@ -12,7 +12,9 @@
 //! and the pipeline then propagates the model's: `mask_propagated`).
 
 use crate::pairs::{Methods, PairJob, PairResult, RunArgs};
-use crate::realsense::{DepthBiasSource, PosedFrames, Region, Truth, TruthRecord, network_mask, posed_folders};
+use crate::realsense::{
+    DepthBiasSource, PosedFrames, Region, Truth, TruthRecord, network_mask, posed_folders, seed_of,
+};
 use crate::report::{ReportSpec, ShardRun, write_outputs};
 use crate::shard::Shard;
 use crate::{dir_name, in_repo};
@@ -352,20 +354,6 @@ fn sequence_dirs(args: &RealBenchArgs) -> anyhow::Result<(Vec<String>, Vec<PathB
     }
     let all = dirs.iter().map(|d| dir_name(d)).collect();
     Ok((all, args.run.shard.unwrap_or(Shard::ALL).select(&dirs), every))
-}
-
-/// A seed from a run's seed, a sequence's name and `parts` (FNV-1a: stable across platforms
-/// and releases, unlike the standard library's hasher).
-pub fn seed_of(label: &str, seed: u64, parts: &[u64]) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    let bytes = label
-        .bytes()
-        .chain(std::iter::once(0))
-        .chain(std::iter::once(seed).chain(parts.iter().copied()).flat_map(u64::to_le_bytes));
-    for b in bytes {
-        h = (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3);
-    }
-    h
 }
 
 /// What a sequence's pairs are made from.

@@ -9,9 +9,8 @@
 //! (`--ycb-video`) from its first label mask. Errors as the TUM benchmark defines them (ATE, RPE
 //! over one frame) and the last frame's rotation error (a loop's closure error).
 
-use crate::bench_real::seed_of;
 use crate::dataset::{BopSceneSpec, DefaultObject, ObjectSource, SceneSensor, SensorProfile, ensure_bop_scene};
-use crate::realsense::{DepthBiasSource, PosedFrames, Truth, TruthRecord, network_mask, posed_folders};
+use crate::realsense::{DepthBiasSource, PosedFrames, Truth, TruthRecord, network_mask, posed_folders, seed_of};
 use crate::sequence::{Sequence, YcbVideoFrames};
 use anyhow::Context;
 use clap::Args;
@@ -402,20 +401,15 @@ fn track(pipeline: Pipeline, config: &TrackerConfig, s: &Stream) -> StreamResult
     match Tracker::new(pipeline, config.clone(), &s.frames[0]) {
         Ok(mut tracker) => {
             // Frame k + 1 is prepared while frame k is estimated, as `flowfilter track` does.
-            let preparer = tracker.preparer();
-            let mut next = s.frames.get(1).map(|f| preparer.prepare(Ok(f.clone())));
-            for k in 1..s.frames.len() {
-                let Some(ready) = next.take() else { break };
-                let (r, upcoming) = rayon::join(
-                    || tracker.update_prepared(ready),
-                    || s.frames.get(k + 1).map(|f| preparer.prepare(Ok(f.clone()))),
-                );
-                next = upcoming;
+            let frames = s.frames[1..].iter().map(|f| ((), Ok(f.clone())));
+            let streamed: Result<(), std::convert::Infallible> = tracker.update_stream(frames, |(), r| {
                 poses.push(r.pose);
                 states.push(r.state);
                 reasons.push(r.reason.unwrap_or_default());
                 references.push(r.reference);
-            }
+                Ok(())
+            });
+            let Ok(()) = streamed;
         }
         Err(e) => {
             tracing::warn!(stream = %s.name, error = %e, "the tracker could not start");

@@ -204,7 +204,7 @@ impl SensorProfile {
     /// The frame's mask as this sensor's segmentation gives it.
     pub fn mask(self, frame: &mut flowfilter_pipeline::RgbdFrame, scene: &str, (im_id, obj_id): (u32, u32)) {
         if self == Self::Sr300Shelf {
-            let seed = crate::bench_real::seed_of(scene, 0, &[u64::from(im_id), u64::from(obj_id)]);
+            let seed = crate::realsense::seed_of(scene, 0, &[u64::from(im_id), u64::from(obj_id)]);
             if let Some(mask) = crate::realsense::network_mask(
                 &frame.mask,
                 &flowfilter_synth::NetworkMaskModel::SHELF_NETWORK,
@@ -241,7 +241,7 @@ pub fn sr300_depth_kept(x: usize, y: usize, seed: u64, sensor: &RgbdSensor) -> b
     let (ud, vd) = (to_depth(x as f64, c.cx, d.cx), to_depth(y as f64, c.cy, d.cy));
     let on_lattice = to_color(ud, d.cx, c.cx) == x as f64 && to_color(vd, d.cy, c.cy) == y as f64;
     let block = ((ud.max(0.0) as u64) / 4, (vd.max(0.0) as u64) / 4);
-    let h = crate::bench_real::seed_of("sr300 depth", seed, &[block.0, block.1]);
+    let h = crate::realsense::seed_of("sr300 depth", seed, &[block.0, block.1]);
     on_lattice && h.is_multiple_of(2)
 }
 

@@ -408,3 +408,17 @@ impl DepthBiasSource {
         Ok(())
     }
 }
+
+/// A seed from a run's seed, a sequence's name and `parts` (FNV-1a: stable across platforms
+/// and releases, unlike the standard library's hasher).
+pub fn seed_of(label: &str, seed: u64, parts: &[u64]) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    let bytes = label
+        .bytes()
+        .chain(std::iter::once(0))
+        .chain(std::iter::once(seed).chain(parts.iter().copied()).flat_map(u64::to_le_bytes));
+    for b in bytes {
+        h = (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3);
+    }
+    h
+}

@@ -257,13 +257,14 @@ fn refine(
     config: &DepthCalibrationConfig,
 ) -> Result<Refined, RegistrationError> {
     let mut refined = Refined { pose: motion, refinement_deg: 0.0, overlap: 0.0 };
+    let mut problem = RegistrationProblem::new(source.clone(), target.clone());
     for &gate in &config.gates_m {
         let icp = Icp::new(IcpConfig {
             variant: IcpVariant::PointToPlane,
             max_correspondence_distance: gate,
             ..IcpConfig::default()
         })?;
-        let problem = RegistrationProblem::new(source.clone(), target.clone()).with_init(refined.pose);
+        problem.init = refined.pose;
         let r = icp.register(&problem)?;
         (refined.pose, refined.overlap) = (r.transform, r.fitness);
     }

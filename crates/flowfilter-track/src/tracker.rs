@@ -266,15 +266,17 @@ impl StreamPreparer {
     }
 
     fn prepare_frame(&self, frame: &RgbdFrame) -> Result<PreparedFrame, String> {
-        let size = (frame.color.width() as usize, frame.color.height() as usize);
-        if size != self.size {
-            return Err(format!(
-                "a frame of another size: {}x{}, the stream's is {}x{}",
-                size.0, size.1, self.size.0, self.size.1
-            ));
-        }
+        of_stream_size((frame.color.width() as usize, frame.color.height() as usize), self.size)?;
         self.pipeline.prepare(frame).map_err(|e| e.to_string())
     }
+}
+
+/// Why a frame of `size` does not belong to a stream of `stream` pixels, if it does not.
+fn of_stream_size(size: (usize, usize), stream: (usize, usize)) -> Result<(), String> {
+    if size == stream {
+        return Ok(());
+    }
+    Err(format!("a frame of another size: {}x{}, the stream's is {}x{}", size.0, size.1, stream.0, stream.1))
 }
 
 impl Tracker {
@@ -351,9 +353,34 @@ impl Tracker {
         self.update_prepared(ready)
     }
 
+    /// [`Tracker::update`] on every frame of `frames`, each result handed to `each` in order
+    /// with the value that came with its frame (what the caller keeps beside it, e.g. its
+    /// colour image for an overlay). Frame k + 1 is read (the iterator's step) and prepared on
+    /// the second core while frame k is estimated: the results are `update`'s, the stream's
+    /// time nearly that of the estimates alone. Stops at the first error `each` returns.
+    ///
+    /// # Errors
+    /// What `each` returns.
+    pub fn update_stream<T: Send, E>(
+        &mut self,
+        frames: impl Iterator<Item = (T, Result<RgbdFrame, String>)> + Send,
+        mut each: impl FnMut(T, TrackedFrame) -> Result<(), E>,
+    ) -> Result<(), E> {
+        let preparer = self.preparer();
+        let mut frames = frames;
+        let mut read = move || frames.next().map(|(kept, frame)| (kept, preparer.prepare(frame)));
+        let mut next = read();
+        while let Some((kept, ready)) = next.take() {
+            let (tracked, upcoming) = rayon::join(|| self.update_prepared(ready), &mut read);
+            next = upcoming;
+            each(kept, tracked)?;
+        }
+        Ok(())
+    }
+
     /// A handle that prepares frames as [`Tracker::update`] does, apart from the tracker: a
     /// stream's next frame can be read and prepared on another thread while the tracker
-    /// estimates the one before ([`Tracker::update_prepared`]; what `flowfilter track` does).
+    /// estimates the one before ([`Tracker::update_prepared`]; [`Tracker::update_stream`] runs so).
     /// The results are the same as `update`'s.
     pub fn preparer(&self) -> StreamPreparer {
         StreamPreparer { pipeline: Arc::clone(&self.pipeline), size: self.size }
@@ -365,10 +392,7 @@ impl Tracker {
         let index = self.next;
         self.next += 1;
         let label = ready.label.unwrap_or_else(|| format!("#{index}"));
-        let prepared = ready.prepared.and_then(|p| match p.gray.dims() {
-            size if size == self.size => Ok(p),
-            (w, h) => Err(format!("a frame of another size: {w}x{h}, the stream's is {}x{}", self.size.0, self.size.1)),
-        });
+        let prepared = ready.prepared.and_then(|p| of_stream_size(p.gray.dims(), self.size).map(|()| p));
         let result = match prepared {
             Ok(target) => self.track(index, target),
             Err(reason) => self.lose(index, reason),

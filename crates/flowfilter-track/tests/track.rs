@@ -159,8 +159,8 @@ fn a_bad_stream_gives_a_state_and_a_reason_per_frame_and_recovers() {
     assert_eq!(t.update(Ok(stream.frame(12, false))).state, TrackState::Tracking);
 }
 
-/// A stream prepared ahead ([`Tracker::preparer`] on another thread while the tracker
-/// estimates the frame before, as `flowfilter track` runs) gives the same poses, states and
+/// A stream prepared ahead ([`Tracker::update_stream`]: the next frame prepared on another
+/// thread while the tracker estimates the one before, as `flowfilter track` runs) gives the same poses, states and
 /// reasons, to the bit, as frames pushed one at a time; a frame the preparer cannot use (another
 /// size) is lost with its reason there too.
 #[test]
@@ -171,16 +171,12 @@ fn frames_prepared_ahead_give_the_same_track() {
     let mut one_by_one = tracker(&stream);
     let expected: Vec<_> = frames.iter().map(|f| one_by_one.update(Ok(f.clone()))).collect();
     let mut ahead = tracker(&stream);
-    let preparer = ahead.preparer();
-    let mut next = Some(preparer.prepare(Ok(frames[0].clone())));
     let mut got = vec![];
-    for k in 0..frames.len() {
-        let ready = next.take().unwrap();
-        let (r, upcoming) =
-            rayon::join(|| ahead.update_prepared(ready), || frames.get(k + 1).map(|f| preparer.prepare(Ok(f.clone()))));
-        next = upcoming;
+    let streamed = ahead.update_stream(frames.iter().enumerate().map(|(k, f)| (k, Ok(f.clone()))), |k, r| {
         got.push(r);
-    }
+        if k + 1 == got.len() { Ok(()) } else { Err("out of order") }
+    });
+    assert_eq!(streamed, Ok(()));
     assert_eq!(got.len(), expected.len());
     for (a, b) in got.iter().zip(&expected) {
         assert_eq!((a.pose, a.state, &a.reason, &a.label), (b.pose, b.state, &b.reason, &b.label));

@@ -125,33 +125,27 @@ pub fn run(args: &TrackArgs) -> anyhow::Result<ExitCode> {
     bar.set_message("track");
     let mut out: Vec<TrackedFrame> = vec![tracker.first()];
     crate::progress::advance(&bar, 1);
-    // Frame i + 1 is read and prepared while frame i is estimated.
-    let preparer = tracker.preparer();
+    // What the overlays draw: the first frame's cloud, moved by each pose.
+    let (first_camera, first_points) = (tracker.first_frame().sensor.color, tracker.first_frame().cloud.points.clone());
     let keep_colour = args.viz.is_some() || recording.is_some();
-    let read = |entry: &FrameEntry| {
+    let frames = folder.frames.iter().skip(1).map(|entry| {
         let frame = load(entry, &camera, MaskSource::None).map_err(|e| format!("{e:#}"));
         let colour = frame.as_ref().ok().filter(|_| keep_colour).map(|f| f.color.clone());
-        (colour, preparer.prepare(frame))
-    };
-    let mut next = folder.frames.get(1).map(read);
-    for (i, entry) in folder.frames.iter().enumerate().skip(1) {
-        let Some((colour, ready)) = next.take() else { break };
-        let (mut tracked, upcoming) =
-            rayon::join(|| tracker.update_prepared(ready), || folder.frames.get(i + 1).map(read));
-        next = upcoming;
+        ((entry, colour), frame)
+    });
+    tracker.update_stream(frames, |(entry, colour), mut tracked| -> anyhow::Result<()> {
         colours.push(recording.as_ref().and(colour.clone()));
         if let (Some(dir), Some(colour)) = (&args.viz, colour) {
-            let first = tracker.first_frame();
-            let image =
-                crate::estimate::overlay_cloud(&colour, &first.sensor.color, &first.cloud.points, &tracked.pose);
+            let image = crate::estimate::overlay_cloud(&colour, &first_camera, &first_points, &tracked.pose);
             crate::save_image(&image, &dir.join(format!("{}.png", entry.label())))?;
         }
         if let Some(recorder) = &recording {
             record(recorder, &mut tracked, &colours, &folder.frames, truth.as_ref())?;
         }
         out.push(tracked);
-        crate::progress::advance(&bar, i + 1);
-    }
+        crate::progress::advance(&bar, out.len());
+        Ok(())
+    })?;
     bar.finish_and_clear();
     if let Some(recorder) = recording {
         recorder.finish()?;
