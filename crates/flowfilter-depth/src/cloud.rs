@@ -1,6 +1,7 @@
 //! Organised point clouds from depth maps, normals, voxel downsampling, outlier removal.
 
 use flowfilter_camera::RayTable;
+use flowfilter_geometry::radix::radix_order;
 use flowfilter_geometry::{DepthMap, KnnIndex, Mask, Point3, PointCloud, Vector3};
 use image::RgbImage;
 use nalgebra::Matrix3;
@@ -151,28 +152,36 @@ pub fn knn_normals(points: &[Point3], k: usize, viewpoint: &Point3) -> Vec<Vecto
 /// its points (colours and normals averaged too; normals renormalised). Voxels are emitted in
 /// lexicographic order of their integer coordinates, so the result is deterministic.
 pub fn voxel_downsample(cloud: &PointCloud, voxel: f64) -> PointCloud {
-    let mut cells: BTreeMap<[i64; 3], (Vector3, Vector3, [f64; 3], usize)> = BTreeMap::new();
-    for (i, p) in cloud.points.iter().enumerate() {
-        let key = [(p.x / voxel).floor() as i64, (p.y / voxel).floor() as i64, (p.z / voxel).floor() as i64];
-        let e = cells.entry(key).or_insert((Vector3::zeros(), Vector3::zeros(), [0.0; 3], 0));
-        e.0 += p.coords;
-        if let Some(n) = &cloud.normals {
-            e.1 += n[i];
-        }
-        if let Some(c) = &cloud.colors {
-            for (acc, v) in e.2.iter_mut().zip(c[i]) {
-                *acc += f64::from(v);
-            }
-        }
-        e.3 += 1;
-    }
+    let keys: Vec<[i64; 3]> = cloud
+        .points
+        .iter()
+        .map(|p| [(p.x / voxel).floor() as i64, (p.y / voxel).floor() as i64, (p.z / voxel).floor() as i64])
+        .collect();
     let mut out = PointCloud {
         normals: cloud.normals.as_ref().map(|_| Vec::new()),
         colors: cloud.colors.as_ref().map(|_| Vec::new()),
         ..Default::default()
     };
-    for (sum, nsum, csum, count) in cells.into_values() {
-        let n = count as f64;
+    // The points in voxel order, each voxel's points in index order (so every sum adds in the
+    // same order whichever way the voxels are found): by a radix sort of the packed keys (a
+    // 640 x 480 frame's 128k points: 17 -> 4 ms), or a map where the keys span more than 64
+    // bits.
+    let (order, starts) = voxel_order(&keys);
+    for (k, &begin) in starts.iter().enumerate() {
+        let members = &order[begin..starts.get(k + 1).copied().unwrap_or(order.len())];
+        let (mut sum, mut nsum, mut csum) = (Vector3::zeros(), Vector3::zeros(), [0.0f64; 3]);
+        for &i in members {
+            sum += cloud.points[i].coords;
+            if let Some(n) = &cloud.normals {
+                nsum += n[i];
+            }
+            if let Some(c) = &cloud.colors {
+                for (acc, v) in csum.iter_mut().zip(c[i]) {
+                    *acc += f64::from(v);
+                }
+            }
+        }
+        let n = members.len() as f64;
         out.points.push(Point3::from(sum / n));
         if let Some(v) = &mut out.normals {
             v.push(nsum.try_normalize(1e-12).unwrap_or_else(Vector3::z));
@@ -182,6 +191,66 @@ pub fn voxel_downsample(cloud: &PointCloud, voxel: f64) -> PointCloud {
         }
     }
     out
+}
+
+/// The points' indices in voxel order (each voxel's in index order) and where each voxel's run
+/// starts: by a radix sort of the packed keys, or a map where they span more than 64 bits.
+fn voxel_order(keys: &[[i64; 3]]) -> (Vec<usize>, Vec<usize>) {
+    let (mut order, mut starts) = (Vec::with_capacity(keys.len()), vec![]);
+    match packed_voxel_keys(keys) {
+        Some((packed, bits)) => {
+            for i in radix_order(packed.clone(), bits).into_iter().map(|i| i as usize) {
+                if order.last().is_none_or(|&j: &usize| packed[j] != packed[i]) {
+                    starts.push(order.len());
+                }
+                order.push(i);
+            }
+        }
+        None => {
+            let mut map: BTreeMap<[i64; 3], Vec<usize>> = BTreeMap::new();
+            for (i, k) in keys.iter().enumerate() {
+                map.entry(*k).or_default().push(i);
+            }
+            for members in map.into_values() {
+                starts.push(order.len());
+                order.extend(members);
+            }
+        }
+    }
+    (order, starts)
+}
+
+/// Voxel keys packed into one integer each, ordered as the keys are lexicographically (x, then
+/// y, then z, each offset by its minimum), and the packed width in bits; `None` when the
+/// three ranges need more than 64 bits.
+fn packed_voxel_keys(keys: &[[i64; 3]]) -> Option<(Vec<u64>, u32)> {
+    let first = keys.first()?;
+    let (mut lo, mut hi) = (*first, *first);
+    for k in keys {
+        for a in 0..3 {
+            lo[a] = lo[a].min(k[a]);
+            hi[a] = hi[a].max(k[a]);
+        }
+    }
+    let width = |a: usize| {
+        let range = u64::try_from(i128::from(hi[a]) - i128::from(lo[a])).ok()?;
+        Some(u64::BITS - range.leading_zeros())
+    };
+    let (bx, by, bz) = (width(0)?, width(1)?, width(2)?);
+    let bits = bx + by + bz;
+    if bits > 64 {
+        return None;
+    }
+    let offset = |k: &[i64; 3], a: usize| (k[a].wrapping_sub(lo[a])) as u64;
+    let packed = keys
+        .iter()
+        .map(|k| {
+            let x = if bx == 0 { 0 } else { offset(k, 0) << (by + bz) };
+            let y = if by == 0 { 0 } else { offset(k, 1) << bz };
+            x | y | offset(k, 2)
+        })
+        .collect();
+    Some((packed, bits))
 }
 
 /// `cloud`, already thinned with [`voxel_downsample`] at `voxel` metres (0: not thinned),
@@ -261,6 +330,41 @@ mod tests {
         (0..400)
             .map(|i| Point3::new((i % 20) as f64 * 0.01, (i / 20) as f64 * 0.01, 1.0 + 0.5 * (i % 20) as f64 * 0.01))
             .collect()
+    }
+
+    /// The voxel grid as a map of voxels in key order would give it, point for point (the
+    /// radix-sorted runs add each voxel's points in the same order); a cloud whose keys span
+    /// more than 64 bits takes the map itself.
+    #[test]
+    fn voxel_runs_equal_a_map_of_voxels() {
+        let by_map = |cloud: &PointCloud, voxel: f64| {
+            let mut cells: BTreeMap<[i64; 3], (Vector3, Vector3, usize)> = BTreeMap::new();
+            for (i, p) in cloud.points.iter().enumerate() {
+                let key = [(p.x / voxel).floor() as i64, (p.y / voxel).floor() as i64, (p.z / voxel).floor() as i64];
+                let e = cells.entry(key).or_insert((Vector3::zeros(), Vector3::zeros(), 0));
+                (e.0, e.1, e.2) = (e.0 + p.coords, e.1 + cloud.normals.as_ref().unwrap()[i], e.2 + 1);
+            }
+            let points: Vec<Point3> = cells.values().map(|(s, _, n)| Point3::from(s / *n as f64)).collect();
+            let normals: Vec<Vector3> = cells.values().map(|(_, s, _)| s.try_normalize(1e-12).unwrap()).collect();
+            (points, normals)
+        };
+        // A wavy sheet crossing zero on every axis, points in a scrambled order.
+        let points: Vec<Point3> = (0..5000)
+            .map(|k| {
+                let i = k * 2477 % 5000;
+                let (u, v) = ((i % 71) as f64 * 0.004 - 0.13, (i / 71) as f64 * 0.0035 - 0.1);
+                Point3::new(u, v, 0.02 * (u * 40.0).sin() - 0.01)
+            })
+            .collect();
+        let normals = points.iter().map(|p| Vector3::new(p.x, p.y, 1.0).normalize()).collect();
+        let mut cloud = PointCloud { points, normals: Some(normals), ..Default::default() };
+        for voxel in [0.003, 0.01] {
+            let got = voxel_downsample(&cloud, voxel);
+            assert_eq!((got.points, got.normals.unwrap()), by_map(&cloud, voxel));
+        }
+        cloud.points[0] = Point3::new(1e16, -1e16, 0.0);
+        let got = voxel_downsample(&cloud, 0.003);
+        assert_eq!((got.points, got.normals.unwrap()), by_map(&cloud, 0.003));
     }
 
     /// The row-parallel organised cloud equals a sequential scan: same points in row order, same
