@@ -172,6 +172,34 @@ impl<'a> Textures<'a> {
 /// agrees with the moved pixel's); `None` with fewer than `cfg.min_pixels` of those or a flat
 /// patch.
 pub fn photometric_score(images: &Textures<'_>, pose: &Pose, cfg: &JudgeConfig) -> Option<f64> {
+    agreement(images, pose, cfg).score
+}
+
+/// How the target agrees with the model moved by a pose: what confirms a pose found on the
+/// images alone ([`agreement`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Agreement {
+    /// Model pixels compared (every `stride`-th object pixel with depth, thinned to
+    /// `max_pixels`).
+    pub samples: usize,
+    /// Of those, the pixels visible in the target: inside the image, where the target's depth
+    /// agrees with the moved pixel's within `depth_agreement_m`.
+    pub visible: usize,
+    /// [`photometric_score`] over the visible pixels.
+    pub score: Option<f64>,
+}
+
+impl Agreement {
+    /// The fraction of the compared pixels visible in the target (0 without any).
+    pub fn visible_fraction(&self) -> f64 {
+        if self.samples == 0 { 0.0 } else { self.visible as f64 / self.samples as f64 }
+    }
+}
+
+/// The model's object pixels moved by `pose` against the target: how many land where the
+/// target's depth agrees, and how their texture correlates with the target's there
+/// ([`photometric_score`]).
+pub fn agreement(images: &Textures<'_>, pose: &Pose, cfg: &JudgeConfig) -> Agreement {
     let target = &images.target;
     let (w, h) = target.depth.dims();
     let camera = target.camera;
@@ -191,15 +219,11 @@ pub fn photometric_score(images: &Textures<'_>, pose: &Pose, cfg: &JudgeConfig) 
         n += 1;
         (sa, sb, saa, sbb, sab) = (sa + a, sb + b, saa + a * a, sbb + b * b, sab + a * b);
     }
-    if n < cfg.min_pixels {
-        return None;
-    }
     let nf = n as f64;
     let (va, vb) = (saa - sa * sa / nf, sbb - sb * sb / nf);
-    if va <= 1e-12 || vb <= 1e-12 {
-        return None;
-    }
-    Some(1.0 - (sab - sa * sb / nf) / (va * vb).sqrt())
+    let score =
+        (n >= cfg.min_pixels && va > 1e-12 && vb > 1e-12).then(|| 1.0 - (sab - sa * sb / nf) / (va * vb).sqrt());
+    Agreement { samples: images.samples.len(), visible: n, score }
 }
 
 /// The candidates of one judgement: the coarse sweep's, each with its score, and the best of
@@ -263,4 +287,49 @@ pub fn ambiguity(
     }
     let (axis, turns) = per_axis.into_iter().enumerate().max_by_key(|(_, t)| t.len())?;
     (!turns.is_empty()).then_some((axis, turns))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use flowfilter_camera::{CameraModel, Distortion, ImageSize, Intrinsics, RayTable};
+    use flowfilter_geometry::Grid;
+    use nalgebra::{Translation3, UnitQuaternion};
+
+    /// A textured wall 0.6 m in front of the camera, and the same wall `shift_m` to the right
+    /// and `back_m` farther: at the true motion the wall's pixels are all visible and their
+    /// texture correlates; a few pixels off it correlates less, half its waves off not at all;
+    /// behind another surface nothing is visible.
+    #[test]
+    fn the_agreement_confirms_the_true_motion_only() {
+        let camera = CameraModel::new(
+            Intrinsics::new(525.0, 525.0, 160.0, 120.0).unwrap(),
+            Distortion::from_slice(&[0.0; 5]).unwrap(),
+            ImageSize::new(320, 240).unwrap(),
+        );
+        let rays = RayTable::new(&camera);
+        let wall = |x: f64, y: f64| {
+            (0.5 + 0.2 * (x * 0.23).sin() * (y * 0.19).cos() + 0.1 * (x * 0.07 + y * 0.05).sin()) as f32
+        };
+        let shift_px = 525.0 * 0.003 / 0.6;
+        let model_gray = Grid::from_fn(320, 240, |x, y| wall(x as f64, y as f64));
+        let target_gray = Grid::from_fn(320, 240, |x, y| 1.3 * wall(x as f64 - shift_px, y as f64) + 0.1);
+        let depth = Grid::filled(320, 240, 0.6f32);
+        let far_depth = Grid::filled(320, 240, 0.65f32);
+        let mask = Grid::from_fn(320, 240, |x, y| (60..260).contains(&x) && (40..200).contains(&y));
+        let view = |gray, depth| ImageView { gray, depth, mask: &mask, rays: &rays, camera: &camera };
+        let cfg = JudgeConfig::default();
+        let images = Textures::new(&view(&model_gray, &depth), &view(&target_gray, &depth), &cfg);
+        let moved = |dx: f64| Pose::from_parts(Translation3::new(dx, 0.0, 0.0), UnitQuaternion::identity());
+        let truth = agreement(&images, &moved(0.003), &cfg);
+        assert!(truth.visible_fraction() > 0.95, "{truth:?}");
+        assert!(truth.score.unwrap() < 0.02, "{truth:?}");
+        let near = agreement(&images, &Pose::identity(), &cfg);
+        assert!(near.score.unwrap() > truth.score.unwrap() + 0.1, "{near:?} against {truth:?}");
+        let wrong = agreement(&images, &moved(0.0155), &cfg);
+        assert!(wrong.score.unwrap() > 0.6, "{wrong:?}");
+        let hidden = Textures::new(&view(&model_gray, &depth), &view(&target_gray, &far_depth), &cfg);
+        let behind = agreement(&hidden, &moved(0.003), &cfg);
+        assert_eq!((behind.visible, behind.score), (0, None), "{behind:?}");
+    }
 }

@@ -24,7 +24,7 @@ mod view;
 
 pub use align::{AlignConfig, AlignReport, Aligner, Alignment, Scales, align};
 pub use gate::{JudgeGate, evidence_settled};
-pub use judge::{JudgeConfig, JudgeReport, Sweep, Textures, ambiguity, photometric_score, sweep};
+pub use judge::{Agreement, JudgeConfig, JudgeReport, Sweep, Textures, agreement, ambiguity, photometric_score, sweep};
 pub use texture::{Texture, high_pass};
 pub use turns::{TurnAxis, TurnCandidate, TurnHypotheses, TurnSweepConfig};
 pub use view::ImageView;

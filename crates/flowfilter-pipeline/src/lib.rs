@@ -43,7 +43,7 @@ pub use estimate::{
     RegistrationSummary, StageTimes, matrix_rows,
 };
 pub use flowfilter_photometric::{
-    AlignConfig, AlignReport, ImageView, JudgeConfig, JudgeGate, JudgeReport, align, judge,
+    Agreement, AlignConfig, AlignReport, ImageView, JudgeConfig, JudgeGate, JudgeReport, align, judge,
 };
 pub use frame::{ImagesError, RgbdFrame, load_bigbird_frame};
 pub use pipeline::Pipeline;

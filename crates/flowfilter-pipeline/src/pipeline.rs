@@ -324,6 +324,66 @@ impl Pipeline {
         Ok(estimate)
     }
 
+    /// The motion from `model` to `target` near a predicted one, on the images alone: the
+    /// direct alignment ([`flowfilter_photometric::align()`], `[align]`) from `predicted`, and how
+    /// the target agrees with the model at the aligned pose ([`judge::agreement`], on the
+    /// judge's pixels). No flow, registration or judge runs: the cheap path of a tracker whose
+    /// prediction is good, which must confirm the answer by the agreement before trusting it.
+    /// The estimate is converged when the alignment kept its pose; `None` when the images
+    /// cannot be aligned (too few object pixels with depth, a flat texture).
+    ///
+    /// ```
+    /// use flowfilter_bigbird::SensorId;
+    /// use flowfilter_pipeline::{Pipeline, PipelineConfig, Pose, RgbdFrame};
+    /// use flowfilter_synth::{Rig, Scene, procedural, render_frame};
+    ///
+    /// let (rig, sensor) = (Rig::bigbird_like(), SensorId::new(3).unwrap());
+    /// let scene = Scene::new(procedural("box", 1)?.placed_on_table(0.01, -0.005), 1);
+    /// let frame = |angle| {
+    ///     let f = render_frame(&scene, &rig, sensor, angle, None, 7);
+    ///     let sensor = rig.sensors[&sensor].rgbd;
+    ///     RgbdFrame { label: format!("NP3_{angle}"), color: f.color, depth: f.raw_depth, mask: f.mask, sensor }
+    /// };
+    /// let pipeline = Pipeline::from_config(PipelineConfig::default())?;
+    /// let (a, b) = (pipeline.prepare(&frame(0))?, pipeline.prepare(&frame(2))?);
+    /// let truth = pipeline.estimate_prepared(&a, &b)?.pose;
+    /// // A prediction half a degree off.
+    /// let predicted = flowfilter_geometry::se3::exp(&nalgebra::Vector6::new(0.0, 0.0, 0.0, 0.0, 0.0, 0.5f64.to_radians())) * truth;
+    /// let (estimate, agreement) = pipeline.estimate_near(&a, &b, &predicted, None).expect("textured");
+    /// assert!((estimate.pose.inverse() * truth).rotation.angle().to_degrees() < 0.2);
+    /// assert!(agreement.visible_fraction() > 0.8);
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
+    pub fn estimate_near(
+        &self,
+        model: &PreparedFrame,
+        target: &PreparedFrame,
+        predicted: &Pose,
+        cfg: Option<&AlignConfig>,
+    ) -> Option<(Estimate, judge::Agreement)> {
+        let t0 = Instant::now();
+        let cfg = cfg.unwrap_or(&self.config.align);
+        let (pose, report) = align::align(&model.image_view(), &target.image_view(), predicted, cfg)?;
+        let align_ms = t0.elapsed().as_secs_f64() * 1e3;
+        let images = judge::Textures::new(&model.image_view(), &target.image_view(), &self.config.judge);
+        let agreement = judge::agreement(&images, &pose, &self.config.judge);
+        let mut reg = Registration::with_transform(pose);
+        reg.iterations = report.iterations;
+        reg.converged = report.accepted;
+        reg.fitness = agreement.visible_fraction();
+        let times = StageTimes {
+            depth_model: model.seconds * 1e3,
+            depth_target: target.seconds * 1e3,
+            align: align_ms,
+            judge: t0.elapsed().as_secs_f64() * 1e3 - align_ms,
+            total: (model.seconds + target.seconds) * 1e3 + t0.elapsed().as_secs_f64() * 1e3,
+            ..StageTimes::default()
+        };
+        let mut estimate = self.assemble((model, target), (0, 0), reg, None, times, vec![]);
+        estimate.align = Some(report);
+        Some((estimate, agreement))
+    }
+
     /// The correspondence stage, its failures turned into warnings: `None` when it did not run.
     fn correspondence_stage(
         &self,

@@ -159,6 +159,12 @@ impl Estimate {
     fn keyframe(&self) -> Option<bool> {
         self.track.as_ref().map(|t| t.keyframe)
     }
+    /// For `Tracker.update`'s estimates: whether the pose came from direct alignment alone from
+    /// the motion's prediction, confirmed on the images (no flow, registration or judge).
+    #[getter]
+    fn aligned_only(&self) -> Option<bool> {
+        self.track.as_ref().map(|t| t.aligned_only)
+    }
     /// For `Tracker.update`'s estimates: the frame's index in the stream (0: the first).
     #[getter]
     fn frame_index(&self) -> Option<usize> {

@@ -20,6 +20,7 @@ pub struct TrackInfo {
     pub reference: Option<usize>,
     pub keyframe: bool,
     pub mask_px: usize,
+    pub aligned_only: bool,
 }
 
 fn state_name(s: TrackState) -> &'static str {
@@ -132,6 +133,7 @@ fn estimate_of(t: &TrackedFrame, first: &str, method: &str) -> Estimate {
             reference: t.reference,
             keyframe: t.keyframe,
             mask_px: t.mask_px,
+            aligned_only: t.aligned_only,
         }),
     }
 }

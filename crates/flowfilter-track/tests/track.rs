@@ -129,6 +129,40 @@ fn the_motion_settles_a_symmetric_objects_ambiguous_turns() {
     assert!(doubted >= 3, "without the gate {doubted} frames are uncertain or lost");
 }
 
+/// With the aligned path, frames the constant-velocity prediction follows are tracked by
+/// direct alignment alone from it (`aligned_only`), at the full path's poses within 0.3
+/// degrees; keyframes always come from the full path. When the object turns back, the prediction is 6 degrees off, beyond
+/// the alignment's reach: that frame is not confirmed on the images and the full path gets it
+/// right.
+#[test]
+fn a_followed_motion_is_tracked_by_alignment_alone() {
+    let stream = Stream::new();
+    let pipeline = || Pipeline::from_config(PipelineConfig::default()).unwrap();
+    let first = stream.frame(0, true);
+    let aligned_config = TrackerConfig { aligned_path: true, ..TrackerConfig::default() };
+    let mut aligned = Tracker::new(pipeline(), aligned_config, &first).unwrap();
+    let mut full = Tracker::new(pipeline(), TrackerConfig::default(), &first).unwrap();
+    let mut by_alignment = 0;
+    for angle in (3..=24).step_by(3) {
+        let (a, b) = (aligned.update(Ok(stream.frame(angle, false))), full.update(Ok(stream.frame(angle, false))));
+        assert_eq!(a.state, TrackState::Tracking, "{angle} deg: {:?}", a.reason);
+        assert!(!b.aligned_only, "{angle} deg: the full path only");
+        assert!(!(a.aligned_only && a.keyframe), "{angle} deg: a keyframe from the aligned path");
+        let error = (a.pose * stream.truth(angle).inverse()).rotation.angle().to_degrees();
+        assert!(error < 1.0, "{angle} deg: {error} deg off (aligned only: {})", a.aligned_only);
+        if a.aligned_only {
+            by_alignment += 1;
+            let apart = (a.pose * b.pose.inverse()).rotation.angle().to_degrees();
+            assert!(apart < 0.3, "{angle} deg: {apart} deg from the full path");
+        }
+    }
+    assert!(by_alignment >= 3, "{by_alignment} frames by alignment alone");
+    let back = aligned.update(Ok(stream.frame(21, false)));
+    assert!(!back.aligned_only, "a turn back is not what the motion predicts");
+    let error = (back.pose * stream.truth(21).inverse()).rotation.angle().to_degrees();
+    assert!(error < 1.0, "turned back: {error} deg off");
+}
+
 #[test]
 fn a_bad_stream_gives_a_state_and_a_reason_per_frame_and_recovers() {
     let stream = Stream::new();

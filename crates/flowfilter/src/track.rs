@@ -272,6 +272,7 @@ fn json_row(t: &TrackedFrame, f: &FrameEntry, truth: Option<&BTreeMap<u64, Pose>
         "reference": t.reference,
         "keyframe": t.keyframe,
         "mask_px": t.mask_px,
+        "aligned_only": t.aligned_only,
         "pose_from_first": matrix_rows(&t.pose),
         "estimate": t.estimate,
     });

@@ -211,6 +211,10 @@ class Estimate:
     def keyframe(self) -> Optional[bool]:
         """For `Tracker.update`'s estimates: whether this frame became a keyframe."""
     @property
+    def aligned_only(self) -> Optional[bool]:
+        """For `Tracker.update`'s estimates: whether the pose came from direct alignment alone
+        from the motion's prediction, confirmed on the images (no flow, registration or judge)."""
+    @property
     def frame_index(self) -> Optional[int]:
         """For `Tracker.update`'s estimates: the frame's index in the stream (0: the first)."""
     def log_to_rerun(
