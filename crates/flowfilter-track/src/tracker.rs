@@ -440,10 +440,11 @@ impl Tracker {
     /// The frame estimated against its candidates, its state decided, the keyframes updated:
     /// first with the predicted mask, then (without a converged estimate there) unmasked.
     fn track(&mut self, index: usize, target: PreparedFrame) -> TrackedFrame {
-        let target = match self.track_aligned(index, target) {
-            Ok(tracked) => return tracked,
-            Err(target) => target,
-        };
+        if let Some((reference, e, reference_pose)) = self.aligned_estimate(index, &target) {
+            let mut tracked = self.accept(index, target, reference, e, reference_pose);
+            tracked.aligned_only = tracked.state == TrackState::Tracking;
+            return tracked;
+        }
         let mut fallback = None;
         if let Some(predicted) = self.predicted_target(&target)
             && let Some((reference, e, reference_pose, pair)) = self.estimated_with(&predicted)
@@ -459,55 +460,47 @@ impl Tracker {
     }
 
     /// The aligned path ([`TrackerConfig::aligned_path`]): the frame estimated against the
-    /// keyframe nearest to the predicted pose by direct alignment alone, from the prediction;
-    /// tracked when the images confirm it, else the frame is handed back for the full estimate.
+    /// keyframe nearest to the predicted pose by direct alignment alone, from the prediction:
+    /// the reference, the estimate and the reference's pose when the images confirm it (the
+    /// frame is then tracked), else `None` (the full estimate runs).
     /// Not after a loss or an uncertain frame, nor without a motion to predict from.
-    fn track_aligned(&mut self, index: usize, target: PreparedFrame) -> Result<TrackedFrame, PreparedFrame> {
+    fn aligned_estimate(&mut self, index: usize, target: &PreparedFrame) -> Option<(usize, Estimate, Pose)> {
         let cfg = &self.config;
         let follows = self.previous.as_ref().is_some_and(|p| p.index + 1 == index && p.index > 0);
         if !cfg.aligned_path || self.lost || self.uncertain_run > 0 || !follows {
-            return Err(target);
+            return None;
         }
-        let Some((reference, model, reference_pose)) = self.candidates().into_iter().next() else {
-            return Err(target);
-        };
+        let (reference, model, reference_pose) = self.candidates().into_iter().next()?;
         if self.unconfirmed == Some(reference) {
-            return Err(target);
+            return None;
         }
         let predicted = self.velocity * self.last_pose * reference_pose.inverse();
         // A frame that becomes a keyframe is estimated in full: keyframes carry the drift of
         // every later frame measured against them.
         if self.makes_keyframe(&predicted) {
-            return Err(target);
+            return None;
         }
         // The object's pixels in the new frame as predicted (the alignment runs both ways); a
         // whole frame as it is.
         let predicted_frame = match self.object {
-            true => match self.predicted_target(&target) {
-                Some(frame) => frame,
-                None => return Err(target),
-            },
+            true => self.predicted_target(target)?,
             false => target.clone(),
         };
-        let Some((e, agreement)) = self.pipeline.estimate_near(model, &predicted_frame, &predicted, None) else {
-            return Err(target);
-        };
+        let (e, agreement) = self.pipeline.estimate_near(model, &predicted_frame, &predicted, None)?;
         let confirmed = e.registration.converged
             && agreement.score.is_some_and(|s| s <= cfg.aligned_max_score)
             && agreement.visible_fraction() >= cfg.aligned_min_visible;
         if confirmed && self.makes_keyframe(&e.pose) {
-            return Err(target);
+            return None;
         }
         if !confirmed {
             // Not tried against this keyframe again: what the images did not confirm here (a
             // view whose carried mask lost the surface now in sight) they will not confirm on
             // the next frame either, and each try costs an alignment.
             self.unconfirmed = Some(reference);
-            return Err(target);
+            return None;
         }
-        let mut tracked = self.accept(index, target, reference, e, reference_pose);
-        tracked.aligned_only = tracked.state == TrackState::Tracking;
-        Ok(tracked)
+        Some((reference, e, reference_pose))
     }
 
     /// Whether a frame at `motion` from its reference (the keyframe nearest to its predicted
