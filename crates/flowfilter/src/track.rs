@@ -54,8 +54,12 @@ pub struct TrackArgs {
     /// Pipeline configuration (TOML; default: configs/flowfilter.toml's values).
     #[arg(long)]
     pub config: Option<PathBuf>,
+    /// The tracker's settings (TOML: the keys of `flowfilter_track::TrackerConfig`, e.g.
+    /// `aligned_path = true`); default: its defaults.
+    #[arg(long)]
+    pub tracker: Option<PathBuf>,
     /// Write one JSON line per frame (`frame`, `state`, `reason`, `reference`, `keyframe`,
-    /// `pose_from_first`, the errors with --gt, and `estimate`: the `estimate --json` fields).
+    /// `aligned_only`, `pose_from_first`, the errors with --gt, and `estimate`: the `estimate --json` fields).
     #[arg(long)]
     pub json: Option<PathBuf>,
     /// Write the trajectory in the TUM format (`timestamp tx ty tz qx qy qz qw`: the object's
@@ -111,7 +115,14 @@ pub fn run(args: &TrackArgs) -> anyhow::Result<ExitCode> {
     if let Some(text) = &args.bbox {
         first.mask = boxed::first_mask(&pipeline, &first, parse_box(text)?).context("--box")?;
     }
-    let config = TrackerConfig { trace: args.rerun.is_some(), ..TrackerConfig::default() };
+    let settings = match &args.tracker {
+        Some(path) => {
+            let text = std::fs::read_to_string(path).with_context(|| format!("--tracker {}", path.display()))?;
+            toml::from_str::<TrackerConfig>(&text).with_context(|| format!("--tracker {}", path.display()))?
+        }
+        None => TrackerConfig::default(),
+    };
+    let config = TrackerConfig { trace: args.rerun.is_some(), ..settings };
     let mut tracker = Tracker::new(pipeline, config, &first)?;
     let recording = args.rerun.as_deref().map(|p| Recorder::create(p, "flowfilter track")).transpose()?;
     let mut colours: Vec<Option<RgbImage>> = vec![recording.as_ref().map(|_| first.color.clone())];

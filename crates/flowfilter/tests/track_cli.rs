@@ -211,6 +211,20 @@ fn a_bop_scene_object_is_tracked_with_its_annotations_as_the_truth() {
         assert_eq!(r["state"], "tracking", "{r}");
         assert!(r["errors"]["rotation_deg"].as_f64().unwrap() < 1.0, "{r}");
     }
+    // The tracker's settings from a file: the aligned path on (the first motion has nothing to
+    // be predicted from); a key the tracker does not have is refused, naming the file.
+    let settings = tmp.path().join("tracker.toml");
+    std::fs::write(&settings, "aligned_path = true\n").unwrap();
+    let s = settings.to_str().unwrap();
+    let args = ["track", "--bop", scene.to_str().unwrap(), "--object", "7", "--json", json.to_str().unwrap()];
+    let (ok, _, stderr) = flowfilter(&[&args[..], &["--tracker", s]].concat());
+    assert!(ok, "{stderr}");
+    let rows = json_lines(&json);
+    assert!(rows[1..].iter().all(|r| r["state"] == "tracking"), "{rows:?}");
+    assert_eq!(rows[1]["aligned_only"], false, "{}", rows[1]);
+    std::fs::write(&settings, "aligned_paths = true\n").unwrap();
+    let (ok, _, stderr) = flowfilter(&[&args[..], &["--tracker", s]].concat());
+    assert!(!ok && stderr.contains("--tracker") && stderr.contains("aligned_paths"), "{stderr}");
     // An object the scene does not annotate, and --bop without --object.
     let (ok, _, stderr) = flowfilter(&["track", "--bop", scene.to_str().unwrap(), "--object", "1"]);
     assert!(!ok && stderr.contains("object 1 is annotated in none"), "{stderr}");
