@@ -58,12 +58,14 @@ impl Tracker {
     /// or `bbox = (x, y, w, h)` (pixels: left, top, width, height), a box around it: the
     /// object is the box's pixels within 5 cm of the depth of the box's central half. Without
     /// either the whole scene is tracked. `camera`: as `estimate`'s (None for frames read from a
-    /// dataset). `config`: a pipeline configuration (TOML path or dict).
+    /// dataset). `config`: a pipeline configuration (TOML path or dict). `settings`: the
+    /// tracker's own (a dict of `flowfilter_track::TrackerConfig`'s keys, e.g.
+    /// `{"aligned_path": True}`; the defaults otherwise).
     ///
     /// Raises InputError for a frame that cannot be used (no depth in the mask), a box outside
-    /// the image or given with a mask, ConfigError for a bad configuration.
+    /// the image or given with a mask, ConfigError for a bad configuration or setting.
     #[new]
-    #[pyo3(signature = (camera, frame, mask = None, config = None, bbox = None))]
+    #[pyo3(signature = (camera, frame, mask = None, config = None, bbox = None, settings = None))]
     fn new(
         py: Python<'_>,
         camera: Option<&Bound<'_, PyAny>>,
@@ -71,8 +73,10 @@ impl Tracker {
         mask: Option<&Bound<'_, PyAny>>,
         config: Option<&Bound<'_, PyAny>>,
         bbox: Option<(usize, usize, usize, usize)>,
+        settings: Option<&Bound<'_, pyo3::types::PyDict>>,
     ) -> PyResult<Self> {
         let config = params::pipeline_config(config)?;
+        let settings = tracker_settings(settings)?;
         let method = config.method.clone();
         let pipeline = Pipeline::from_config(config).map_err(|e| crate::errors::pipeline(&e))?;
         let camera = camera.filter(|c| !c.is_none()).map(camera_arg).transpose()?;
@@ -96,7 +100,7 @@ impl Tracker {
             })?;
         }
         let label = first.label.clone();
-        let tracker = threads::run(py, || flowfilter_track::Tracker::new(pipeline, TrackerConfig::default(), &first))?
+        let tracker = threads::run(py, || flowfilter_track::Tracker::new(pipeline, settings, &first))?
             .map_err(|e| crate::errors::input(crate::errors::message(&e)))?;
         Ok(Self { inner: Mutex::new(tracker), camera, first: label, method })
     }
@@ -121,6 +125,13 @@ impl Tracker {
     fn __repr__(&self) -> String {
         format!("Tracker(first='{}', method='{}')", self.first, self.method)
     }
+}
+
+/// The tracker's settings from a dict of their keys (the defaults for the others).
+fn tracker_settings(settings: Option<&Bound<'_, pyo3::types::PyDict>>) -> PyResult<TrackerConfig> {
+    let Some(d) = settings else { return Ok(TrackerConfig::default()) };
+    let value = serde_json::Value::Object(params::dict_to_json(d, "settings")?);
+    serde_json::from_value(value).map_err(|e| crate::errors::config(format!("settings: {e}")))
 }
 
 fn estimate_of(t: &TrackedFrame, first: &str, method: &str) -> Estimate {

@@ -40,6 +40,27 @@ def test_an_object_is_tracked_from_its_first_mask(bop_scene):
     assert flowfilter.estimate(frames[0], frames[1]).state is None
 
 
+def test_the_trackers_settings_from_a_dict(bop_scene):
+    frames = [flowfilter.read_bop_frame(bop_scene, im, 1) for im in (0, 1, 2)]
+    k = np.asarray(frames[0].K)
+    h, w = np.asarray(frames[0].depth).shape
+    camera = flowfilter.Camera(k, width=w, height=h, depth_unit=frames[0].depth_unit)
+    plain = [flowfilter.Frame(np.asarray(f.color), np.asarray(f.depth), name=f"im{i}") for i, f in enumerate(frames)]
+    mask = np.asarray(frames[0].mask)
+    # Every frame a keyframe: the settings are the tracker's.
+    tracker = flowfilter.Tracker(camera, plain[0], mask=mask, settings={"aligned_path": True, "keyframe_deg": 1e-6})
+    for im in (1, 2):
+        e = tracker.update(plain[im])
+        assert e.state == "tracking", e.reason
+        assert rotation_deg(e.transform, flowfilter.bop_motion(bop_scene, 0, im, 1)) < 1.0, im
+    assert tracker.keyframes() == [0, 1, 2]
+    default = flowfilter.Tracker(camera, plain[0], mask=mask)
+    default.update(plain[1])
+    assert default.keyframes() == [0]
+    with pytest.raises(flowfilter.ConfigError, match="aligned_paths"):
+        flowfilter.Tracker(camera, plain[0], mask=mask, settings={"aligned_paths": True})
+
+
 def test_a_box_around_the_object_instead_of_a_mask(bop_scene):
     frames = [flowfilter.read_bop_frame(bop_scene, im, 1) for im in (0, 1)]
     k = np.asarray(frames[0].K)

@@ -230,9 +230,17 @@ class Tracker:
     `Estimate` with the track's `state`, `reason`, `reference`, `keyframe`, `frame_index`."""
 
     def __init__(
-        self, camera: Optional[CameraLike], frame: Union[Frame, Any], mask: Optional[ArrayLike] = None, config: ConfigLike = None
+        self,
+        camera: Optional[CameraLike],
+        frame: Union[Frame, Any],
+        mask: Optional[ArrayLike] = None,
+        config: ConfigLike = None,
+        bbox: Optional[Tuple[int, int, int, int]] = None,
+        settings: Optional[Dict[str, Any]] = None,
     ) -> None:
-        """Start on `frame`; `mask` ((H, W) bool, or the frame's own) is the object's."""
+        """Start on `frame`; `mask` ((H, W) bool, or the frame's own) is the object's, or `bbox`
+        (x, y, w, h) a box around it; `settings` the tracker's own (`TrackerConfig`'s keys, e.g.
+        `{"aligned_path": True}`)."""
     def update(self, frame: Union[Frame, Any]) -> Estimate:
         """The next frame: the object's motion from the first frame, with the track's state. A frame
         that cannot be used is `lost` with the reason, not an exception."""
