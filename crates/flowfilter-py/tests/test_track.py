@@ -12,18 +12,24 @@ from conftest import SHARED
 SHELF = SHARED / "realsense-shelf" / "shelf-D"
 
 
+def bop_stream(bop_scene, ims):
+    """The scene's frames `ims` of object 1, their camera, and the same frames as plain arrays of
+    colour and depth (later frames come without a mask)."""
+    frames = [flowfilter.read_bop_frame(bop_scene, im, 1) for im in ims]
+    k = np.asarray(frames[0].K)
+    h, w = np.asarray(frames[0].depth).shape
+    camera = flowfilter.Camera(k, width=w, height=h, depth_unit=frames[0].depth_unit)
+    plain = [flowfilter.Frame(np.asarray(f.color), np.asarray(f.depth), name=f"im{i}") for i, f in enumerate(frames)]
+    return frames, camera, plain
+
+
 def rotation_deg(a, b):
     d = a[:3, :3] @ b[:3, :3].T
     return float(np.degrees(np.arccos(np.clip((np.trace(d) - 1) / 2, -1, 1))))
 
 
 def test_an_object_is_tracked_from_its_first_mask(bop_scene):
-    frames = [flowfilter.read_bop_frame(bop_scene, im, 1) for im in (0, 1, 2)]
-    k = np.asarray(frames[0].K)
-    h, w = np.asarray(frames[0].depth).shape
-    camera = flowfilter.Camera(k, width=w, height=h, depth_unit=frames[0].depth_unit)
-    # Later frames without a mask: arrays of colour and depth only.
-    plain = [flowfilter.Frame(np.asarray(f.color), np.asarray(f.depth), name=f"im{i}") for i, f in enumerate(frames)]
+    frames, camera, plain = bop_stream(bop_scene, (0, 1, 2))
     tracker = flowfilter.Tracker(camera, plain[0], mask=np.asarray(frames[0].mask))
     for im in (1, 2):
         e = tracker.update(plain[im])
@@ -41,11 +47,7 @@ def test_an_object_is_tracked_from_its_first_mask(bop_scene):
 
 
 def test_the_trackers_settings_from_a_dict(bop_scene):
-    frames = [flowfilter.read_bop_frame(bop_scene, im, 1) for im in (0, 1, 2)]
-    k = np.asarray(frames[0].K)
-    h, w = np.asarray(frames[0].depth).shape
-    camera = flowfilter.Camera(k, width=w, height=h, depth_unit=frames[0].depth_unit)
-    plain = [flowfilter.Frame(np.asarray(f.color), np.asarray(f.depth), name=f"im{i}") for i, f in enumerate(frames)]
+    frames, camera, plain = bop_stream(bop_scene, (0, 1, 2))
     mask = np.asarray(frames[0].mask)
     # Every frame a keyframe: the settings are the tracker's.
     tracker = flowfilter.Tracker(camera, plain[0], mask=mask, settings={"aligned_path": True, "keyframe_deg": 1e-6})
@@ -62,17 +64,14 @@ def test_the_trackers_settings_from_a_dict(bop_scene):
 
 
 def test_a_box_around_the_object_instead_of_a_mask(bop_scene):
-    frames = [flowfilter.read_bop_frame(bop_scene, im, 1) for im in (0, 1)]
-    k = np.asarray(frames[0].K)
-    h, w = np.asarray(frames[0].depth).shape
-    camera = flowfilter.Camera(k, width=w, height=h, depth_unit=frames[0].depth_unit)
-    plain = [flowfilter.Frame(np.asarray(f.color), np.asarray(f.depth), name=f"im{i}") for i, f in enumerate(frames)]
+    frames, camera, plain = bop_stream(bop_scene, (0, 1))
     ys, xs = np.nonzero(np.asarray(frames[0].mask))
     box = (int(xs.min()) - 4, int(ys.min()) - 4, int(xs.max() - xs.min()) + 9, int(ys.max() - ys.min()) + 9)
     tracker = flowfilter.Tracker(camera, plain[0], bbox=box)
     e = tracker.update(plain[1])
     assert e.state == "tracking", e.reason
     assert rotation_deg(e.transform, flowfilter.bop_motion(bop_scene, 0, 1, 1)) < 1.0
+    w = np.asarray(frames[0].depth).shape[1]
     with pytest.raises(flowfilter.InputError, match="inside"):
         flowfilter.Tracker(camera, plain[0], bbox=(w - 10, 0, 50, 50))
     with pytest.raises(flowfilter.InputError, match="not both"):
