@@ -142,10 +142,7 @@ pub fn run(args: &TrackBenchArgs) -> anyhow::Result<()> {
     let config = PipelineConfig::from_file(&args.pipeline).with_context(|| args.pipeline.display().to_string())?;
     let pipeline = Pipeline::from_config(config.clone()).context("--pipeline")?;
     let tracker_config = match &args.tracker {
-        Some(path) => {
-            let text = std::fs::read_to_string(path).with_context(|| path.display().to_string())?;
-            toml::from_str::<TrackerConfig>(&text).with_context(|| format!("--tracker {}", path.display()))?
-        }
+        Some(path) => TrackerConfig::from_file(path).context("--tracker")?,
         None => TrackerConfig::default(),
     };
     let started = Instant::now();

@@ -296,8 +296,8 @@ mod tests {
     use flowfilter_geometry::Grid;
     use nalgebra::{Translation3, UnitQuaternion};
 
-    /// A textured wall 0.6 m in front of the camera, and the same wall `shift_m` to the right
-    /// and `back_m` farther: at the true motion the wall's pixels are all visible and their
+    /// A textured wall 0.6 m in front of the camera, and the same wall 3 mm to the right under
+    /// another exposure (or 5 cm farther): at the true motion the wall's pixels are all visible and their
     /// texture correlates; a few pixels off it correlates less, half its waves off not at all;
     /// behind another surface nothing is visible.
     #[test]

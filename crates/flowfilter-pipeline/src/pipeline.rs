@@ -349,7 +349,7 @@ impl Pipeline {
     /// let truth = pipeline.estimate_prepared(&a, &b)?.pose;
     /// // A prediction half a degree off.
     /// let predicted = flowfilter_geometry::se3::exp(&nalgebra::Vector6::new(0.0, 0.0, 0.0, 0.0, 0.0, 0.5f64.to_radians())) * truth;
-    /// let (estimate, agreement) = pipeline.estimate_near(&a, &b, &predicted, None).expect("textured");
+    /// let (estimate, agreement) = pipeline.estimate_near(&a, &b, &predicted).expect("textured");
     /// assert!((estimate.pose.inverse() * truth).rotation.angle().to_degrees() < 0.2);
     /// assert!(agreement.visible_fraction() > 0.8);
     /// # Ok::<(), Box<dyn std::error::Error>>(())
@@ -359,11 +359,9 @@ impl Pipeline {
         model: &PreparedFrame,
         target: &PreparedFrame,
         predicted: &Pose,
-        cfg: Option<&AlignConfig>,
     ) -> Option<(Estimate, judge::Agreement)> {
         let t0 = Instant::now();
-        let cfg = cfg.unwrap_or(&self.config.align);
-        let (pose, report) = align::align(&model.image_view(), &target.image_view(), predicted, cfg)?;
+        let (pose, report) = align::align(&model.image_view(), &target.image_view(), predicted, &self.config.align)?;
         let align_ms = t0.elapsed().as_secs_f64() * 1e3;
         let images = judge::Textures::new(&model.image_view(), &target.image_view(), &self.config.judge);
         let agreement = judge::agreement(&images, &pose, &self.config.judge);
@@ -371,12 +369,13 @@ impl Pipeline {
         reg.iterations = report.iterations;
         reg.converged = report.accepted;
         reg.fitness = agreement.visible_fraction();
+        let spent_ms = t0.elapsed().as_secs_f64() * 1e3;
         let times = StageTimes {
             depth_model: model.seconds * 1e3,
             depth_target: target.seconds * 1e3,
             align: align_ms,
-            judge: t0.elapsed().as_secs_f64() * 1e3 - align_ms,
-            total: (model.seconds + target.seconds) * 1e3 + t0.elapsed().as_secs_f64() * 1e3,
+            judge: spent_ms - align_ms,
+            total: (model.seconds + target.seconds) * 1e3 + spent_ms,
             ..StageTimes::default()
         };
         let mut estimate = self.assemble((model, target), (0, 0), reg, None, times, vec![]);

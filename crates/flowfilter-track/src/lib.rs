@@ -26,5 +26,5 @@ pub mod tum;
 
 pub use folder::{FolderError, FrameEntry, FrameFolder};
 pub use tracker::{
-    ReadyFrame, StreamPreparer, TracedPair, TrackError, TrackState, TrackedFrame, Tracker, TrackerConfig,
+    ReadyFrame, SettingsError, StreamPreparer, TracedPair, TrackError, TrackState, TrackedFrame, Tracker, TrackerConfig,
 };

@@ -8,6 +8,7 @@ use flowfilter_pipeline::{
     RegistrationWarning, RgbdFrame, StageTimes,
 };
 use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 /// How the tracker keeps keyframes and carries the mask.
@@ -89,6 +90,41 @@ impl Default for TrackerConfig {
             trace: false,
         }
     }
+}
+
+impl TrackerConfig {
+    /// The settings of a TOML file of [`TrackerConfig`]'s keys (the defaults for the others).
+    ///
+    /// # Errors
+    /// [`SettingsError`] naming the file: it cannot be read, or a key is unknown or of the wrong
+    /// type.
+    pub fn from_file(path: &Path) -> Result<Self, SettingsError> {
+        let text =
+            std::fs::read_to_string(path).map_err(|source| SettingsError::Read { path: path.to_path_buf(), source })?;
+        toml::from_str(&text).map_err(|e| SettingsError::Parse { path: path.to_path_buf(), message: e.to_string() })
+    }
+}
+
+/// Why a file of tracker settings cannot be used ([`TrackerConfig::from_file`]).
+#[derive(Debug, thiserror::Error)]
+pub enum SettingsError {
+    /// The file cannot be read.
+    #[error("{}: cannot read: {source}", path.display())]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The file is not TOML of the tracker's keys.
+    #[error("{}: {message}", path.display())]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// What the parser says (the key and what it expected).
+        message: String,
+    },
 }
 
 /// The state of the track at a frame.
@@ -440,13 +476,15 @@ impl Tracker {
     /// The frame estimated against its candidates, its state decided, the keyframes updated:
     /// first with the predicted mask, then (without a converged estimate there) unmasked.
     fn track(&mut self, index: usize, target: PreparedFrame) -> TrackedFrame {
-        if let Some((reference, e, reference_pose)) = self.aligned_estimate(index, &target) {
+        // The predicted mask, made once for both paths.
+        let predicted = self.predicted_target(&target);
+        if let Some((reference, e, reference_pose)) = self.aligned_estimate(index, &target, predicted.as_ref()) {
             let mut tracked = self.accept(index, target, reference, e, reference_pose);
             tracked.aligned_only = tracked.state == TrackState::Tracking;
             return tracked;
         }
         let mut fallback = None;
-        if let Some(predicted) = self.predicted_target(&target)
+        if let Some(predicted) = predicted
             && let Some((reference, e, reference_pose, pair)) = self.estimated_with(&predicted)
         {
             if e.registration.converged || self.settled_by_motion(&e, &reference_pose) {
@@ -464,7 +502,13 @@ impl Tracker {
     /// the reference, the estimate and the reference's pose when the images confirm it (the
     /// frame is then tracked), else `None` (the full estimate runs).
     /// Not after a loss or an uncertain frame, nor without a motion to predict from.
-    fn aligned_estimate(&mut self, index: usize, target: &PreparedFrame) -> Option<(usize, Estimate, Pose)> {
+    /// `predicted_frame`: the frame with its predicted mask ([`Tracker::predicted_target`]).
+    fn aligned_estimate(
+        &mut self,
+        index: usize,
+        target: &PreparedFrame,
+        predicted_frame: Option<&PreparedFrame>,
+    ) -> Option<(usize, Estimate, Pose)> {
         let cfg = &self.config;
         let follows = self.previous.as_ref().is_some_and(|p| p.index + 1 == index && p.index > 0);
         if !cfg.aligned_path || self.lost || self.uncertain_run > 0 || !follows {
@@ -483,10 +527,10 @@ impl Tracker {
         // The object's pixels in the new frame as predicted (the alignment runs both ways); a
         // whole frame as it is.
         let predicted_frame = match self.object {
-            true => self.predicted_target(target)?,
-            false => target.clone(),
+            true => predicted_frame?,
+            false => target,
         };
-        let (e, agreement) = self.pipeline.estimate_near(model, &predicted_frame, &predicted, None)?;
+        let (e, agreement) = self.pipeline.estimate_near(model, predicted_frame, &predicted)?;
         let confirmed = e.registration.converged
             && agreement.score.is_some_and(|s| s <= cfg.aligned_max_score)
             && agreement.visible_fraction() >= cfg.aligned_min_visible;

@@ -116,10 +116,7 @@ pub fn run(args: &TrackArgs) -> anyhow::Result<ExitCode> {
         first.mask = boxed::first_mask(&pipeline, &first, parse_box(text)?).context("--box")?;
     }
     let settings = match &args.tracker {
-        Some(path) => {
-            let text = std::fs::read_to_string(path).with_context(|| format!("--tracker {}", path.display()))?;
-            toml::from_str::<TrackerConfig>(&text).with_context(|| format!("--tracker {}", path.display()))?
-        }
+        Some(path) => TrackerConfig::from_file(path).context("--tracker")?,
         None => TrackerConfig::default(),
     };
     let config = TrackerConfig { trace: args.rerun.is_some(), ..settings };
