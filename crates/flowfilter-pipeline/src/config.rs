@@ -100,6 +100,72 @@ pub struct WideBaselineConfig {
     /// Feature matches (FAST corners, BRIEF descriptors) beside the search, under the same
     /// condition; a consensus among them guides tracking as the search's answer does.
     pub features: FeatureParams,
+    /// The clouds' own shapes beside the search, under the same condition: a global
+    /// registration (FPFH matches and RANSAC) guides tracking as the search's answer does.
+    pub geometry: GeometryGuideConfig,
+}
+
+/// The geometric guide (`[flow.wide.geometry]`): where the flow is split, both clouds are
+/// thinned to a budget, registered globally by their FPFH matches
+/// ([`flowfilter_registration::global`]) and refined by point-to-plane ICP; that motion guides
+/// tracking as the coarse search's does. The clouds' shapes reach motions of any size where
+/// the images' appearance changes too much for the search (a camera turned 25 deg about a
+/// shelf's bin).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct GeometryGuideConfig {
+    /// Run it.
+    pub enabled: bool,
+    /// Both clouds are thinned to at most this many points (the model's count sets the voxel,
+    /// at least `min_voxel_m`), so its cost does not grow with the region.
+    pub max_points: usize,
+    /// The finest voxel (metres).
+    pub min_voxel_m: f64,
+    /// Normals of the thinned clouds from this many nearest neighbours.
+    pub normal_neighbours: usize,
+    /// A point's descriptor covers this many voxels around it.
+    pub feature_radius_voxels: f64,
+    /// A match agrees with a motion within this many voxels (the ICP's gate as well).
+    pub match_distance_voxels: f64,
+    /// RANSAC samples at most.
+    pub max_iterations: usize,
+    /// Fewer matches agreeing give no guide.
+    pub min_inliers: usize,
+}
+
+impl Default for GeometryGuideConfig {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            max_points: 2500,
+            min_voxel_m: 0.005,
+            normal_neighbours: 30,
+            feature_radius_voxels: 5.0,
+            match_distance_voxels: 1.5,
+            max_iterations: 20_000,
+            min_inliers: 12,
+        }
+    }
+}
+
+impl GeometryGuideConfig {
+    /// Check ranges.
+    fn validate(&self) -> Result<(), String> {
+        let ok = self.max_points >= 100
+            && self.min_voxel_m > 0.0
+            && self.normal_neighbours >= 3
+            && self.feature_radius_voxels > 1.0
+            && self.match_distance_voxels > 0.0
+            && self.max_iterations > 0
+            && self.min_inliers >= 3;
+        if ok {
+            Ok(())
+        } else {
+            Err("geometry: max_points >= 100, min_voxel_m > 0, normal_neighbours >= 3, feature_radius_voxels > 1, \
+                 match_distance_voxels > 0, max_iterations > 0, min_inliers >= 3"
+                .to_string())
+        }
+    }
 }
 
 impl Default for WideBaselineConfig {
@@ -114,6 +180,7 @@ impl Default for WideBaselineConfig {
             max_search_side_px: 80,
             search: CoarseSearchParams::default(),
             features: FeatureParams::default(),
+            geometry: GeometryGuideConfig::default(),
         }
     }
 }
@@ -122,6 +189,7 @@ impl WideBaselineConfig {
     /// Check ranges.
     fn validate(&self) -> Result<(), String> {
         self.features.validate()?;
+        self.geometry.validate()?;
         let s = &self.search;
         let ok = self.min_motion_px >= 0.0
             && (0.0..=1.0).contains(&self.settled_fraction)

@@ -438,6 +438,16 @@ impl Pipeline {
             sets.push(finder.find_guided(model, target, &guide)?);
             sources.push("wide");
         }
+        // The clouds' shapes where the search runs and no set of tracks so far found a motion
+        // (no rigid consensus of `settled_min_pairs`, whatever its share): the region tracked
+        // again from where a global registration of the two clouds puts it.
+        if view.is_some()
+            && !sets.iter().any(|set| crate::wide::some_agree(&set.pairs, wide))
+            && let Some(guide) = crate::wide::geometric_guide(model, target, wide)
+        {
+            sets.push(finder.find_guided(model, target, &guide)?);
+            sources.push("geometry");
+        }
         // Feature matches where the search runs: their own set, and the region tracked again
         // from the motion they agree on.
         if view.is_some() && wide.features.enabled {

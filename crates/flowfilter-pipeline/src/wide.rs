@@ -1,14 +1,17 @@
 //! The wide-baseline guide: where the model's region went in the target image
 //! ([`flowfilter_flow::coarse_search`]) as a predicted motion that guided tracking starts from.
 
-use crate::config::WideBaselineConfig;
+use crate::config::{GeometryGuideConfig, WideBaselineConfig};
 use crate::stages::PreparedFrame;
 use flowfilter_camera::{CameraModel, Pixel};
 use flowfilter_flow::coarse_search::{CoarseMatch, SearchImages, coarse_search, search_hypotheses};
 use flowfilter_flow::correspondences::FlowPairs;
 use flowfilter_flow::features::feature_pairs;
 use flowfilter_geometry::{Correspondences, Pose};
-use flowfilter_registration::ransac_kabsch;
+use flowfilter_depth::cloud::{knn_normals, thin_to_budget, voxel_downsample};
+use flowfilter_geometry::{Point3, PointCloud};
+use flowfilter_registration::global::{GlobalConfig, register_by_features};
+use flowfilter_registration::{Icp, IcpConfig, IcpVariant, Registrar, RegistrationProblem, ransac_kabsch};
 use nalgebra::{Rotation3, Translation3, Unit, UnitQuaternion, Vector3};
 
 /// The coarse search of one pair, run once: its pyramid levels and where it placed the model's
@@ -72,6 +75,15 @@ pub(crate) fn settled(pairs: &Correspondences, cfg: &WideBaselineConfig) -> Opti
         .then_some(pose)
 }
 
+/// Whether some rigid motion gathers at least `settled_min_pairs` of `pairs` (within
+/// `settled_distance_m`), whatever their share: tracks that found the region's motion, if
+/// not all of them agree.
+pub(crate) fn some_agree(pairs: &Correspondences, cfg: &WideBaselineConfig) -> bool {
+    let min = cfg.settled_min_pairs.max(3);
+    ransac_kabsch(pairs, SETTLED_RANSAC_ITERATIONS, cfg.settled_distance_m, min, 0)
+        .is_some_and(|(_, inliers)| inliers.iter().filter(|b| **b).count() >= min)
+}
+
 /// The feature matches of `model`'s region in `target` ([`flowfilter_flow::features`]) as 3-D
 /// pairs, and the motion their largest rigid consensus gives when it has at least
 /// [`FEATURE_MIN_AGREEING`] pairs and moves the region's pixels at least `min_motion_px` on
@@ -88,6 +100,47 @@ pub(crate) fn feature_guide(
         .filter(|pose| mean_motion_px(pose, model) >= cfg.min_motion_px);
     (matched, guide)
 }
+
+/// The motion a global registration of the two frames' clouds finds
+/// ([`crate::config::GeometryGuideConfig`]), refined by point-to-plane ICP, when it moves the
+/// region's pixels at least `min_motion_px` on average.
+pub(crate) fn geometric_guide(model: &PreparedFrame, target: &PreparedFrame, cfg: &WideBaselineConfig) -> Option<Pose> {
+    let g = &cfg.geometry;
+    if !g.enabled {
+        return None;
+    }
+    let (source, voxel) = thin_to_budget(model.cloud.clone(), g.min_voxel_m, g.max_points);
+    let (target_cloud, _) = thin_to_budget(voxel_downsample(&target.cloud, voxel), voxel, g.max_points);
+    let (source, target_cloud) = (with_normals(source, g), with_normals(target_cloud, g));
+    let global = GlobalConfig {
+        feature_radius_m: g.feature_radius_voxels * voxel,
+        max_distance_m: g.match_distance_voxels * voxel,
+        max_iterations: g.max_iterations,
+        min_inliers: g.min_inliers,
+        ..GlobalConfig::default()
+    };
+    let found = register_by_features(&source, &target_cloud, &global)?;
+    let icp = Icp {
+        config: IcpConfig {
+            variant: IcpVariant::PointToPlane,
+            max_correspondence_distance: global.max_distance_m,
+            max_iterations: GEOMETRY_ICP_ITERATIONS,
+            ..IcpConfig::default()
+        },
+    };
+    let problem = RegistrationProblem { init: found.pose, ..RegistrationProblem::new(source, target_cloud) };
+    let pose = icp.register(&problem).map_or(found.pose, |r| r.transform);
+    (mean_motion_px(&pose, model) >= cfg.min_motion_px).then_some(pose)
+}
+
+/// `cloud` with normals from its nearest neighbours, turned towards the camera.
+fn with_normals(cloud: PointCloud, g: &GeometryGuideConfig) -> PointCloud {
+    let normals = knn_normals(&cloud.points, g.normal_neighbours, &Point3::origin());
+    PointCloud { normals: Some(normals), ..cloud }
+}
+
+/// ICP iterations refining the geometric guide.
+const GEOMETRY_ICP_ITERATIONS: usize = 30;
 
 /// Least feature pairs agreeing on a motion for it to guide tracking.
 pub const FEATURE_MIN_AGREEING: usize = 8;

@@ -12,6 +12,7 @@ mod evaluate;
 mod filterreg;
 mod flowfilter;
 mod gmm;
+pub mod global;
 mod icp;
 pub mod lattice;
 pub mod plausibility;
