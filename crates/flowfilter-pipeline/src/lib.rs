@@ -36,7 +36,9 @@ mod trace;
 mod warning;
 mod wide;
 
-pub use config::{CloudPrepConfig, FlowStageConfig, GeometryGuideConfig, PipelineConfig, ReportConfig, WideBaselineConfig};
+pub use config::{
+    CloudPrepConfig, FlowStageConfig, GeometryGuideConfig, PipelineConfig, ReportConfig, WideBaselineConfig,
+};
 pub use error::PipelineError;
 pub use estimate::{
     CorrespondenceSummary, ESTIMATE_SCHEMA, Estimate, GroundTruth, REGISTER_SCHEMA, RegisterReport, RegisterTimes,

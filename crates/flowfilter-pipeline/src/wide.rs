@@ -4,11 +4,11 @@
 use crate::config::{GeometryGuideConfig, WideBaselineConfig};
 use crate::stages::PreparedFrame;
 use flowfilter_camera::{CameraModel, Pixel};
+use flowfilter_depth::cloud::{knn_normals, thin_to_budget, voxel_downsample};
 use flowfilter_flow::coarse_search::{CoarseMatch, SearchImages, coarse_search, search_hypotheses};
 use flowfilter_flow::correspondences::FlowPairs;
 use flowfilter_flow::features::feature_pairs;
 use flowfilter_geometry::{Correspondences, Pose};
-use flowfilter_depth::cloud::{knn_normals, thin_to_budget, voxel_downsample};
 use flowfilter_geometry::{Point3, PointCloud};
 use flowfilter_registration::global::{GlobalConfig, register_by_features};
 use flowfilter_registration::{Icp, IcpConfig, IcpVariant, Registrar, RegistrationProblem, ransac_kabsch};

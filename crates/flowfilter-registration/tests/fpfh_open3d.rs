@@ -42,11 +42,8 @@ fn our_fpfh_descriptors_are_open3ds() {
     {
         let ours = fpfh_features(&cloud(points, normals), f.radius, f.max_nn).unwrap();
         assert_eq!(ours.len(), want.len());
-        let worst = ours
-            .iter()
-            .zip(want)
-            .flat_map(|(a, b)| a.iter().zip(b).map(|(x, y)| (x - y).abs()))
-            .fold(0.0f32, f32::max);
+        let worst =
+            ours.iter().zip(want).flat_map(|(a, b)| a.iter().zip(b).map(|(x, y)| (x - y).abs())).fold(0.0f32, f32::max);
         // Open3D's values are recorded to 4 decimals of bins that reach about 200.
         assert!(worst < 2e-3, "largest difference of a bin: {worst}");
     }

@@ -45,10 +45,8 @@ pub fn fpfh_features(cloud: &PointCloud, radius: f64, max_neighbours: usize) -> 
     let index = KnnIndex::new(points);
     let neighbourhoods: Vec<Vec<Neighbour>> =
         points.par_iter().map(|p| neighbours(&index, p, radius, max_neighbours)).collect();
-    let simple: Vec<Fpfh> = (0..points.len())
-        .into_par_iter()
-        .map(|i| simple_histogram(points, normals, i, &neighbourhoods[i]))
-        .collect();
+    let simple: Vec<Fpfh> =
+        (0..points.len()).into_par_iter().map(|i| simple_histogram(points, normals, i, &neighbourhoods[i])).collect();
     Some((0..points.len()).into_par_iter().map(|i| weighted_histogram(&simple, i, &neighbourhoods[i])).collect())
 }
 

@@ -194,7 +194,8 @@ mod tests {
     /// Pairs on one motion, and wrong pairs between random points of the same region.
     fn pairs(right: usize, wrong: usize, truth: &Pose) -> Vec<(Point3, Point3)> {
         let mut rng = ChaCha8Rng::seed_from_u64(7);
-        let mut point = || Point3::new(rng.random_range(-0.2..0.2), rng.random_range(-0.15..0.15), rng.random_range(0.5..0.7));
+        let mut point =
+            || Point3::new(rng.random_range(-0.2..0.2), rng.random_range(-0.15..0.15), rng.random_range(0.5..0.7));
         let mut v: Vec<(Point3, Point3)> = (0..right).map(|_| point()).map(|p| (p, truth * p)).collect();
         v.extend((0..wrong).map(|_| (point(), point())));
         // Interleaved, so that the order says nothing.
