@@ -1,17 +1,15 @@
 //! The wide-baseline guide: where the model's region went in the target image
 //! ([`flowfilter_flow::coarse_search`]) as a predicted motion that guided tracking starts from.
 
-use crate::config::{GeometryGuideConfig, WideBaselineConfig};
+use crate::config::WideBaselineConfig;
+use crate::global_start::global_start;
 use crate::stages::PreparedFrame;
 use flowfilter_camera::{CameraModel, Pixel};
-use flowfilter_depth::cloud::{knn_normals, thin_to_budget, voxel_downsample};
 use flowfilter_flow::coarse_search::{CoarseMatch, SearchImages, coarse_search, search_hypotheses};
 use flowfilter_flow::correspondences::FlowPairs;
 use flowfilter_flow::features::feature_pairs;
 use flowfilter_geometry::{Correspondences, Pose};
-use flowfilter_geometry::{Point3, PointCloud};
-use flowfilter_registration::global::{GlobalConfig, register_by_features};
-use flowfilter_registration::{Icp, IcpConfig, IcpVariant, Registrar, RegistrationProblem, ransac_kabsch};
+use flowfilter_registration::ransac_kabsch;
 use nalgebra::{Rotation3, Translation3, Unit, UnitQuaternion, Vector3};
 
 /// The coarse search of one pair, run once: its pyramid levels and where it placed the model's
@@ -105,42 +103,12 @@ pub(crate) fn feature_guide(
 /// ([`crate::config::GeometryGuideConfig`]), refined by point-to-plane ICP, when it moves the
 /// region's pixels at least `min_motion_px` on average.
 pub(crate) fn geometric_guide(model: &PreparedFrame, target: &PreparedFrame, cfg: &WideBaselineConfig) -> Option<Pose> {
-    let g = &cfg.geometry;
-    if !g.enabled {
+    if !cfg.geometry.enabled {
         return None;
     }
-    let (source, voxel) = thin_to_budget(model.cloud.clone(), g.min_voxel_m, g.max_points);
-    let (target_cloud, _) = thin_to_budget(voxel_downsample(&target.cloud, voxel), voxel, g.max_points);
-    let (source, target_cloud) = (with_normals(source, g), with_normals(target_cloud, g));
-    let global = GlobalConfig {
-        feature_radius_m: g.feature_radius_voxels * voxel,
-        max_distance_m: g.match_distance_voxels * voxel,
-        max_iterations: g.max_iterations,
-        min_inliers: g.min_inliers,
-        ..GlobalConfig::default()
-    };
-    let found = register_by_features(&source, &target_cloud, &global)?;
-    let icp = Icp {
-        config: IcpConfig {
-            variant: IcpVariant::PointToPlane,
-            max_correspondence_distance: global.max_distance_m,
-            max_iterations: GEOMETRY_ICP_ITERATIONS,
-            ..IcpConfig::default()
-        },
-    };
-    let problem = RegistrationProblem { init: found.pose, ..RegistrationProblem::new(source, target_cloud) };
-    let pose = icp.register(&problem).map_or(found.pose, |r| r.transform);
+    let pose = global_start(&model.cloud, &target.cloud, &cfg.geometry)?.pose;
     (mean_motion_px(&pose, model) >= cfg.min_motion_px).then_some(pose)
 }
-
-/// `cloud` with normals from its nearest neighbours, turned towards the camera.
-fn with_normals(cloud: PointCloud, g: &GeometryGuideConfig) -> PointCloud {
-    let normals = knn_normals(&cloud.points, g.normal_neighbours, &Point3::origin());
-    PointCloud { normals: Some(normals), ..cloud }
-}
-
-/// ICP iterations refining the geometric guide.
-const GEOMETRY_ICP_ITERATIONS: usize = 30;
 
 /// Least feature pairs agreeing on a motion for it to guide tracking.
 pub const FEATURE_MIN_AGREEING: usize = 8;

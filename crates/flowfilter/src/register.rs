@@ -5,7 +5,7 @@ use clap::Args;
 use flowfilter_depth::cloud::knn_normals;
 use flowfilter_depth::ply::read_ply;
 use flowfilter_geometry::{Point3, PointCloud, Pose};
-use flowfilter_pipeline::{PipelineConfig, RegisterReport};
+use flowfilter_pipeline::{GeometryGuideConfig, PipelineConfig, RegisterReport, global_start};
 use flowfilter_registration::{RegistrationConfig, RegistrationError, RegistrationProblem, registrar_by_name};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -27,8 +27,18 @@ pub struct RegisterArgs {
     pub method: Option<String>,
     /// Initial 4x4 transform: a text file of 16 numbers (row-major) or a JSON 4x4 array of rows
     /// (bare or under `transform`).
-    #[arg(long)]
+    #[arg(long, conflicts_with = "global")]
     pub init: Option<PathBuf>,
+    /// Start from a global registration instead of identity (motions of any size, as Open3D's
+    /// global registration before its ICP): both clouds thinned to at most 2500 points from
+    /// `--global-voxel` up, FPFH descriptors matched both ways, a RANSAC over three matches,
+    /// point-to-plane ICP; the method then refines from there. Fails when no motion gathers
+    /// 12 matches.
+    #[arg(long)]
+    pub global: bool,
+    /// The finest voxel of `--global` (metres).
+    #[arg(long, default_value_t = 0.005, requires = "global")]
+    pub global_voxel: f64,
     /// Backend parameters (TOML): a pipeline configuration such as configs/icp.toml (its
     /// [registration.*] tables and `method`), or a file of bare [icp], [cpd], [filterreg] and
     /// [flowfilter] tables.
@@ -54,6 +64,26 @@ const LONG_RUN_PAIRS: f64 = 2e7;
 /// Give `cloud` PCA normals from its `k` nearest neighbours, facing the origin.
 fn estimate_normals(cloud: &mut PointCloud, k: u32) {
     cloud.normals = Some(knn_normals(&cloud.points, k as usize, &Point3::origin()));
+}
+
+/// The start `--global` finds (a line on stderr says how well the matches agreed).
+fn global_init(source: &PointCloud, target: &PointCloud, voxel: f64) -> anyhow::Result<Pose> {
+    anyhow::ensure!(
+        voxel.is_finite() && voxel > 0.0,
+        "--global-voxel: expected a positive length in metres, found {voxel}"
+    );
+    let cfg = GeometryGuideConfig { min_voxel_m: voxel, ..GeometryGuideConfig::default() };
+    let found = global_start(source, target, &cfg).ok_or_else(|| {
+        anyhow::anyhow!(
+            "--global: no motion gathers {} matching FPFH descriptors (the clouds share too little shape at a {voxel} m voxel)",
+            cfg.min_inliers
+        )
+    })?;
+    eprintln!(
+        "global start: {} of {} descriptor matches agree (voxel {:.4} m)",
+        found.inliers, found.matches, found.voxel_m
+    );
+    Ok(found.pose)
 }
 
 /// The backend parameters and, for a pipeline configuration, its method.
@@ -87,7 +117,11 @@ pub fn run(args: &RegisterArgs) -> anyhow::Result<ExitCode> {
         estimate_normals(&mut source, args.normals_k);
         estimate_normals(&mut target, args.normals_k);
     }
-    let init = args.init.as_deref().map(crate::matrix_file::read_pose).transpose()?.unwrap_or_else(Pose::identity);
+    let init = match &args.init {
+        Some(path) => crate::matrix_file::read_pose(path)?,
+        None if args.global => global_init(&source, &target, args.global_voxel)?,
+        None => Pose::identity(),
+    };
     let (model_points, target_points) = (source.len(), target.len());
     let start = Instant::now();
     let mut problem = RegistrationProblem::new(source, target).with_init(init);

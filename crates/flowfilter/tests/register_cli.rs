@@ -164,3 +164,46 @@ fn procedural_names_are_checked_and_listed() {
     assert!(!ok && stderr.contains("'sphere'") && stderr.contains("box") && stderr.contains("bottle"), "{stderr}");
     assert!(!out.exists());
 }
+
+/// `--global`: a bumpy sheet and the same sheet turned by 40 degrees, far beyond ICP's reach
+/// from identity; started from the global registration, ICP lands on the motion.
+#[test]
+fn a_global_start_reaches_a_40_degree_turn() {
+    use flowfilter_depth::ply::{PlyFormat, write_ply};
+    use flowfilter_geometry::{Point3, PointCloud, Pose};
+    let points: Vec<Point3> = (0..6400)
+        .map(|i| {
+            let (x, y) = ((i % 80) as f64 * 0.0025, (i / 80) as f64 * 0.0025);
+            Point3::new(x, y, 0.6 + 0.01 * (x * 40.0).sin() * (y * 30.0).cos())
+        })
+        .collect();
+    let truth =
+        Pose::new(nalgebra::Vector3::new(0.05, 0.0, 0.02), nalgebra::Vector3::new(0.0, 40f64.to_radians(), 0.0));
+    let tmp = tempfile::tempdir().unwrap();
+    let (s, t) = (tmp.path().join("source.ply"), tmp.path().join("target.ply"));
+    write_ply(&PointCloud::from_points(points.clone()), &s, PlyFormat::BinaryLittleEndian).unwrap();
+    write_ply(&PointCloud::from_points(points.iter().map(|p| truth * p).collect()), &t, PlyFormat::BinaryLittleEndian)
+        .unwrap();
+    let (s, t) = (s.to_str().unwrap(), t.to_str().unwrap());
+    let turn_error = |extra: &[&str]| {
+        let mut args = vec!["register", "--source", s, "--target", t, "--method", "icp-pt2pl", "--json"];
+        args.extend(extra);
+        // From identity the answer is implausible, and the exit code says so (3).
+        let (_, stdout, stderr) = flowfilter(&args);
+        let out: serde_json::Value =
+            serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("{extra:?}: {e}: {stderr}"));
+        let m = nalgebra::Matrix3::from_fn(|r, c| out["transform"][r][c].as_f64().unwrap());
+        let r = nalgebra::Rotation3::from_matrix_unchecked(m);
+        ((r.inverse() * truth.rotation.to_rotation_matrix()).angle().to_degrees(), stderr)
+    };
+    let (from_identity, _) = turn_error(&[]);
+    assert!(from_identity > 10.0, "ICP from identity: {from_identity} deg");
+    let (global, stderr) = turn_error(&["--global"]);
+    assert!(global < 0.5, "from the global start: {global} deg");
+    assert!(stderr.contains("global start:") && stderr.contains("descriptor matches agree"), "{stderr}");
+    // Conflicting or bad arguments are refused.
+    let (ok, _, stderr) = flowfilter(&["register", "--source", s, "--target", t, "--global", "--global-voxel=-1"]);
+    assert!(!ok && stderr.contains("--global-voxel"), "{stderr}");
+    let (ok, _, stderr) = flowfilter(&["register", "--source", s, "--target", t, "--global", "--init", s]);
+    assert!(!ok && stderr.contains("cannot be used with"), "{stderr}");
+}
