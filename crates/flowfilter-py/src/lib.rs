@@ -83,6 +83,7 @@ fn _flowfilter(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<track::Tracker>()?;
     m.add_function(wrap_pyfunction!(register::register, m)?)?;
     m.add_function(wrap_pyfunction!(register::evaluate_registration, m)?)?;
+    m.add_function(wrap_pyfunction!(register::global_registration, m)?)?;
     m.add_function(wrap_pyfunction!(estimate::estimate, m)?)?;
     m.add_function(wrap_pyfunction!(estimate::correspondences, m)?)?;
     m.add_function(wrap_pyfunction!(flow::flow, m)?)?;

@@ -229,3 +229,28 @@ pub fn evaluate_registration<'py>(
     };
     Ok((fitness, rmse, array))
 }
+
+/// A start for `register` from nowhere (Open3D's global registration, then point-to-plane ICP;
+/// `flowfilter register --global`): both clouds thinned to at most 2500 points from
+/// `voxel_size` (metres) up, FPFH descriptors matched both ways, a RANSAC over three matches.
+/// Returns `(transformation, inliers, matches)`: the 4x4 float64 transform with `target ~ T @
+/// source`, and how many of the mutual descriptor matches agree with it; `None` when no motion
+/// gathers 12 of them. `source`, `target`: (N, 3) arrays or `open3d.geometry.PointCloud`s.
+///
+/// Raises InputError for arrays that cannot be used or a voxel size that is not positive.
+#[pyfunction]
+#[pyo3(signature = (source, target, voxel_size = 0.005))]
+pub fn global_registration<'py>(
+    py: Python<'py>,
+    source: &Bound<'py, PyAny>,
+    target: &Bound<'py, PyAny>,
+    voxel_size: f64,
+) -> PyResult<Option<(Bound<'py, PyArray2<f64>>, usize, usize)>> {
+    if !(voxel_size.is_finite() && voxel_size > 0.0) {
+        return Err(input(format!("voxel_size: expected a positive length (metres), found {voxel_size}")));
+    }
+    let (source, target) = (cloud(source, None, "source")?, cloud(target, None, "target")?);
+    let cfg = flowfilter_pipeline::GeometryGuideConfig { min_voxel_m: voxel_size, ..Default::default() };
+    let found = threads::run(py, || flowfilter_pipeline::global_start(&source, &target, &cfg))?;
+    Ok(found.map(|f| (matrix(py, &flowfilter_pipeline::matrix_rows(&f.pose)), f.inliers, f.matches)))
+}

@@ -243,3 +243,26 @@ def test_nan_parameters_name_the_key():
     source, target, _ = load("case_0")
     with pytest.raises(flowfilter.ConfigError, match="tolerance"):
         flowfilter.register(source, target, method="filterreg-pt2pt", tolerance=float("nan"))
+
+
+def test_a_global_registration_starts_register_beyond_its_reach():
+    # A bumpy sheet and the same sheet turned by 40 degrees about the vertical, moved 5 cm.
+    x, y = np.meshgrid(np.arange(80) * 0.0025, np.arange(80) * 0.0025)
+    source = np.stack([x.ravel(), y.ravel(), 0.6 + 0.01 * np.sin(x.ravel() * 40.0) * np.cos(y.ravel() * 30.0)], 1)
+    a = np.radians(40.0)
+    truth = np.eye(4)
+    truth[:3, :3] = [[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]]
+    truth[:3, 3] = [0.05, 0.0, 0.02]
+    target = source @ truth[:3, :3].T + truth[:3, 3]
+    start, inliers, matches = flowfilter.global_registration(source, target, voxel_size=0.005)
+    assert start.shape == (4, 4) and 12 <= inliers <= matches
+    assert rotation_error_deg(start, truth) < 1.0
+    normals = flowfilter.estimate_normals(target)
+    refined = flowfilter.register(source, target, "icp-pt2pl", init=start, target_normals=normals)
+    assert rotation_error_deg(refined.transformation, truth) < 0.5
+    # From identity the same ICP does not reach the turn.
+    alone = flowfilter.register(source, target, "icp-pt2pl", target_normals=normals)
+    assert rotation_error_deg(alone.transformation, truth) > 10.0
+    # A bad voxel: an InputError naming it.
+    with pytest.raises(flowfilter.InputError, match="voxel_size"):
+        flowfilter.global_registration(source, target, voxel_size=-1.0)

@@ -298,6 +298,17 @@ def evaluate_registration(
 
     Raises InputError for arrays that cannot be used or a distance that is not positive."""
 
+def global_registration(
+    source: ArrayLike, target: ArrayLike, voxel_size: float = 0.005
+) -> Optional[Tuple[npt.NDArray[np.float64], int, int]]:
+    """A start for `register` from nowhere (Open3D's global registration, then point-to-plane
+    ICP; `flowfilter register --global`): both clouds thinned to at most 2500 points from
+    `voxel_size` (metres) up, FPFH descriptors matched both ways, a RANSAC over three matches.
+    `(transformation, inliers, matches)`: the 4x4 transform with `target ~ T @ source` and how
+    many of the mutual descriptor matches agree with it; None when no motion gathers 12 of them.
+
+    Raises InputError for arrays that cannot be used or a voxel size that is not positive."""
+
 def estimate(
     model: Union[Frame, Any],
     target: Union[Frame, Any],
