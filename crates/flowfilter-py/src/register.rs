@@ -230,6 +230,9 @@ pub fn evaluate_registration<'py>(
     Ok((fitness, rmse, array))
 }
 
+/// `(transformation, inliers, matches)` of [`global_registration`].
+type GlobalStartTuple<'py> = (Bound<'py, PyArray2<f64>>, usize, usize);
+
 /// A start for `register` from nowhere (Open3D's global registration, then point-to-plane ICP;
 /// `flowfilter register --global`): both clouds thinned to at most 2500 points from
 /// `voxel_size` (metres) up, FPFH descriptors matched both ways, a RANSAC over three matches.
@@ -245,7 +248,7 @@ pub fn global_registration<'py>(
     source: &Bound<'py, PyAny>,
     target: &Bound<'py, PyAny>,
     voxel_size: f64,
-) -> PyResult<Option<(Bound<'py, PyArray2<f64>>, usize, usize)>> {
+) -> PyResult<Option<GlobalStartTuple<'py>>> {
     if !(voxel_size.is_finite() && voxel_size > 0.0) {
         return Err(input(format!("voxel_size: expected a positive length (metres), found {voxel_size}")));
     }
