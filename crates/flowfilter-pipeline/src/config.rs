@@ -100,12 +100,14 @@ pub struct WideBaselineConfig {
     /// Feature matches (FAST corners, BRIEF descriptors) beside the search, under the same
     /// condition; a consensus among them guides tracking as the search's answer does.
     pub features: FeatureParams,
-    /// The clouds' own shapes beside the search, under the same condition: a global
-    /// registration (FPFH matches and RANSAC) guides tracking as the search's answer does.
+    /// The clouds' own shapes beside the search, where it runs and no set of tracks so far
+    /// has a rigid consensus of `settled_min_pairs`: a global registration (FPFH matches and
+    /// RANSAC) guides tracking as the search's answer does.
     pub geometry: GeometryGuideConfig,
 }
 
-/// The geometric guide (`[flow.wide.geometry]`): where the flow is split, both clouds are
+/// The geometric guide (`[flow.wide.geometry]`): where the coarse search runs and no set of
+/// tracks has a rigid consensus of `[flow.wide] settled_min_pairs` pairs, both clouds are
 /// thinned to a budget, registered globally by their FPFH matches
 /// ([`flowfilter_registration::global`]) and refined by point-to-plane ICP; that motion guides
 /// tracking as the coarse search's does. The clouds' shapes reach motions of any size where

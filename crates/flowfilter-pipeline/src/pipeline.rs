@@ -442,6 +442,7 @@ impl Pipeline {
         // (no rigid consensus of `settled_min_pairs`, whatever its share): the region tracked
         // again from where a global registration of the two clouds puts it.
         if view.is_some()
+            && wide.geometry.enabled
             && !sets.iter().any(|set| crate::wide::some_agree(&set.pairs, wide))
             && let Some(guide) = crate::wide::geometric_guide(model, target, wide)
         {
