@@ -1,5 +1,5 @@
 //! Fast Point Feature Histograms (Rusu, Blodow and Beetz, ICRA 2009), as Open3D's
-//! `compute_fpfh_feature` computes them (the same values to 1e-3, test
+//! `compute_fpfh_feature` computes them (the same values within 2e-3, test
 //! `tests/fpfh_open3d.rs`): a 33-bin description of the surface's shape around
 //! each point, from the angles between its normal and its neighbours' normals, that does not
 //! change when the cloud moves.
@@ -16,7 +16,8 @@ pub const FPFH_LEN: usize = 3 * BINS;
 /// point has neighbours).
 pub type Fpfh = [f32; FPFH_LEN];
 
-/// The FPFH descriptor of every point of `cloud` (which must hold normals; `None` without),
+/// The FPFH descriptor of every point of `cloud` (which must hold a finite normal for every
+/// point and finite points; `None` otherwise),
 /// from its neighbours within `radius` metres, at most `max_neighbours` of them (the nearest:
 /// Open3D's `KDTreeSearchParamHybrid`). A point without a neighbour gets a descriptor of zeros.
 ///
@@ -40,7 +41,8 @@ pub type Fpfh = [f32; FPFH_LEN];
 /// assert!((sum - 200.0).abs() < 1e-3);
 /// ```
 pub fn fpfh_features(cloud: &PointCloud, radius: f64, max_neighbours: usize) -> Option<Vec<Fpfh>> {
-    let normals = cloud.normals.as_ref()?;
+    cloud.validate().ok()?;
+    let normals = cloud.normals.as_ref().filter(|ns| ns.iter().all(|n| n.iter().all(|c| c.is_finite())))?;
     let points = &cloud.points;
     let index = KnnIndex::new(points);
     let neighbourhoods: Vec<Vec<Neighbour>> =
@@ -184,8 +186,14 @@ mod tests {
     }
 
     #[test]
-    fn a_cloud_without_normals_has_no_features() {
+    fn a_cloud_without_usable_normals_has_no_features() {
         let cloud = PointCloud { points: bumpy(5).points, ..Default::default() };
         assert!(fpfh_features(&cloud, 0.02, 100).is_none());
+        let mut short = bumpy(5);
+        short.normals.as_mut().unwrap().pop();
+        assert!(fpfh_features(&short, 0.02, 100).is_none());
+        let mut nan = bumpy(5);
+        nan.normals.as_mut().unwrap()[3].x = f64::NAN;
+        assert!(fpfh_features(&nan, 0.02, 100).is_none());
     }
 }

@@ -27,7 +27,8 @@ pub fn mutual_matches(source: &[Fpfh], target: &[Fpfh]) -> Vec<(usize, usize)> {
 /// For each of `queries`, the index of its nearest descriptor in `indexed`; `None` when either
 /// is empty or a descriptor is not finite.
 fn nearest_of_each(queries: &[Fpfh], indexed: &[Fpfh]) -> Option<Vec<usize>> {
-    if queries.is_empty() || indexed.is_empty() {
+    let finite = |d: &[Fpfh]| d.iter().all(|f| f.iter().all(|v| v.is_finite()));
+    if queries.is_empty() || indexed.is_empty() || !finite(queries) || !finite(indexed) {
         return None;
     }
     let tree: ImmutableKdTree<f32, FPFH_LEN> = ImmutableKdTree::new_from_slice(indexed).ok()?;
@@ -55,5 +56,6 @@ mod tests {
         // Sources 1 and 2 both find target 0, which finds source 1: only (1, 0) is kept.
         assert_eq!(mutual_matches(&source, &target), vec![(0, 2), (1, 0), (3, 1)]);
         assert!(mutual_matches(&[], &target).is_empty());
+        assert!(mutual_matches(&[f(f32::NAN, 0.0)], &target).is_empty());
     }
 }
