@@ -68,15 +68,15 @@ def tote():
 
 
 def test_estimate_records_a_failing_real_pair(tmp_path, tote):
-    """Whole tote frames 31 deg apart (0 -> 2), which Flow Filter gets 30 deg wrong: the recording
-    holds every documented entity, the truth's, and the pair's warnings."""
+    """Whole tote frames 54 deg apart (2 -> 3), which Flow Filter gets 62 deg wrong (`cargo xtask
+    bench-real`): the recording holds every documented entity, the truth's, and the pair's warnings."""
     cli, _ = recording_cli()
     truth = tmp_path / "truth.json"
-    truth.write_text(json.dumps({"transform": tote_truth(0, 2).tolist()}))
+    truth.write_text(json.dumps({"transform": tote_truth(2, 3).tolist()}))
     rrd = tmp_path / "pair.rrd"
     f = lambda i, kind: tote / f"frame-{i:06d}.{kind}.png"  # noqa: E731
-    done = run_cli(cli, "estimate", "--camera", tote / "camera.json", "--model-color", f(0, "color"),
-                   "--model-depth", f(0, "depth"), "--target-color", f(2, "color"), "--target-depth", f(2, "depth"),
+    done = run_cli(cli, "estimate", "--camera", tote / "camera.json", "--model-color", f(2, "color"),
+                   "--model-depth", f(2, "depth"), "--target-color", f(3, "color"), "--target-depth", f(3, "depth"),
                    "--gt", truth, "--json", "--rerun", rrd)
     estimate = json.loads(done.stdout)
     assert not estimate["ground_truth"]["errors"]["success"], "this pair was meant to fail"

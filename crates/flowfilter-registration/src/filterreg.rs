@@ -77,7 +77,9 @@ pub struct FilterRegConfig {
     pub w: f64,
     /// Iteration limit.
     pub max_iterations: usize,
-    /// Stop when the update's rotation (rad) and translation (m) are both below this.
+    /// Stop when the update's rotation (rad) and translation (m) are both below this, or when
+    /// the result moved by less than this per iteration over the last 10 (sigma settled in
+    /// both cases).
     pub tolerance: f64,
     /// Sigma schedule.
     pub sigma: SigmaSchedule,
