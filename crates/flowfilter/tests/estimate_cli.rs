@@ -130,16 +130,23 @@ fn bad_input_is_reported() {
     assert!(!ok && err.contains("/nonexistent"), "{err}");
 }
 
+/// `../shared/data/<rel>` beside the repository, or `None` after saying that the test is skipped.
+fn shared_data(rel: &str) -> Option<PathBuf> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data").join(rel);
+    if dir.is_dir() {
+        Some(dir)
+    } else {
+        eprintln!("skipping: {} is absent (the shared data sits beside the repository)", dir.display());
+        None
+    }
+}
+
 /// The file form on the real YCB-Video frames of `../shared/data/ycb-video` (skipped with a
 /// message when the shared data is absent): colour, registered 16-bit depth, label masks and the
 /// frames' own `-gt.json` as the camera file; `--gt` gives the errors.
 #[test]
 fn estimate_from_rgbd_files_with_label_masks() {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/ycb-video/0001");
-    if !dir.is_dir() {
-        eprintln!("skipping: {} is absent (the shared data sits beside the repository)", dir.display());
-        return;
-    }
+    let Some(dir) = shared_data("ycb-video/0001") else { return };
     let f = |name: &str| dir.join(name).to_str().unwrap().to_string();
     // The true motion of the sugar box (label 3) from frame 1 to frame 3.
     let pose = |frame: &str| -> nalgebra::Matrix4<f64> {
@@ -243,11 +250,7 @@ fn rerun_recording() {
 /// a result that stays still over ten iterations has converged.
 #[test]
 fn filterreg_on_whole_real_frames_converges_where_its_steps_wander() {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/realsense-shelf/shelf-A");
-    if !dir.is_dir() {
-        eprintln!("skipping: {} is absent (the shared data sits beside the repository)", dir.display());
-        return;
-    }
+    let Some(dir) = shared_data("realsense-shelf/shelf-A") else { return };
     let f = |name: &str| dir.join(name).to_str().unwrap().to_string();
     // The truth: the camera's motion between the calibrated poses, inv(C_5) C_4.
     let poses: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(f("poses.json")).unwrap()).unwrap();
