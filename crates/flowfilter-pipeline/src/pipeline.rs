@@ -422,9 +422,10 @@ impl Pipeline {
         // the pyramid's reach (its flow split): one more candidate set for the registration's
         // RANSAC.
         let wide = &self.config.flow.wide;
-        // Whether the plain pairs already agree: read by the search and the guided pass alone.
-        let settled =
-            (wide.enabled || self.config.flow.guided).then(|| crate::wide::settled(&sets[0].pairs, wide)).flatten();
+        // Whether the plain pairs already agree: read by the search, the geometric guide and the
+        // guided pass alone.
+        let plain = (wide.enabled || self.config.flow.guided).then(|| crate::wide::consensus(&sets[0].pairs, wide));
+        let settled = plain.and_then(|c| crate::wide::settled_by(c, &sets[0].pairs, wide));
         let searched;
         let view = match coarse {
             _ if !wide.enabled || settled.is_some() => None,
@@ -443,7 +444,8 @@ impl Pipeline {
         // again from where a global registration of the two clouds puts it.
         if view.is_some()
             && wide.geometry.enabled
-            && !sets.iter().any(|set| crate::wide::some_agree(&set.pairs, wide))
+            && plain.flatten().is_none()
+            && !sets[1..].iter().any(|set| crate::wide::consensus(&set.pairs, wide).is_some())
             && let Some(guide) = crate::wide::geometric_guide(model, target, wide)
         {
             sets.push(finder.find_guided(model, target, &guide)?);

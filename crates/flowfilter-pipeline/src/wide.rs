@@ -59,27 +59,26 @@ pub(crate) fn search_level((w, h): (usize, usize), cfg: &WideBaselineConfig) -> 
     level
 }
 
-/// The rigid motion the pyramid's flow pairs already agree on, if they do (see
-/// [`WideBaselineConfig::settled_min_pairs`]): the coarse search is then not needed. The RANSAC
-/// is seeded, so the answer is the same on every run.
-pub(crate) fn settled(pairs: &Correspondences, cfg: &WideBaselineConfig) -> Option<Pose> {
-    if cfg.settled_min_pairs == 0 {
-        return None;
-    }
-    let (pose, inliers) =
-        ransac_kabsch(pairs, SETTLED_RANSAC_ITERATIONS, cfg.settled_distance_m, cfg.settled_min_pairs, 0)?;
+/// The largest rigid consensus among `pairs`: a motion that at least `settled_min_pairs` of them
+/// (and at least 3) agree on within `settled_distance_m`, and how many agree. The RANSAC is
+/// seeded, so the answer is the same on every run.
+pub(crate) fn consensus(pairs: &Correspondences, cfg: &WideBaselineConfig) -> Option<(Pose, usize)> {
+    let min = cfg.settled_min_pairs.max(3);
+    let (pose, inliers) = ransac_kabsch(pairs, SETTLED_RANSAC_ITERATIONS, cfg.settled_distance_m, min, 0)?;
     let agreeing = inliers.iter().filter(|b| **b).count();
-    (agreeing >= cfg.settled_min_pairs && agreeing as f64 >= cfg.settled_fraction * pairs.usable() as f64)
-        .then_some(pose)
+    (agreeing >= min).then_some((pose, agreeing))
 }
 
-/// Whether some rigid motion gathers at least `settled_min_pairs` of `pairs` (within
-/// `settled_distance_m`), whatever their share: tracks that found the region's motion, if
-/// not all of them agree.
-pub(crate) fn some_agree(pairs: &Correspondences, cfg: &WideBaselineConfig) -> bool {
-    let min = cfg.settled_min_pairs.max(3);
-    ransac_kabsch(pairs, SETTLED_RANSAC_ITERATIONS, cfg.settled_distance_m, min, 0)
-        .is_some_and(|(_, inliers)| inliers.iter().filter(|b| **b).count() >= min)
+/// The rigid motion the pyramid's flow pairs already agree on, if they do (see
+/// [`WideBaselineConfig::settled_min_pairs`]), from their [`consensus`]: enough of them, and a
+/// share of at least `settled_fraction` of the usable ones. The coarse search is then not needed.
+pub(crate) fn settled_by(
+    consensus: Option<(Pose, usize)>,
+    pairs: &Correspondences,
+    cfg: &WideBaselineConfig,
+) -> Option<Pose> {
+    let (pose, agreeing) = consensus.filter(|_| cfg.settled_min_pairs > 0)?;
+    (agreeing as f64 >= cfg.settled_fraction * pairs.usable() as f64).then_some(pose)
 }
 
 /// The feature matches of `model`'s region in `target` ([`flowfilter_flow::features`]) as 3-D
@@ -103,9 +102,6 @@ pub(crate) fn feature_guide(
 /// ([`crate::config::GeometryGuideConfig`]), refined by point-to-plane ICP, when it moves the
 /// region's pixels at least `min_motion_px` on average.
 pub(crate) fn geometric_guide(model: &PreparedFrame, target: &PreparedFrame, cfg: &WideBaselineConfig) -> Option<Pose> {
-    if !cfg.geometry.enabled {
-        return None;
-    }
     let pose = global_start(&model.cloud, &target.cloud, &cfg.geometry)?.pose;
     (mean_motion_px(&pose, model) >= cfg.min_motion_px).then_some(pose)
 }
@@ -262,6 +258,7 @@ mod tests {
     #[test]
     fn the_search_is_skipped_only_when_the_pyramids_flow_agrees() {
         let cfg = WideBaselineConfig::default();
+        let settled = |pairs: &Correspondences, cfg: &WideBaselineConfig| settled_by(consensus(pairs, cfg), pairs, cfg);
         // 60 pairs on one motion, 20 scattered: settled.
         assert!(settled(&pairs(60, 20), &cfg).is_some());
         // Too few agree (20 < 30), or too small a share (50 of 100): split, the search runs.
