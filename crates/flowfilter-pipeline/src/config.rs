@@ -252,6 +252,9 @@ pub struct PipelineConfig {
     pub align: crate::align::AlignConfig,
     /// What an estimate must show to be reported as converged.
     pub report: ReportConfig,
+    /// Scenes registered by their geometry first, kept where the images confirm it (Flow
+    /// Filter methods only).
+    pub geometry_first: crate::geometry_first::GeometryFirstConfig,
 }
 
 /// What an estimate must show to be reported as converged (`[report]`).
@@ -280,6 +283,7 @@ impl Default for PipelineConfig {
             judge: crate::judge::JudgeConfig::default(),
             align: crate::align::AlignConfig::default(),
             report: ReportConfig::default(),
+            geometry_first: crate::geometry_first::GeometryFirstConfig::default(),
         }
     }
 }
@@ -340,6 +344,7 @@ impl PipelineConfig {
         if !(self.report.max_bound_deg >= 0.0 && self.report.max_bound_deg.is_finite()) {
             return Err(format!("key 'report.max_bound_deg' must be >= 0, found {}", self.report.max_bound_deg));
         }
+        self.geometry_first.validate().map_err(|e| e.within("geometry_first").to_string())?;
         self.registration.validate().map_err(|e| e.within("registration").to_string())
     }
 }

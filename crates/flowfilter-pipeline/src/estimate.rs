@@ -142,6 +142,10 @@ pub struct Estimate {
     /// What the direct alignment did (methods that use flow correspondences).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub align: Option<crate::align::AlignReport>,
+    /// A scene's geometry-first try (`[geometry_first]`): whether its geometric registration was
+    /// kept without flow, and what the images said of it; absent where it did not run.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub geometry_first: Option<crate::geometry_first::GeometryFirstReport>,
     /// Conditions the caller should know about.
     pub warnings: Vec<PipelineWarning>,
     /// Ground truth, when known.

@@ -28,6 +28,7 @@ mod error;
 mod estimate;
 mod frame;
 pub mod frame_checks;
+pub mod geometry_first;
 mod global_start;
 mod pipeline;
 mod propagate;
@@ -49,6 +50,7 @@ pub use flowfilter_photometric::{
     Agreement, AlignConfig, AlignReport, ImageView, JudgeConfig, JudgeGate, JudgeReport, align, judge,
 };
 pub use frame::{ImagesError, RgbdFrame, load_bigbird_frame};
+pub use geometry_first::{GeometryFirstConfig, GeometryFirstReport};
 pub use global_start::{GlobalStart, global_start};
 pub use pipeline::Pipeline;
 pub use source::{FrameFiles, MaskSource};

@@ -4,6 +4,7 @@ use crate::config::PipelineConfig;
 use crate::error::PipelineError;
 use crate::estimate::{CorrespondenceSummary, ESTIMATE_SCHEMA, Estimate, RegistrationSummary, StageTimes, matrix_rows};
 use crate::frame::RgbdFrame;
+use crate::geometry_first::GeometryFirstReport;
 use crate::stages::{CorrespondenceFinder, DepthPreparer, FlowCorrespondenceFinder, FramePreparer, PreparedFrame};
 use crate::trace::{PairTrace, TracedCandidate, TracedSet};
 use crate::warning::PipelineWarning;
@@ -30,6 +31,19 @@ pub struct Pipeline {
     preparer: Box<dyn FramePreparer>,
     finder: Option<Box<dyn CorrespondenceFinder>>,
     registrar: Box<dyn Registrar>,
+    /// The geometric registration a scene tries first (`[geometry_first]`; Flow Filter methods
+    /// built from the configuration only).
+    geometry: Option<Box<dyn Registrar>>,
+}
+
+/// The geometry-first try of a scene ([`crate::geometry_first`]): the aligned geometric
+/// answer, what the images said of it, and the time it took.
+struct FirstTry {
+    reg: Registration,
+    aligned: Option<AlignReport>,
+    report: GeometryFirstReport,
+    registration_ms: f64,
+    align_ms: f64,
 }
 
 /// The correspondence stage's candidate sets, in the order handed to the registrar.
@@ -63,7 +77,20 @@ impl Pipeline {
         } else {
             None
         };
-        Ok(Self { config, preparer, finder, registrar })
+        // The scene's geometric registration: point-to-plane FilterReg as `register --method
+        // filterreg-pt2pl` runs it, within the try's iterations.
+        let geometry = match (&finder, config.geometry_first.enabled) {
+            (Some(_), true) => {
+                let mut registration = config.registration.clone();
+                registration.filterreg.max_iterations = config.geometry_first.max_iterations;
+                Some(
+                    registrar_by_name("filterreg-pt2pl", &registration)
+                        .map_err(|e| invalid(format!("table [geometry_first]: {e}")))?,
+                )
+            }
+            _ => None,
+        };
+        Ok(Self { config, preparer, finder, registrar, geometry })
     }
 
     /// A pipeline from custom stages. The configuration is kept for reference and for the
@@ -86,7 +113,7 @@ impl Pipeline {
         finder: Option<Box<dyn CorrespondenceFinder>>,
         registrar: Box<dyn Registrar>,
     ) -> Self {
-        Self { config, preparer, finder, registrar }
+        Self { config, preparer, finder, registrar, geometry: None }
     }
 
     /// The correspondence stage, when the registrar reads correspondences.
@@ -272,6 +299,18 @@ impl Pipeline {
         // The model's own size before any thinning past the configured voxel (the budget's, or
         // the other frame's density): what the scene rule reads.
         problem.source_points = Some(model.thinning.finer.as_ref().map_or(model.cloud.len(), |f| f.len()));
+        let first = if propagate { None } else { self.geometry_first(model, target, &problem) };
+        if let Some(f) = &first {
+            times.registration += f.registration_ms;
+            times.align += f.align_ms;
+        }
+        let first_report = match first {
+            Some(f) if f.report.confirmed => {
+                times.total = times.depth_model + times.depth_target + t0.elapsed().as_secs_f64() * 1e3;
+                return Ok(self.kept_on_geometry((model, target), &problem, f, times, warnings));
+            }
+            other => other.map(|f| f.report),
+        };
         let found = self.finder().and_then(|finder| {
             let tf = Instant::now();
             let found =
@@ -321,7 +360,66 @@ impl Pipeline {
         estimate.registration.converged &= !doubtful;
         estimate.judge = report;
         estimate.align = aligned;
+        estimate.geometry_first = first_report;
         Ok(estimate)
+    }
+
+    /// A scene's geometry-first try (`[geometry_first]`): FilterReg alone, then (when it
+    /// converged) the direct alignment and the images' agreement at the aligned pose. `None`
+    /// where it does not apply: not a Flow Filter method, not a scene, or the registration
+    /// refused the clouds (the full pipeline then reports why).
+    fn geometry_first(
+        &self,
+        model: &PreparedFrame,
+        target: &PreparedFrame,
+        problem: &RegistrationProblem,
+    ) -> Option<FirstTry> {
+        let geometry = self.geometry.as_deref()?;
+        let scene_points = self.config.registration.flowfilter.scene_points;
+        let points = problem.source_points.unwrap_or(problem.source.len());
+        if scene_points == 0 || points <= scene_points {
+            return None;
+        }
+        let tr = Instant::now();
+        let reg = geometry.register_checked(problem).ok()?;
+        let registration_ms = tr.elapsed().as_secs_f64() * 1e3;
+        let ta = Instant::now();
+        let converged = reg.converged;
+        let (reg, aligned, agreement) = if converged {
+            let (reg, aligned) = self.aligned(model, target, reg);
+            let images = judge::Textures::new(&model.image_view(), &target.image_view(), &self.config.judge);
+            let agreement = judge::agreement(&images, &reg.transform, &self.config.judge);
+            (reg, aligned, Some(agreement))
+        } else {
+            (reg, None, None)
+        };
+        let report = GeometryFirstReport {
+            confirmed: agreement.as_ref().is_some_and(|a| self.config.geometry_first.confirms(a)),
+            registration_converged: converged,
+            score: agreement.as_ref().and_then(|a| a.score),
+            visible_fraction: agreement.as_ref().map(judge::Agreement::visible_fraction),
+        };
+        Some(FirstTry { reg, aligned, report, registration_ms, align_ms: ta.elapsed().as_secs_f64() * 1e3 })
+    }
+
+    /// The estimate of a scene whose geometric answer the images confirmed (no flow ran).
+    fn kept_on_geometry(
+        &self,
+        frames: (&PreparedFrame, &PreparedFrame),
+        problem: &RegistrationProblem,
+        first: FirstTry,
+        times: StageTimes,
+        mut warnings: Vec<PipelineWarning>,
+    ) -> Estimate {
+        warnings.extend(first.reg.warnings.iter().cloned().map(PipelineWarning::from));
+        let doubtful = warnings.iter().any(PipelineWarning::is_doubtful);
+        let points = (problem.source.len(), problem.target.len());
+        let mut estimate = self.assemble(frames, points, first.reg, None, times, warnings);
+        // Never confidently wrong, as on the full path.
+        estimate.registration.converged &= !doubtful;
+        estimate.align = first.aligned;
+        estimate.geometry_first = Some(first.report);
+        estimate
     }
 
     /// The motion from `model` to `target` near a predicted one, on the images alone: the
@@ -705,6 +803,7 @@ impl Pipeline {
             stage_ms,
             judge: None,
             align: None,
+            geometry_first: None,
             warnings,
             ground_truth: None,
             pose: reg.transform,

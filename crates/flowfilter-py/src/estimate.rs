@@ -123,6 +123,13 @@ impl Estimate {
     fn align<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
         json_object(py, &self.estimate.align)
     }
+    /// A scene's geometry-first try (confirmed, registration_converged, score,
+    /// visible_fraction): whether its geometric registration was kept without flow; None where
+    /// no try ran (not a scene, not a Flow Filter method).
+    #[getter]
+    fn geometry_first<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        json_object(py, &self.estimate.geometry_first)
+    }
     /// The true transform and the errors against it, when `gt` was given; else None.
     #[getter]
     fn ground_truth<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {

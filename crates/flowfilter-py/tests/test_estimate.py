@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import flowfilter
-from conftest import FIXTURES, ROOT
+from conftest import FIXTURES, ROOT, SHARED
 
 
 def without_times(d):
@@ -194,3 +194,21 @@ def test_examples_run(tmp_path):
         done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=600, cwd=tmp_path)
         assert done.returncode == 0, f"{script.name}:\n{done.stdout}\n{done.stderr}"
         assert "rotation error" in done.stdout or "geodesic error" in done.stdout, done.stdout
+
+
+def test_whole_frames_kept_on_their_geometry_say_so():
+    """A whole real frame is a scene: its geometric registration, confirmed on the images, is
+    kept without flow (`geometry_first`), and switched off the full pipeline runs instead."""
+    shelf = SHARED / "realsense-shelf" / "shelf-A"
+    if not shelf.is_dir():
+        pytest.skip(f"{shelf} is absent: the real-frame tests need ../shared beside the repository")
+    frames = [flowfilter.read_frame(shelf / f"frame-{i:06d}.color.png", shelf / f"frame-{i:06d}.depth.png",
+                                    shelf / "camera.json") for i in (2, 3)]
+    kept = flowfilter.estimate(frames[0], frames[1])
+    assert kept.geometry_first["confirmed"] is True, kept.geometry_first
+    assert kept.correspondences is None and kept.stage_ms["flow"] == 0.0
+    assert kept.to_dict()["geometry_first"] == kept.geometry_first
+    full = flowfilter.estimate(frames[0], frames[1], config={"geometry_first": {"enabled": False}})
+    assert full.geometry_first is None and full.stage_ms["flow"] > 0.0
+    d = full.transform[:3, :3] @ kept.transform[:3, :3].T
+    assert np.degrees(np.arccos(np.clip((np.trace(d) - 1) / 2, -1, 1))) < 1.0

@@ -216,6 +216,7 @@ impl TrackedFrame {
                 stage_ms: StageTimes::default(),
                 judge: None,
                 align: None,
+                geometry_first: None,
                 warnings: vec![],
                 ground_truth: None,
                 pose: Pose::identity(),

@@ -243,6 +243,36 @@ fn rerun_recording() {
     }
 }
 
+/// `flowfilter estimate --json` on whole frames `a -> b` of a shared RealSense sequence
+/// (`dir`), scored against the calibrated camera motion `inv(C_b) C_a`, with `extra` arguments.
+fn whole_frames(dir: &Path, a: usize, b: usize, extra: &[&str]) -> serde_json::Value {
+    let f = |name: &str| dir.join(name).to_str().unwrap().to_string();
+    let poses: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(f("poses.json")).unwrap()).unwrap();
+    let pose = |frame: usize| {
+        let m = &poses["camera_to_world_calibrated"][frame.to_string()];
+        nalgebra::Matrix4::from_fn(|r, c| m[r][c].as_f64().unwrap())
+    };
+    let truth = pose(b).try_inverse().unwrap() * pose(a);
+    let tmp = tempfile::tempdir().unwrap();
+    let gt = tmp.path().join("gt.json");
+    let rows: Vec<Vec<f64>> = (0..4).map(|r| (0..4).map(|c| truth[(r, c)]).collect()).collect();
+    std::fs::write(&gt, serde_json::json!({ "transform": rows }).to_string()).unwrap();
+    let frame = |i: usize, kind: &str| f(&format!("frame-{i:06}.{kind}.png"));
+    let (camera, gt) = (f("camera.json"), gt.to_str().unwrap().to_string());
+    let (mc, md, tc, td) = (frame(a, "color"), frame(a, "depth"), frame(b, "color"), frame(b, "depth"));
+    let mut args = vec!["estimate", "--camera", &camera, "--model-color", &mc, "--model-depth", &md];
+    args.extend(["--target-color", &tc, "--target-depth", &td, "--gt", &gt, "--json"]);
+    args.extend(extra);
+    let (ok, out, err) = flowfilter(&args);
+    assert!(ok, "{err}");
+    serde_json::from_str(&out).unwrap()
+}
+
+/// The estimate's warning codes.
+fn warning_codes(v: &serde_json::Value) -> Vec<&str> {
+    v["warnings"].as_array().unwrap().iter().map(|w| w["code"].as_str().unwrap()).collect()
+}
+
 /// FilterReg on whole real frames (shelf-A 4 -> 5 of `../shared/data/realsense-shelf`, 10 deg
 /// apart; skipped with a message when the shared data is absent): near its fixed point the
 /// Anderson-mixed steps wander by a few tolerances about a pose that no longer moves. It used to
@@ -251,43 +281,47 @@ fn rerun_recording() {
 #[test]
 fn filterreg_on_whole_real_frames_converges_where_its_steps_wander() {
     let Some(dir) = shared_data("realsense-shelf/shelf-A") else { return };
-    let f = |name: &str| dir.join(name).to_str().unwrap().to_string();
-    // The truth: the camera's motion between the calibrated poses, inv(C_5) C_4.
-    let poses: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(f("poses.json")).unwrap()).unwrap();
-    let pose = |frame: &str| {
-        let m = &poses["camera_to_world_calibrated"][frame];
-        nalgebra::Matrix4::from_fn(|r, c| m[r][c].as_f64().unwrap())
-    };
-    let truth = pose("5").try_inverse().unwrap() * pose("4");
-    let tmp = tempfile::tempdir().unwrap();
-    let gt = tmp.path().join("gt.json");
-    let rows: Vec<Vec<f64>> = (0..4).map(|r| (0..4).map(|c| truth[(r, c)]).collect()).collect();
-    std::fs::write(&gt, serde_json::json!({ "transform": rows }).to_string()).unwrap();
-    let (ok, out, err) = flowfilter(&[
-        "estimate",
-        "--camera",
-        &f("camera.json"),
-        "--model-color",
-        &f("frame-000004.color.png"),
-        "--model-depth",
-        &f("frame-000004.depth.png"),
-        "--target-color",
-        &f("frame-000005.color.png"),
-        "--target-depth",
-        &f("frame-000005.depth.png"),
-        "--method",
-        "filterreg-pt2pl",
-        "--gt",
-        gt.to_str().unwrap(),
-        "--json",
-    ]);
-    assert!(ok, "{err}");
-    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let v = whole_frames(&dir, 4, 5, &["--method", "filterreg-pt2pl"]);
     let reg = &v["registration"];
     assert_eq!(reg["converged"], true, "{reg}");
     assert!(reg["iterations"].as_u64().unwrap() < 300, "{reg}");
-    let codes: Vec<&str> = v["warnings"].as_array().unwrap().iter().map(|w| w["code"].as_str().unwrap()).collect();
-    assert!(!codes.contains(&"iteration_limit"), "{codes:?}");
+    assert!(!warning_codes(&v).contains(&"iteration_limit"), "{:?}", warning_codes(&v));
     let errors = &v["ground_truth"]["errors"];
     assert!(errors["geodesic_error_deg"].as_f64().unwrap() < 2.0, "{errors}");
+}
+
+/// A whole frame is a scene: its clouds' shapes are registered first and, where the images
+/// confirm the aligned answer, no flow runs (shelf-A 2 -> 3: FilterReg and the alignment land
+/// within 0.5 deg). Where FilterReg lost the scene (shelf-G 10 -> 12: 50 deg off, a third of the
+/// model's pixels visible, when it converges at all) the images refuse it and the full pipeline
+/// finds the motion.
+#[test]
+fn whole_frames_confirmed_on_the_images_are_registered_by_their_geometry_alone() {
+    let Some(shelves) = shared_data("realsense-shelf") else { return };
+    let kept = whole_frames(&shelves.join("shelf-A"), 2, 3, &[]);
+    let first = &kept["geometry_first"];
+    assert_eq!(first["confirmed"], true, "{first}");
+    assert!(first["score"].as_f64().unwrap() <= 0.5 && first["visible_fraction"].as_f64().unwrap() >= 0.5, "{first}");
+    assert_eq!(kept["stage_ms"]["flow"], 0.0, "no flow ran: {}", kept["stage_ms"]);
+    assert!(kept["correspondences"].is_null() && kept["judge"].is_null());
+    assert_eq!(kept["align"]["accepted"], true, "{}", kept["align"]);
+    assert_eq!(kept["registration"]["converged"], true);
+    assert!(kept["ground_truth"]["errors"]["geodesic_error_deg"].as_f64().unwrap() < 1.0, "{}", kept["ground_truth"]);
+
+    let refused = whole_frames(&shelves.join("shelf-G"), 10, 12, &[]);
+    let first = &refused["geometry_first"];
+    assert_eq!(first["confirmed"], false, "{first}");
+    let converged = first["registration_converged"] == true;
+    assert!(!converged || first["score"].as_f64().is_some_and(|s| s > 0.5), "{first}");
+    assert!(refused["stage_ms"]["flow"].as_f64().unwrap() > 0.0, "the full pipeline ran: {}", refused["stage_ms"]);
+    let errors = &refused["ground_truth"]["errors"];
+    assert!(errors["geodesic_error_deg"].as_f64().unwrap() < 2.0, "{errors}");
+
+    // Switched off, the same pair goes through the flow, and no try is reported.
+    let tmp = tempfile::tempdir().unwrap();
+    let config = tmp.path().join("off.toml");
+    std::fs::write(&config, "[geometry_first]\nenabled = false\n").unwrap();
+    let full = whole_frames(&shelves.join("shelf-A"), 2, 3, &["--config", config.to_str().unwrap()]);
+    assert!(full["geometry_first"].is_null() && full["stage_ms"]["flow"].as_f64().unwrap() > 0.0);
+    assert!(full["ground_truth"]["errors"]["geodesic_error_deg"].as_f64().unwrap() < 1.0);
 }

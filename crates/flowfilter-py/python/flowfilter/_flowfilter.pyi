@@ -193,6 +193,11 @@ class Estimate:
         """What the direct alignment did (pixels, iterations, cost_before, cost_after, turn_deg,
         shift_m, row_shear_px_per_row, accepted); None for methods without flow and where the images cannot be aligned."""
     @property
+    def geometry_first(self) -> Optional[Dict[str, Any]]:
+        """A scene's geometry-first try (confirmed, registration_converged, score,
+        visible_fraction): whether its geometric registration was kept without flow; None where
+        no try ran (not a scene, not a Flow Filter method)."""
+    @property
     def ground_truth(self) -> Optional[Dict[str, Any]]:
         """The true transform and the errors against it, when `gt` was given."""
     def to_dict(self) -> Dict[str, Any]:
