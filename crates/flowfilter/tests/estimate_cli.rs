@@ -6,7 +6,12 @@ use std::process::Command;
 use std::sync::OnceLock;
 
 fn flowfilter(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_flowfilter")).args(args).output().unwrap();
+    flowfilter_with(args, &[])
+}
+
+/// [`flowfilter`] with environment variables set (`RAYON_NUM_THREADS`).
+fn flowfilter_with(args: &[&str], env: &[(&str, &str)]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_flowfilter")).args(args).envs(env.iter().copied()).output().unwrap();
     (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
 }
 
@@ -246,6 +251,11 @@ fn rerun_recording() {
 /// `flowfilter estimate --json` on whole frames `a -> b` of a shared RealSense sequence
 /// (`dir`), scored against the calibrated camera motion `inv(C_b) C_a`, with `extra` arguments.
 fn whole_frames(dir: &Path, a: usize, b: usize, extra: &[&str]) -> serde_json::Value {
+    whole_frames_with(dir, (a, b), extra, &[])
+}
+
+/// [`whole_frames`] with environment variables set.
+fn whole_frames_with(dir: &Path, (a, b): (usize, usize), extra: &[&str], env: &[(&str, &str)]) -> serde_json::Value {
     let f = |name: &str| dir.join(name).to_str().unwrap().to_string();
     let poses: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(f("poses.json")).unwrap()).unwrap();
     let pose = |frame: usize| {
@@ -263,7 +273,7 @@ fn whole_frames(dir: &Path, a: usize, b: usize, extra: &[&str]) -> serde_json::V
     let mut args = vec!["estimate", "--camera", &camera, "--model-color", &mc, "--model-depth", &md];
     args.extend(["--target-color", &tc, "--target-depth", &td, "--gt", &gt, "--json"]);
     args.extend(extra);
-    let (ok, out, err) = flowfilter(&args);
+    let (ok, out, err) = flowfilter_with(&args, env);
     assert!(ok, "{err}");
     serde_json::from_str(&out).unwrap()
 }
@@ -307,6 +317,10 @@ fn whole_frames_confirmed_on_the_images_are_registered_by_their_geometry_alone()
     assert_eq!(kept["align"]["accepted"], true, "{}", kept["align"]);
     assert_eq!(kept["registration"]["converged"], true);
     assert!(kept["ground_truth"]["errors"]["geodesic_error_deg"].as_f64().unwrap() < 1.0, "{}", kept["ground_truth"]);
+    // The same pose to the bit on one thread.
+    let one = whole_frames_with(&shelves.join("shelf-A"), (2, 3), &[], &[("RAYON_NUM_THREADS", "1")]);
+    assert_eq!(one["transform"], kept["transform"]);
+    assert_eq!(one["geometry_first"], kept["geometry_first"]);
 
     let refused = whole_frames(&shelves.join("shelf-G"), 10, 12, &[]);
     let first = &refused["geometry_first"];
