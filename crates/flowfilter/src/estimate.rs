@@ -8,8 +8,8 @@ use flowfilter_depth::ply::{PlyFormat, write_ply};
 use flowfilter_geometry::atomic::{check_writable_dir, check_writable_file, write_atomic_with};
 use flowfilter_geometry::{PointCloud, Pose};
 use flowfilter_pipeline::{
-    CameraFile, Estimate, FrameFiles, MaskSource, Pipeline, PipelineConfig, PipelineWarning, PreparedFrame, RgbdFrame,
-    load_bigbird_frame,
+    CameraFile, Estimate, FrameFiles, GeometryFirstReport, MaskSource, Pipeline, PipelineConfig, PipelineWarning,
+    PreparedFrame, RgbdFrame, load_bigbird_frame,
 };
 use flowfilter_rerun::{FrameInput, PairScene, Recorder};
 use image::{Rgb, RgbImage};
@@ -248,6 +248,9 @@ fn print_human(e: &Estimate) {
     if let Some(c) = e.correspondences {
         println!("flow pairs: {} tracked, {} consistent, {} inliers", c.tracked, c.consistent, c.inliers);
     }
+    if let Some(g) = &e.geometry_first {
+        println!("{}", geometry_first_line(g));
+    }
     let s = e.stage_ms;
     println!(
         "time (ms): depth {:.1} + {:.1}, flow {:.1}, correspondences {:.1}, registration {:.1}, total {:.1}",
@@ -263,6 +266,21 @@ fn print_human(e: &Estimate) {
             x.add_s_m.map_or("-".into(), |v| format!("{:.2} mm", v * 1e3)),
             x.success
         );
+    }
+}
+
+/// What a scene's geometry-first try found, as one line.
+fn geometry_first_line(g: &GeometryFirstReport) -> String {
+    let seen = match (g.score, g.visible_fraction) {
+        (Some(score), Some(visible)) => {
+            format!("texture score {score:.3}, {:.0}% of the pixels visible", 100.0 * visible)
+        }
+        (None, Some(visible)) => format!("flat texture, {:.0}% of the pixels visible", 100.0 * visible),
+        _ => "FilterReg did not converge".to_string(),
+    };
+    match g.confirmed {
+        true => format!("geometry first: kept ({seen}): no flow ran"),
+        false => format!("geometry first: not kept ({seen}): the full pipeline ran"),
     }
 }
 
@@ -313,4 +331,25 @@ pub fn overlay_cloud(
         dot(&(pose * p), [40, 230, 60]);
     }
     img
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_geometry_first_line_says_which_path_ran_and_why() {
+        let report = |confirmed: bool, score: Option<f64>, visible_fraction: Option<f64>| GeometryFirstReport {
+            confirmed,
+            registration_converged: visible_fraction.is_some(),
+            score,
+            visible_fraction,
+        };
+        let kept = geometry_first_line(&report(true, Some(0.142), Some(0.61)));
+        assert_eq!(kept, "geometry first: kept (texture score 0.142, 61% of the pixels visible): no flow ran");
+        let refused = geometry_first_line(&report(false, Some(0.93), Some(0.3)));
+        assert!(refused.starts_with("geometry first: not kept (texture score 0.930, 30%"), "{refused}");
+        assert!(geometry_first_line(&report(false, None, None)).contains("FilterReg did not converge"));
+        assert!(geometry_first_line(&report(false, None, Some(0.7))).contains("flat texture"));
+    }
 }

@@ -317,6 +317,25 @@ fn whole_frames_confirmed_on_the_images_are_registered_by_their_geometry_alone()
     assert_eq!(kept["align"]["accepted"], true, "{}", kept["align"]);
     assert_eq!(kept["registration"]["converged"], true);
     assert!(kept["ground_truth"]["errors"]["geodesic_error_deg"].as_f64().unwrap() < 1.0, "{}", kept["ground_truth"]);
+    // The human output says which path ran.
+    let f =
+        |i: usize, kind: &str| shelves.join(format!("shelf-A/frame-{i:06}.{kind}.png")).to_str().unwrap().to_string();
+    let camera = shelves.join("shelf-A/camera.json").to_str().unwrap().to_string();
+    let (mc, md, tc, td) = (f(2, "color"), f(2, "depth"), f(3, "color"), f(3, "depth"));
+    let (ok, out, err) = flowfilter(&[
+        "estimate",
+        "--camera",
+        &camera,
+        "--model-color",
+        &mc,
+        "--model-depth",
+        &md,
+        "--target-color",
+        &tc,
+        "--target-depth",
+        &td,
+    ]);
+    assert!(ok && out.contains("geometry first: kept (texture score"), "{out}{err}");
     // The same pose to the bit on one thread.
     let one = whole_frames_with(&shelves.join("shelf-A"), (2, 3), &[], &[("RAYON_NUM_THREADS", "1")]);
     assert_eq!(one["transform"], kept["transform"]);
