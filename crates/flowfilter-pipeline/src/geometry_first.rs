@@ -1,7 +1,8 @@
 //! Geometry first: a scene (a whole frame, an object larger than `scene_points`) is registered
-//! by its clouds' shapes alone (point-to-plane FilterReg), aligned on the two images, and kept
-//! when the images confirm it; flow, the judge and the rest of the pipeline run only where
-//! they do not.
+//! by its clouds' shapes alone (the registrar's prior: Flow Filter's point-to-plane FilterReg
+//! from the initial pose), aligned on the two images, and kept when the images confirm it;
+//! flow, the judge and the rest of the pipeline run only where they do not, and reuse that
+//! registration.
 //!
 //! On the shared RealSense sequences' whole frames, where the images confirm them, FilterReg
 //! and the direct alignment land within 0.08 deg of the full pipeline's answer (median; at most
@@ -26,10 +27,6 @@ pub struct GeometryFirstConfig {
     /// ...and at least this fraction of the model's compared pixels land where the target's
     /// depth agrees.
     pub min_visible: f64,
-    /// The try's FilterReg stops after this many iterations (a registration that has not
-    /// converged by then is not kept: the try stays cheap beside the full pipeline it may
-    /// have to be followed by).
-    pub max_iterations: usize,
 }
 
 impl Default for GeometryFirstConfig {
@@ -38,7 +35,7 @@ impl Default for GeometryFirstConfig {
     /// calibrated motion; every answer over 15 deg off scores above 0.85 with at most 37% of
     /// its pixels visible.
     fn default() -> Self {
-        Self { enabled: true, max_score: 0.5, min_visible: 0.5, max_iterations: 150 }
+        Self { enabled: true, max_score: 0.5, min_visible: 0.5 }
     }
 }
 
@@ -49,11 +46,7 @@ impl GeometryFirstConfig {
     /// The key at fault, with the value found.
     pub fn validate(&self) -> Result<(), ParamError> {
         params::in_closed("max_score", self.max_score, 0.0, 2.0)?;
-        params::in_closed("min_visible", self.min_visible, 0.0, 1.0)?;
-        if self.max_iterations == 0 {
-            return Err(ParamError::new("max_iterations", "at least 1", 0));
-        }
-        Ok(())
+        params::in_closed("min_visible", self.min_visible, 0.0, 1.0)
     }
 
     /// Whether `agreement` (at the aligned geometric answer) confirms it.
@@ -90,7 +83,6 @@ mod tests {
         assert!(!cfg.confirms(&agreement(60, Some(0.9))), "texture does not correlate");
         assert!(!cfg.confirms(&agreement(60, None)), "flat texture: no score");
         assert!(GeometryFirstConfig { min_visible: 1.5, ..cfg.clone() }.validate().is_err());
-        assert!(GeometryFirstConfig { max_score: -0.1, ..cfg.clone() }.validate().is_err());
-        assert!(GeometryFirstConfig { max_iterations: 0, ..cfg }.validate().is_err());
+        assert!(GeometryFirstConfig { max_score: -0.1, ..cfg }.validate().is_err());
     }
 }

@@ -31,14 +31,13 @@ pub struct Pipeline {
     preparer: Box<dyn FramePreparer>,
     finder: Option<Box<dyn CorrespondenceFinder>>,
     registrar: Box<dyn Registrar>,
-    /// The geometric registration a scene tries first (`[geometry_first]`; Flow Filter methods
-    /// built from the configuration only).
-    geometry: Option<Box<dyn Registrar>>,
 }
 
-/// The geometry-first try of a scene ([`crate::geometry_first`]): the aligned geometric
-/// answer, what the images said of it, and the time it took.
+/// The geometry-first try of a scene ([`crate::geometry_first`]): the registrar's prior (handed
+/// back to it when the full pipeline follows), the aligned answer, what the images said of it,
+/// and the time it took.
 struct FirstTry {
+    prior: Registration,
     reg: Registration,
     aligned: Option<AlignReport>,
     report: GeometryFirstReport,
@@ -77,20 +76,7 @@ impl Pipeline {
         } else {
             None
         };
-        // The scene's geometric registration: point-to-plane FilterReg as `register --method
-        // filterreg-pt2pl` runs it, within the try's iterations.
-        let geometry = match (&finder, config.geometry_first.enabled) {
-            (Some(_), true) => {
-                let mut registration = config.registration.clone();
-                registration.filterreg.max_iterations = config.geometry_first.max_iterations;
-                Some(
-                    registrar_by_name("filterreg-pt2pl", &registration)
-                        .map_err(|e| invalid(format!("table [geometry_first]: {e}")))?,
-                )
-            }
-            _ => None,
-        };
-        Ok(Self { config, preparer, finder, registrar, geometry })
+        Ok(Self { config, preparer, finder, registrar })
     }
 
     /// A pipeline from custom stages. The configuration is kept for reference and for the
@@ -113,7 +99,7 @@ impl Pipeline {
         finder: Option<Box<dyn CorrespondenceFinder>>,
         registrar: Box<dyn Registrar>,
     ) -> Self {
-        Self { config, preparer, finder, registrar, geometry: None }
+        Self { config, preparer, finder, registrar }
     }
 
     /// The correspondence stage, when the registrar reads correspondences.
@@ -312,7 +298,12 @@ impl Pipeline {
                 times.total = times.depth_model + times.depth_target + t0.elapsed().as_secs_f64() * 1e3;
                 return Ok(self.kept_on_geometry((model, target), &problem, f, times, warnings));
             }
-            other => other.map(|f| f.report),
+            Some(f) => {
+                // Computed once: the guided pass and the geometric check read it back.
+                problem.prior = Some(f.prior);
+                Some(f.report)
+            }
+            None => None,
         };
         let found = self.finder().and_then(|finder| {
             let tf = Instant::now();
@@ -367,24 +358,27 @@ impl Pipeline {
         Ok(estimate)
     }
 
-    /// A scene's geometry-first try (`[geometry_first]`): FilterReg alone, then (when it
-    /// converged) the direct alignment and the images' agreement at the aligned pose. `None`
-    /// where it does not apply: not a Flow Filter method, not a scene, or the registration
-    /// refused the clouds (the full pipeline then reports why).
+    /// A scene's geometry-first try (`[geometry_first]`): the registrar's registration of the
+    /// clouds alone ([`Registrar::prior`]; Flow Filter: point-to-plane FilterReg from the initial
+    /// pose), then (when it converged) the direct alignment and the images' agreement at the
+    /// aligned pose. `None` where it does not apply: off, no flow stage, a registrar without
+    /// such a step, not a scene, or the registration refused the clouds (the full pipeline then
+    /// reports why).
     fn geometry_first(
         &self,
         model: &PreparedFrame,
         target: &PreparedFrame,
         problem: &RegistrationProblem,
     ) -> Option<FirstTry> {
-        let geometry = self.geometry.as_deref()?;
         let scene_points = self.config.registration.flowfilter.scene_points;
-        let points = problem.source_points.unwrap_or(problem.source.len());
-        if scene_points == 0 || points <= scene_points {
+        let scene = scene_points > 0 && problem.source_points.unwrap_or(problem.source.len()) > scene_points;
+        if !self.config.geometry_first.enabled || self.finder().is_none() || !scene {
             return None;
         }
         let tr = Instant::now();
-        let reg = geometry.register_checked(problem).ok()?;
+        let prior = self.registrar.prior(problem).ok()??;
+        let mut reg = prior.clone();
+        flowfilter_registration::assess(problem, &mut reg);
         let registration_ms = tr.elapsed().as_secs_f64() * 1e3;
         let ta = Instant::now();
         let converged = reg.converged;
@@ -402,7 +396,7 @@ impl Pipeline {
             score: agreement.as_ref().and_then(|a| a.score),
             visible_fraction: agreement.as_ref().map(judge::Agreement::visible_fraction),
         };
-        Some(FirstTry { reg, aligned, report, registration_ms, align_ms: ta.elapsed().as_secs_f64() * 1e3 })
+        Some(FirstTry { prior, reg, aligned, report, registration_ms, align_ms: ta.elapsed().as_secs_f64() * 1e3 })
     }
 
     /// The estimate of a scene whose geometric answer the images confirmed (no flow ran).
@@ -566,7 +560,10 @@ impl Pipeline {
         }
         if self.config.flow.guided
             && !followed_small_motion(&sets[0], settled.as_ref(), self.config.flow.unguided_below_deg)
-            && let Some(prior) = self.registrar.prior(problem)?
+            && let Some(prior) = match problem.prior.take() {
+                Some(prior) => Some(prior),
+                None => self.registrar.prior(problem)?,
+            }
         {
             sets.push(finder.find_guided(model, target, &prior.transform)?);
             sources.push("guided");
