@@ -343,15 +343,7 @@ impl Pipeline {
         }
         let (report, ambiguity) = judge.map_or((None, None), |j| (j.report, j.warning));
         warnings.extend(ambiguity);
-        let limit_deg = self.config.report.max_bound_deg;
-        if let Some(u) = reg.uncertainty.filter(|u| limit_deg > 0.0 && u.rotation_deg > limit_deg) {
-            warnings.push(PipelineWarning::WideBounds { rotation_deg: u.rotation_deg, limit_deg });
-        }
-        let doubtful = warnings.iter().any(PipelineWarning::is_doubtful);
-        let points = (problem.source.len(), problem.target.len());
-        let mut estimate = self.assemble((model, target), points, reg, summary, times, warnings);
-        // Never confidently wrong: an estimate the evidence does not single out is not converged.
-        estimate.registration.converged &= !doubtful;
+        let mut estimate = self.reported((model, target), &problem, reg, summary, times, warnings);
         estimate.judge = report;
         estimate.align = aligned;
         estimate.geometry_first = first_report;
@@ -370,8 +362,7 @@ impl Pipeline {
         target: &PreparedFrame,
         problem: &RegistrationProblem,
     ) -> Option<FirstTry> {
-        let scene_points = self.config.registration.flowfilter.scene_points;
-        let scene = scene_points > 0 && problem.source_points.unwrap_or(problem.source.len()) > scene_points;
+        let scene = self.config.registration.flowfilter.is_scene(problem);
         if !self.config.geometry_first.enabled || self.finder().is_none() || !scene {
             return None;
         }
@@ -384,8 +375,7 @@ impl Pipeline {
         let converged = reg.converged;
         let (reg, aligned, agreement) = if converged {
             let (reg, aligned) = self.aligned(model, target, reg);
-            let images = judge::Textures::new(&model.image_view(), &target.image_view(), &self.config.judge);
-            let agreement = judge::agreement(&images, &reg.transform, &self.config.judge);
+            let agreement = self.agreement_at(model, target, &reg.transform);
             (reg, aligned, Some(agreement))
         } else {
             (reg, None, None)
@@ -409,14 +399,40 @@ impl Pipeline {
         mut warnings: Vec<PipelineWarning>,
     ) -> Estimate {
         warnings.extend(first.reg.warnings.iter().cloned().map(PipelineWarning::from));
-        let doubtful = warnings.iter().any(PipelineWarning::is_doubtful);
-        let points = (problem.source.len(), problem.target.len());
-        let mut estimate = self.assemble(frames, points, first.reg, None, times, warnings);
-        // Never confidently wrong, as on the full path.
-        estimate.registration.converged &= !doubtful;
+        let mut estimate = self.reported(frames, problem, first.reg, None, times, warnings);
         estimate.align = first.aligned;
         estimate.geometry_first = Some(first.report);
         estimate
+    }
+
+    /// The estimate as reported, whichever path gave `reg`: a bound wider than `[report]
+    /// max_bound_deg` warns, and an estimate the evidence does not single out (a doubtful
+    /// warning) is not converged: never confidently wrong.
+    fn reported(
+        &self,
+        frames: (&PreparedFrame, &PreparedFrame),
+        problem: &RegistrationProblem,
+        reg: Registration,
+        summary: Option<CorrespondenceSummary>,
+        times: StageTimes,
+        mut warnings: Vec<PipelineWarning>,
+    ) -> Estimate {
+        let limit_deg = self.config.report.max_bound_deg;
+        if let Some(u) = reg.uncertainty.filter(|u| limit_deg > 0.0 && u.rotation_deg > limit_deg) {
+            warnings.push(PipelineWarning::WideBounds { rotation_deg: u.rotation_deg, limit_deg });
+        }
+        let doubtful = warnings.iter().any(PipelineWarning::is_doubtful);
+        let points = (problem.source.len(), problem.target.len());
+        let mut estimate = self.assemble(frames, points, reg, summary, times, warnings);
+        estimate.registration.converged &= !doubtful;
+        estimate
+    }
+
+    /// How the target agrees with the model moved by `pose` ([`judge::agreement`], on the
+    /// judge's pixels).
+    fn agreement_at(&self, model: &PreparedFrame, target: &PreparedFrame, pose: &Pose) -> judge::Agreement {
+        let images = judge::Textures::new(&model.image_view(), &target.image_view(), &self.config.judge);
+        judge::agreement(&images, pose, &self.config.judge)
     }
 
     /// The motion from `model` to `target` near a predicted one, on the images alone: the
@@ -458,8 +474,7 @@ impl Pipeline {
         let t0 = Instant::now();
         let (pose, report) = align::align(&model.image_view(), &target.image_view(), predicted, &self.config.align)?;
         let align_ms = t0.elapsed().as_secs_f64() * 1e3;
-        let images = judge::Textures::new(&model.image_view(), &target.image_view(), &self.config.judge);
-        let agreement = judge::agreement(&images, &pose, &self.config.judge);
+        let agreement = self.agreement_at(model, target, &pose);
         let mut reg = Registration::with_transform(pose);
         reg.iterations = report.iterations;
         reg.converged = report.accepted;

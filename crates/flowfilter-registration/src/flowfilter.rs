@@ -220,6 +220,12 @@ pub fn ransac_kabsch(
 }
 
 impl FlowFilterConfig {
+    /// Whether `p`'s model cloud is a scene ([`FlowFilterConfig::scene_points`]): more points
+    /// than that, counted as [`RegistrationProblem::source_size`].
+    pub fn is_scene(&self, p: &RegistrationProblem) -> bool {
+        self.scene_points > 0 && p.source_size() > self.scene_points
+    }
+
     /// Whether the flow settles the answer and the geometric check is skipped (see
     /// [`FlowFilterConfig::settled_min_pairs`]): correspondence set `set` chosen, `agreeing` of
     /// its `usable` pairs agreeing on `pose`.
@@ -386,9 +392,8 @@ impl FlowFilter {
     /// The FilterReg configuration for `p`: point-to-plane on a scene
     /// ([`FlowFilterConfig::scene_points`]), else as configured.
     fn filterreg_config(&self, p: &RegistrationProblem) -> FilterRegConfig {
-        let scene = self.config.scene_points > 0 && p.source_size() > self.config.scene_points;
         let mut cfg = self.config.filterreg.clone();
-        if scene && p.target.normals.is_some() {
+        if self.config.is_scene(p) && p.target.normals.is_some() {
             cfg.variant = FilterRegVariant::PointToPlane;
         }
         cfg

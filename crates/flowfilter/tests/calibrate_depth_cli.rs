@@ -2,22 +2,13 @@
 //! it writes explains part of the depth differences between views and is applied to every
 //! frame read with the camera file; a field of the wrong size is refused by name.
 
-use std::path::{Path, PathBuf};
-use std::process::Command;
+mod common;
 
-fn flowfilter(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_flowfilter")).args(args).output().unwrap();
-    (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
-}
+use common::{flowfilter, shared_data};
+use std::path::{Path, PathBuf};
 
 fn shelf(name: &str) -> Option<PathBuf> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/realsense-shelf").join(name);
-    if dir.is_dir() {
-        Some(dir)
-    } else {
-        eprintln!("skipping: {} is absent (the real-frame tests need ../shared)", dir.display());
-        None
-    }
+    shared_data(&format!("realsense-shelf/{name}"))
 }
 
 fn read_json(path: &Path) -> serde_json::Value {

@@ -1,19 +1,11 @@
 //! `flowfilter estimate` on a synthesised capture: the human and JSON outputs, the JSON schema
 //! (an insta snapshot of its shape), --save-ply, --viz, and bad input.
 
+mod common;
+
+use common::{flowfilter, flowfilter_with, shared_data};
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::sync::OnceLock;
-
-fn flowfilter(args: &[&str]) -> (bool, String, String) {
-    flowfilter_with(args, &[])
-}
-
-/// [`flowfilter`] with environment variables set (`RAYON_NUM_THREADS`).
-fn flowfilter_with(args: &[&str], env: &[(&str, &str)]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_flowfilter")).args(args).envs(env.iter().copied()).output().unwrap();
-    (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
-}
 
 /// A box captured by NP3 at 0 and 15 degrees (rendered once per test binary).
 fn capture() -> &'static Path {
@@ -133,17 +125,6 @@ fn bad_input_is_reported() {
     let (ok, _, err) =
         flowfilter(&["estimate", "--object", "/nonexistent", "--camera", "NP3", "--from", "0", "--to", "15"]);
     assert!(!ok && err.contains("/nonexistent"), "{err}");
-}
-
-/// `../shared/data/<rel>` beside the repository, or `None` after saying that the test is skipped.
-fn shared_data(rel: &str) -> Option<PathBuf> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data").join(rel);
-    if dir.is_dir() {
-        Some(dir)
-    } else {
-        eprintln!("skipping: {} is absent (the shared data sits beside the repository)", dir.display());
-        None
-    }
 }
 
 /// The file form on the real YCB-Video frames of `../shared/data/ycb-video` (skipped with a
