@@ -10,9 +10,14 @@ every pair of frames `gap` apart (`--gaps`, default 1,2) is registered whole (no
   their downsampling and normals, the three scales. The raw depth is registered onto the colour
   grid beforehand, untimed (by `open3d_odometry.register_depth`); ours does that inside its
   timing;
-- `flowfilter estimate` (Flow Filter, defaults) and `flowfilter estimate --method
-  filterreg-pt2pl`: the `stage_ms.total` the CLI reports (both frames' depth stage included,
-  file reading not).
+- Flow Filter (defaults) and FilterReg point-to-plane (`--method filterreg-pt2pl`), two ways:
+  - in this process, as Open3D runs: the Python package's `flowfilter.estimate` on the two
+    frames (`flowfilter.read_frame`, untimed, as Open3D's reading), timed around the call (both
+    frames' depth stage included), with `flowfilter.set_num_threads`. Needs the package
+    (`pip install .` from the repository root); without it these rows are left out;
+  - `flowfilter estimate`, a fresh process per pair: the `stage_ms.total` the CLI reports (file
+    reading not included). A fresh process also pays for the first touch of every page it
+    allocates (about 130 MB on a whole-frame pair).
 
 The two sides alternate pair by pair, under one thread count at a time (`--threads`, default
 1,2: `RAYON_NUM_THREADS` for ours, `OMP_NUM_THREADS` for Open3D, set before it is imported).
@@ -85,6 +90,15 @@ def ours_pair(binary, folder, a, b, method):
     return np.array(e["transform"], dtype=float), e["stage_ms"]["total"] / 1e3, e["registration"]["converged"]
 
 
+def library_pair(flowfilter, folder, a, b, method, camera):
+    """`flowfilter.estimate` in this process on the whole frames: (T, seconds around the call)."""
+    f = lambda n, kind: str(folder / f"frame-{n:06d}.{kind}.png")
+    model, target = (flowfilter.read_frame(f(n, "color"), f(n, "depth"), camera) for n in (a, b))
+    start = time.perf_counter()
+    e = flowfilter.estimate(model, target, camera, method=method or "flowfilter")
+    return np.asarray(e.transform, dtype=float), time.perf_counter() - start
+
+
 def errors(t, truth):
     from open3d_odometry import rotation_deg
 
@@ -92,24 +106,37 @@ def errors(t, truth):
     return float(angle), float(np.linalg.norm(t[:3, 3] - truth[:3, 3]))
 
 
-METHODS = [("Open3D coloured ICP", None), ("Flow Filter", ""), ("FilterReg point-to-plane", "filterreg-pt2pl")]
+METHODS = [("Open3D coloured ICP", None, None), ("Flow Filter", "", "library"),
+           ("FilterReg point-to-plane", "filterreg-pt2pl", "library"),
+           ("Flow Filter (CLI)", "", "cli"), ("FilterReg point-to-plane (CLI)", "filterreg-pt2pl", "cli")]
 
 
 def worker(args):
     """One thread count: every pair by every method, alternating; JSON lines on stdout."""
     import open3d as o3d
 
+    try:
+        import flowfilter
+
+        flowfilter.set_num_threads(args.worker)
+    except ImportError:
+        flowfilter = None
     for folder in args.sequences:
         camera = json.loads((folder / "camera.json").read_text())
+        ff_camera = flowfilter.read_camera(folder / "camera.json") if flowfilter else None
         poses = json.loads((folder / "poses.json").read_text())["camera_to_world_calibrated"]
         c = {int(k): np.array(v, dtype=float) for k, v in poses.items()}
         numbers = sorted(c)
         for gap in args.gaps:
             for a, b in zip(numbers, numbers[gap:]):
                 truth = np.linalg.inv(c[b]) @ c[a]
-                for name, method in METHODS:
-                    if method is None:
+                for name, method, way in METHODS:
+                    if way is None:
                         t, secs = open3d_pair(o3d, folder, a, b, camera)
+                    elif way == "library":
+                        if flowfilter is None:
+                            continue
+                        t, secs = library_pair(flowfilter, folder, a, b, method, ff_camera)
                     else:
                         t, secs, _ = ours_pair(args.flowfilter, folder, a, b, method)
                     rot, trans = errors(t, truth)
@@ -146,8 +173,10 @@ def main():
     for threads in sorted({r["threads"] for r in rows}):
         of = lambda name: [r for r in rows if r["threads"] == threads and r["method"] == name]
         peer = np.median([r["seconds"] for r in of(METHODS[0][0])])
-        for name, _ in METHODS:
+        for name, _, _ in METHODS:
             rs = of(name)
+            if not rs:
+                continue
             secs = np.array([r["seconds"] for r in rs])
             ok = sum(r["rotation_error_deg"] < 2.0 and r["translation_error_m"] < 0.01 for r in rs)
             err = np.median([r["rotation_error_deg"] for r in rs])

@@ -21,17 +21,19 @@ pub fn organized_cloud(
         Some(m) => crate::register::mask_bbox(m),
         None => Some((0, 0, depth.width() - 1, depth.height() - 1)),
     };
-    organized_cloud_in(depth, rays, color, mask, region)
+    organized_cloud_in(depth, rays, color, mask, region, 1)
 }
 
 /// [`organized_cloud`] over the pixels of `region` (inclusive box; `None` = no pixel), which
-/// must hold every pixel of `mask`.
+/// must hold every pixel of `mask`, taking the pixels whose coordinates are both multiples of
+/// `step` (1: every pixel).
 pub(crate) fn organized_cloud_in(
     depth: &DepthMap,
     rays: &RayTable,
     color: Option<&RgbImage>,
     mask: Option<&Mask>,
     region: Option<(usize, usize, usize, usize)>,
+    step: usize,
 ) -> (PointCloud, Vec<u32>) {
     let w = depth.width();
     let n_pixels = depth.as_slice().len();
@@ -40,9 +42,14 @@ pub(crate) fn organized_cloud_in(
         return (PointCloud { colors: color.map(|_| vec![]), pixels: Some(vec![]), ..Default::default() }, index);
     };
     // Pixels whose ray lies outside the camera model's domain have no point.
+    let step = step.max(1);
     let keep = |x: usize, y: usize| {
         let k = y * w + x;
-        depth.as_slice()[k] > 0.0 && mask.is_none_or(|m| m.as_slice()[k]) && rays.ray(x, y).is_some()
+        x.is_multiple_of(step)
+            && y.is_multiple_of(step)
+            && depth.as_slice()[k] > 0.0
+            && mask.is_none_or(|m| m.as_slice()[k])
+            && rays.ray(x, y).is_some()
     };
     // Two passes over the box's rows, both parallel: count each row's points, then write them
     // at their row's offset (the same order as a sequential scan).

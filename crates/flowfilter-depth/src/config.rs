@@ -155,13 +155,40 @@ pub struct CloudConfig {
     pub normals: NormalMethod,
     /// Neighbours for k-NN normals.
     pub knn: usize,
-    /// Organised normals: pixel offset of the central differences.
+    /// Organised normals: pixel offset of the central differences (rounded up to a multiple of
+    /// the cloud's pixel step).
     pub organized_step_px: usize,
+    /// The cloud takes every `s`-th pixel in each direction, `s` the largest whole number that
+    /// leaves at least this many of the mask's pixels with depth: objects of fewer than four
+    /// times this many pixels keep every pixel; a whole 640x480 frame (some 142k pixels with
+    /// depth) every second one. Bounds the cloud's cost (and its voxel grid's) by the budget, not
+    /// by the object's area; the registration clouds are thinned by a coarser voxel anyway.
+    /// 0 = every pixel always.
+    pub pixel_budget: usize,
 }
 
 impl Default for CloudConfig {
     fn default() -> Self {
-        Self { normals: NormalMethod::Organized, knn: 20, organized_step_px: 2 }
+        Self { normals: NormalMethod::Organized, knn: 20, organized_step_px: 2, pixel_budget: 30_000 }
+    }
+}
+
+impl CloudConfig {
+    /// The pixel step of a cloud over `pixels` pixels with depth (see
+    /// [`CloudConfig::pixel_budget`]).
+    ///
+    /// ```
+    /// use flowfilter_depth::CloudConfig;
+    /// let cfg = CloudConfig::default();
+    /// assert_eq!(cfg.pixel_step(40_000), 1);
+    /// assert_eq!(cfg.pixel_step(142_000), 2);
+    /// assert_eq!(cfg.pixel_step(1_000_000), 5);
+    /// ```
+    pub fn pixel_step(&self, pixels: usize) -> usize {
+        if self.pixel_budget == 0 {
+            return 1;
+        }
+        ((pixels as f64 / self.pixel_budget as f64).sqrt().floor() as usize).max(1)
     }
 }
 

@@ -37,6 +37,9 @@ pub struct DepthStats {
     pub interpolated: usize,
     /// Mask pixels.
     pub mask_pixels: usize,
+    /// The cloud's pixel step (every `cloud_step`-th pixel in each direction;
+    /// [`crate::CloudConfig::pixel_budget`]).
+    pub cloud_step: usize,
     /// Wall time of each step, milliseconds, in order.
     pub timings_ms: Vec<(&'static str, f64)>,
 }
@@ -210,7 +213,8 @@ impl DepthStage {
         let mut dense = registered;
         stats.interpolated = fill_holes_in(&mut dense, mask, Some(mask_box), &cfg.interpolation);
         laps.lap(&mut stats, "interpolate");
-        let (cloud, point_index) = self.cloud(&dense, color, mask, mask_box, sensor);
+        stats.cloud_step = cfg.cloud.pixel_step(stats.registered + stats.interpolated);
+        let (cloud, point_index) = self.cloud(&dense, color, mask, mask_box, sensor, stats.cloud_step);
         laps.lap(&mut stats, "cloud+normals");
         let filtered_raw = paste(&depth, origin, dw, dh);
         Ok(ProcessedDepth { filtered_raw, depth: dense, cloud, point_index, stats })
@@ -275,8 +279,8 @@ impl DepthStage {
         depth
     }
 
-    /// The organised cloud of the dense colour-grid depth inside the mask, with the configured
-    /// normals, and each point's pixel index.
+    /// The organised cloud of the dense colour-grid depth inside the mask (every `step`-th
+    /// pixel in each direction), with the configured normals, and each point's pixel index.
     fn cloud(
         &self,
         dense: &DepthMap,
@@ -284,17 +288,19 @@ impl DepthStage {
         mask: &Mask,
         mask_box: (usize, usize, usize, usize),
         sensor: &RgbdSensor,
+        step: usize,
     ) -> (PointCloud, Vec<u32>) {
         let cfg = &self.config;
         let color_rays = self.rays(&sensor.color);
-        let (mut cloud, point_index) = organized_cloud_in(dense, &color_rays, Some(color), Some(mask), Some(mask_box));
+        let (mut cloud, point_index) =
+            organized_cloud_in(dense, &color_rays, Some(color), Some(mask), Some(mask_box), step);
         cloud.normals = match cfg.cloud.normals {
             NormalMethod::None => None,
             NormalMethod::Organized => Some(organized_normals(
                 &cloud,
                 &point_index,
                 sensor.color.size.width as usize,
-                cfg.cloud.organized_step_px,
+                cfg.cloud.organized_step_px.next_multiple_of(step),
                 cfg.registration.max_step_m,
             )),
             NormalMethod::Knn => Some(knn_normals(&cloud.points, cfg.cloud.knn, &Point3::origin())),

@@ -86,3 +86,37 @@ fn a_whole_mask_keeps_what_the_fill_reaches_beyond_the_readings() {
     assert_eq!(out.depth.as_slice(), cut.depth.as_slice());
     assert_eq!(out.cloud.points, cut.cloud.points);
 }
+
+/// A mask larger than four times the cloud's pixel budget: the cloud takes every second pixel in
+/// each direction, and each of its points (and its normal) is the full cloud's point at that
+/// pixel; a budget the mask fits keeps every pixel.
+#[test]
+fn a_large_mask_gives_a_cloud_of_every_second_pixel_with_the_same_points_and_normals() {
+    let (sensor, raw, mask, color, _) = frame();
+    let with_budget = |budget| {
+        let mut cfg = DepthConfig::default();
+        cfg.cloud.pixel_budget = budget;
+        DepthStage::new(cfg).unwrap().process(&raw, &color, &mask, &sensor).unwrap()
+    };
+    let full = with_budget(0);
+    let fits = with_budget(full.cloud.len() / 3);
+    assert_eq!(fits.stats.cloud_step, 1);
+    assert_eq!(fits.cloud.points, full.cloud.points);
+    let budgeted = with_budget(1000);
+    assert_eq!(budgeted.stats.cloud_step, 2, "{} pixels with depth", full.cloud.len());
+    let (pixels, normals) = (budgeted.cloud.pixels.as_ref().unwrap(), budgeted.cloud.normals.as_ref().unwrap());
+    assert!(pixels.iter().all(|p| p[0] % 2.0 == 0.0 && p[1] % 2.0 == 0.0), "odd pixels in the cloud");
+    let expected = full
+        .point_index
+        .iter()
+        .enumerate()
+        .filter(|(k, i)| **i != u32::MAX && k % 160 % 2 == 0 && k / 160 % 2 == 0)
+        .count();
+    assert_eq!(budgeted.cloud.len(), expected);
+    let full_normals = full.cloud.normals.as_ref().unwrap();
+    for (i, p) in pixels.iter().enumerate() {
+        let k = full.point_index[p[1] as usize * 160 + p[0] as usize] as usize;
+        assert_eq!(budgeted.cloud.points[i], full.cloud.points[k]);
+        assert!((normals[i] - full_normals[k]).norm() < 1e-12, "the normal at {p:?} differs");
+    }
+}

@@ -155,15 +155,15 @@ pub struct JudgeReport {
 pub struct Textures<'a> {
     target: ImageView<'a>,
     samples: Vec<ObjectSample>,
-    target_texture: Texture,
+    target_texture: std::sync::Arc<Texture>,
 }
 
 impl<'a> Textures<'a> {
     /// The samples of `model` and the texture of `target` ([`crate::high_pass`] with `cfg`'s radius).
     pub fn new(model: &ImageView<'_>, target: &ImageView<'a>, cfg: &JudgeConfig) -> Self {
         let r = cfg.texture_radius_px;
-        let samples = object_samples(model, &Texture::new(model.gray, model.mask, r), cfg.stride, cfg.max_pixels);
-        Self { target: *target, samples, target_texture: Texture::new(target.gray, target.mask, r) }
+        let (samples, _) = object_samples(model, &model.texture(r, 0), cfg.stride, cfg.max_pixels);
+        Self { target: *target, samples, target_texture: target.texture(r, 0) }
     }
 }
 
@@ -317,7 +317,7 @@ mod tests {
         let depth = Grid::filled(320, 240, 0.6f32);
         let far_depth = Grid::filled(320, 240, 0.65f32);
         let mask = Grid::from_fn(320, 240, |x, y| (60..260).contains(&x) && (40..200).contains(&y));
-        let view = |gray, depth| ImageView { gray, depth, mask: &mask, rays: &rays, camera: &camera };
+        let view = |gray, depth| ImageView { gray, depth, mask: &mask, rays: &rays, camera: &camera, textures: None };
         let cfg = JudgeConfig::default();
         let images = Textures::new(&view(&model_gray, &depth), &view(&target_gray, &depth), &cfg);
         let moved = |dx: f64| Pose::from_parts(Translation3::new(dx, 0.0, 0.0), UnitQuaternion::identity());

@@ -1,7 +1,8 @@
 //! Flow Filter's photometric stage: what the two colour images say about a pose.
 //!
 //! - [`texture`]: a frame's texture, the grey image less its local mean ([`high_pass`]) on the
-//!   object's rectangle, so that shading and exposure do not count;
+//!   object's rectangle, so that shading and exposure do not count, kept with the frame in a
+//!   [`TextureCache`] for every pair that reads it;
 //! - [`turns`]: the poses the clouds allow beside the registration's answer (turns about the
 //!   model's axes), for motions the flow could not follow;
 //! - [`gate`]: whether the judge is needed at all (the flow split, or a large motion);
@@ -11,7 +12,8 @@
 //!   shear.
 //!
 //! Every function reads frames through [`ImageView`] (grey image, depth and mask on the colour
-//! grid, and the camera), so the stage does not depend on how a frame was prepared.
+//! grid, the camera, and optionally the frame's texture cache), so the stage does not depend on
+//! how a frame was prepared.
 
 #![warn(missing_docs)]
 
@@ -25,7 +27,7 @@ mod view;
 pub use align::{AlignConfig, AlignReport, Aligner, Alignment, Scales, align};
 pub use gate::{JudgeGate, evidence_settled};
 pub use judge::{Agreement, JudgeConfig, JudgeReport, Sweep, Textures, agreement, ambiguity, photometric_score, sweep};
-pub use texture::{Texture, high_pass};
+pub use texture::{Texture, TextureCache, high_pass};
 pub use turns::{TurnAxis, TurnCandidate, TurnHypotheses, TurnSweepConfig};
 pub use view::ImageView;
 

@@ -13,7 +13,7 @@ use flowfilter_flow::correspondences::{
 };
 use flowfilter_flow::lk::{Gray, to_gray};
 use flowfilter_geometry::{DepthMap, Mask, PointCloud, Pose};
-use flowfilter_photometric::ImageView;
+use flowfilter_photometric::{ImageView, TextureCache};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -45,6 +45,11 @@ pub struct PreparedFrame {
     /// depth). A target frame without one gets the model's mask propagated
     /// ([`crate::Pipeline::estimate_prepared`]).
     pub unmasked: bool,
+    /// The frame's textures for the photometric stage, computed when first read and kept for
+    /// every pair that reads the frame (shared by clones). They are the grey image's on the
+    /// mask's box: a frame given another mask or image needs an empty cache
+    /// ([`PreparedFrame::with_mask`] starts one).
+    pub textures: Arc<TextureCache>,
 }
 
 /// How a frame's registration cloud was thinned: the voxel of the cloud, and, where the cloud
@@ -114,6 +119,7 @@ impl PreparedFrame {
             rays: self.rays.clone(),
             seconds: self.seconds,
             unmasked: false,
+            textures: Arc::default(),
         }
     }
 
@@ -125,6 +131,7 @@ impl PreparedFrame {
             mask: &self.mask,
             rays: &self.rays,
             camera: &self.sensor.color,
+            textures: Some(&self.textures),
         }
     }
 
@@ -185,6 +192,7 @@ impl FramePreparer for DepthPreparer {
             rays: self.stage.rays(&frame.sensor.color),
             seconds: t0.elapsed().as_secs_f64(),
             unmasked: crate::frame_checks::is_unmasked(frame),
+            textures: Arc::default(),
         };
         crate::frame_checks::check_cloud(frame, &prepared)?;
         Ok(prepared)
