@@ -23,7 +23,7 @@
 //! pose is the midpoint of the two results. The aligned pose is kept only when it lowers the
 //! truncated cost and stays within a stated distance of the pose it started from.
 
-use crate::texture::{GradientTexture, ObjectSample, Texture, TextureCache, object_samples};
+use crate::texture::{GradientTexture, ObjectSample, Texture, TextureCache, object_samples, revalued};
 use crate::view::ImageView;
 use flowfilter_geometry::{ParamError, Point3, Pose, params, se3};
 use nalgebra::{SMatrix, SVector, Vector2};
@@ -266,24 +266,18 @@ impl<'a> Aligner<'a> {
         smoothing_px: usize,
     ) -> Option<Self> {
         let r = cfg.texture_radius_px;
-        Self::with_textures(
-            model,
-            &model.texture(r, smoothing_px),
-            target,
-            target.gradient_texture(r, smoothing_px),
-            cfg,
-        )
+        let samples = samples(model, &model.texture(r, smoothing_px), cfg);
+        Self::with_samples(samples, target, target.gradient_texture(r, smoothing_px), cfg)
     }
 
-    /// [`Aligner::new`] with the two frames' textures at its level already computed.
-    fn with_textures(
-        model: &ImageView<'_>,
-        model_texture: &Texture,
+    /// [`Aligner::new`] with the model's samples (and their spacing, pixels) and the target's
+    /// texture at its level already computed.
+    fn with_samples(
+        (samples, spacing): (Vec<ObjectSample>, f64),
         target: &ImageView<'a>,
         texture: GradientTexture,
         cfg: &'a AlignConfig,
     ) -> Option<Self> {
-        let (samples, spacing) = samples(model, model_texture, cfg);
         let shared = ((2 * cfg.texture_radius_px + 1) as f64 / spacing).powi(2).max(1.0);
         let row0 = samples.iter().map(|s| s.row as f64).sum::<f64>() / samples.len().max(1) as f64;
         (samples.len() >= cfg.min_pixels).then_some(Self {
@@ -461,7 +455,12 @@ impl<'a> Alignment<'a> {
         let (model_cache, target_cache) = (TextureCache::new(), TextureCache::new());
         let (m, t) = (model.or_cache(&model_cache), target.or_cache(&target_cache));
         let r = cfg.texture_radius_px;
-        let level = |s: usize| Aligner::with_textures(&m, &m.texture(r, s), target, t.gradient_texture(r, s), cfg);
+        // The model's pixels are the same at every level, their values each level's.
+        let (fine_samples, spacing) = samples(&m, &m.texture(r, 0), cfg);
+        let level = |s: usize| {
+            let at_level = if s == 0 { fine_samples.clone() } else { revalued(&fine_samples, &m.texture(r, s)) };
+            Aligner::with_samples((at_level, spacing), target, t.gradient_texture(r, s), cfg)
+        };
         let fine = level(0)?;
         let coarse = cfg.smoothing_px.iter().filter(|s| **s > 0).filter_map(|&s| level(s)).collect();
         Some(Self { coarse, fine, cfg })

@@ -227,12 +227,19 @@ impl GradientTexture {
 }
 
 /// An object pixel of a frame with depth: back-projected, with its value in a texture and its
-/// image row.
+/// image column and row.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct ObjectSample {
     pub(crate) point: Point3,
     pub(crate) value: f64,
+    pub(crate) column: usize,
     pub(crate) row: usize,
+}
+
+/// The same pixels with their values in another texture of the frame (the same box: another
+/// smoothing of it).
+pub(crate) fn revalued(samples: &[ObjectSample], texture: &Texture) -> Vec<ObjectSample> {
+    samples.iter().filter_map(|s| Some(ObjectSample { value: texture.at(s.column, s.row)?, ..*s })).collect()
 }
 
 /// The object pixels of `model` with depth (every `stride`-th in each direction, evenly thinned
@@ -263,7 +270,7 @@ pub(crate) fn object_samples(
         .step_by(every)
         .filter_map(|(x, y, z)| {
             let (point, value) = (model.rays.backproject(x, y, z)?, texture.at(x, y)?);
-            Some(ObjectSample { point, value, row: y })
+            Some(ObjectSample { point, value, column: x, row: y })
         })
         .collect();
     (samples, every)
