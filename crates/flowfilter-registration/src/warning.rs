@@ -110,6 +110,14 @@ pub enum RegistrationWarning {
         /// Iterations run.
         iterations: usize,
     },
+    /// FilterReg stopped because its E-step kept switching between the lattice's and the exact
+    /// sums (`max_e_step_switches`): its kernel cycled instead of settling.
+    KernelCycling {
+        /// Iterations run.
+        iterations: usize,
+        /// Switches between the two E-steps.
+        switches: usize,
+    },
     /// Flow Filter's geometric check kept a flow-free registration that fits the clouds clearly
     /// better than the flow result.
     GeometricCheck {
@@ -140,6 +148,7 @@ impl RegistrationWarning {
             Self::PoorFit { .. } => "poor_fit",
             Self::OneSidedOverlap { .. } => "one_sided_overlap",
             Self::IterationLimit { .. } => "iteration_limit",
+            Self::KernelCycling { .. } => "kernel_cycling",
         }
     }
 
@@ -155,6 +164,7 @@ impl RegistrationWarning {
                 | Self::NothingNear { .. }
                 | Self::Diverged { .. }
                 | Self::IterationLimit { .. }
+                | Self::KernelCycling { .. }
         ) || self.is_implausible()
     }
 
@@ -229,6 +239,11 @@ impl fmt::Display for RegistrationWarning {
             Self::IterationLimit { iterations } => {
                 write!(f, "the registration did not converge (stopped after {iterations} iterations)")
             }
+            Self::KernelCycling { iterations, switches } => write!(
+                f,
+                "FilterReg's kernel cycled between the lattice's and the exact sums ({switches} switches in \
+                 {iterations} iterations): stopped, not converged"
+            ),
             Self::GeometricCheck { kept, residual_m, flow_residual_m } => write!(
                 f,
                 "geometric check: the flow result fits the clouds worse (mean residual {:.2} mm) than {kept} \

@@ -236,7 +236,20 @@ fn whole_frames(dir: &Path, a: usize, b: usize, extra: &[&str]) -> serde_json::V
 }
 
 /// [`whole_frames`] with environment variables set.
-fn whole_frames_with(dir: &Path, (a, b): (usize, usize), extra: &[&str], env: &[(&str, &str)]) -> serde_json::Value {
+fn whole_frames_with(dir: &Path, pair: (usize, usize), extra: &[&str], env: &[(&str, &str)]) -> serde_json::Value {
+    let (ok, v, err) = whole_frames_run(dir, pair, extra, env);
+    assert!(ok, "{err}");
+    v
+}
+
+/// [`whole_frames_with`] whatever the exit code (3: an estimate the data do not support): the
+/// exit status, the estimate, the standard error.
+fn whole_frames_run(
+    dir: &Path,
+    (a, b): (usize, usize),
+    extra: &[&str],
+    env: &[(&str, &str)],
+) -> (bool, serde_json::Value, String) {
     let f = |name: &str| dir.join(name).to_str().unwrap().to_string();
     let poses: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(f("poses.json")).unwrap()).unwrap();
     let pose = |frame: usize| {
@@ -255,8 +268,8 @@ fn whole_frames_with(dir: &Path, (a, b): (usize, usize), extra: &[&str], env: &[
     args.extend(["--target-color", &tc, "--target-depth", &td, "--gt", &gt, "--json"]);
     args.extend(extra);
     let (ok, out, err) = flowfilter_with(&args, env);
-    assert!(ok, "{err}");
-    serde_json::from_str(&out).unwrap()
+    let v = serde_json::from_str(&out).unwrap_or_else(|e| panic!("{e}: {err}"));
+    (ok, v, err)
 }
 
 /// The estimate's warning codes.
@@ -279,6 +292,29 @@ fn filterreg_on_whole_real_frames_converges_where_its_steps_wander() {
     assert!(!warning_codes(&v).contains(&"iteration_limit"), "{:?}", warning_codes(&v));
     let errors = &v["ground_truth"]["errors"];
     assert!(errors["geodesic_error_deg"].as_f64().unwrap() < 2.0, "{errors}");
+}
+
+/// Point-to-plane FilterReg that lost a whole scene (shelf-G 1 -> 3, 25 deg apart: it lands
+/// 96 deg off) cycles: its E-step switches between the lattice's sums, which narrow the kernel,
+/// and the exact sums, which widen it again. It stops after 12 switches, not converged, saying
+/// so (and that the clouds do not support the result); without the limit it runs to its 300
+/// iterations.
+#[test]
+fn filterreg_stops_where_its_kernel_cycles() {
+    let Some(dir) = shared_data("realsense-shelf/shelf-G") else { return };
+    // The result does not fit the target (exit code 3, `poor_fit`): only the stop is checked.
+    let (_, v, _) = whole_frames_run(&dir, (1, 3), &["--method", "filterreg-pt2pl"], &[]);
+    let reg = &v["registration"];
+    assert_eq!(reg["converged"], false, "{reg}");
+    assert!(reg["iterations"].as_u64().unwrap() < 150, "{reg}");
+    assert!(warning_codes(&v).contains(&"kernel_cycling"), "{:?}", warning_codes(&v));
+    let tmp = tempfile::tempdir().unwrap();
+    let config = tmp.path().join("no-switch-limit.toml");
+    std::fs::write(&config, "[registration.filterreg]\nmax_e_step_switches = 0\n").unwrap();
+    let args = ["--method", "filterreg-pt2pl", "--config", config.to_str().unwrap()];
+    let (_, unlimited, _) = whole_frames_run(&dir, (1, 3), &args, &[]);
+    assert_eq!(unlimited["registration"]["iterations"], 300, "{}", unlimited["registration"]);
+    assert!(!warning_codes(&unlimited).contains(&"kernel_cycling"), "{:?}", warning_codes(&unlimited));
 }
 
 /// A whole frame is a scene: its clouds' shapes are registered first and, where the images

@@ -173,6 +173,9 @@ struct EmState {
     warnings: Vec<RegistrationWarning>,
     /// Whether Auto has switched to the exact E-step (it stays there).
     exact_phase: bool,
+    /// The last iteration's E-step (lattice or not) and how often it has switched.
+    last_lattice: Option<bool>,
+    switches: usize,
     /// The evenly spread subset of the source visited while the pose settles (every k-th
     /// point in spatial order, each standing for its share of the cloud); `None` once the
     /// iterations visit every point.
@@ -209,6 +212,8 @@ impl EmState {
             history: vec![],
             warnings: vec![],
             exact_phase: false,
+            last_lattice: None,
+            switches: 0,
             subset,
             mixing,
             started: false,
@@ -237,6 +242,18 @@ impl EmState {
                 !self.exact_phase
             }
         }
+    }
+
+    /// Count a switch of the E-step to `use_lattice`; true once the switches reach
+    /// `max_e_step_switches` (the kernel cycles between the two E-steps' sums).
+    fn cycling(&mut self, cfg: &FilterRegConfig, use_lattice: bool) -> bool {
+        if self.last_lattice.is_some_and(|l| l != use_lattice) {
+            self.switches += 1;
+        }
+        self.last_lattice = Some(use_lattice);
+        cfg.variant == FilterRegVariant::PointToPlane
+            && cfg.max_e_step_switches > 0
+            && self.switches >= cfg.max_e_step_switches
     }
 
     /// After the plain step to `(g, new_sigma2)` (the update `delta`, moving the source by
@@ -330,6 +347,10 @@ impl FilterReg {
         for it in 0..cfg.max_iterations {
             let sigma = em.sigma2.sqrt();
             let use_lattice = em.use_lattice(cfg, &prep, sigma);
+            if em.cycling(cfg, use_lattice) {
+                em.warnings.push(RegistrationWarning::KernelCycling { iterations: it, switches: em.switches });
+                break;
+            }
             let visit = Visit::select(cfg, &prep, em.subset.as_ref(), use_lattice, sigma);
             let x: Vec<Point3> = visit.src.iter().map(|s| em.t * s).collect();
             let sums = match (&mut exact, use_lattice) {
