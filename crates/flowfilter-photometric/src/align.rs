@@ -449,6 +449,7 @@ pub struct Alignment<'a> {
 impl<'a> Alignment<'a> {
     /// The levels of `cfg`; `None` when the model has fewer than `cfg.min_pixels` object
     /// pixels with depth.
+    ///
     /// The frames' textures come from their caches ([`ImageView::textures`]); a frame without
     /// one gets one for this call, so each of its textures is computed once here.
     pub fn new(model: &ImageView<'_>, target: &ImageView<'a>, cfg: &'a AlignConfig) -> Option<Self> {

@@ -106,8 +106,7 @@ pub struct TextureCache {
 
 impl std::fmt::Debug for TextureCache {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let levels = self.levels.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-        let keys: Vec<(usize, usize)> = levels.iter().map(|l| (l.radius, l.smoothing)).collect();
+        let keys: Vec<(usize, usize)> = self.levels().iter().map(|l| (l.radius, l.smoothing)).collect();
         f.debug_struct("TextureCache").field("radius_and_smoothing", &keys).finish()
     }
 }
@@ -120,71 +119,91 @@ struct CachedLevel {
     gradients: Option<Arc<(Gray, Gray)>>,
 }
 
+/// A cached level's texture and, once computed, its gradients.
+type Level = (Arc<Texture>, Option<Arc<(Gray, Gray)>>);
+
 impl TextureCache {
     /// An empty cache.
     pub fn new() -> Self {
         Self::default()
     }
 
-    fn find<T>(&self, radius: usize, smoothing: usize, read: impl Fn(&CachedLevel) -> Option<T>) -> Option<T> {
-        let levels = self.levels.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-        levels.iter().find(|l| l.radius == radius && l.smoothing == smoothing).and_then(read)
+    fn levels(&self) -> std::sync::MutexGuard<'_, Vec<CachedLevel>> {
+        self.levels.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
     }
 
-    /// The texture of `frame` with `radius`, smoothed by `smoothing` (computed outside the lock:
-    /// two threads asking at once compute the same values, and the first one stored is kept).
+    /// The level of `radius` and `smoothing`, when cached.
+    fn lookup(&self, radius: usize, smoothing: usize) -> Option<Level> {
+        let levels = self.levels();
+        let l = levels.iter().find(|l| l.radius == radius && l.smoothing == smoothing)?;
+        Some((l.texture.clone(), l.gradients.clone()))
+    }
+
+    /// Store a computed level (what another thread stored first is kept) and return the level
+    /// as stored. Values are computed outside the lock: two threads asking at once compute the
+    /// same values.
+    fn store(&self, radius: usize, smoothing: usize, (texture, gradients): Level) -> Level {
+        let mut levels = self.levels();
+        match levels.iter_mut().find(|l| l.radius == radius && l.smoothing == smoothing) {
+            Some(l) => {
+                if l.gradients.is_none() {
+                    l.gradients = gradients;
+                }
+                (l.texture.clone(), l.gradients.clone())
+            }
+            None => {
+                levels.push(CachedLevel { radius, smoothing, texture: texture.clone(), gradients: gradients.clone() });
+                (texture, gradients)
+            }
+        }
+    }
+
+    /// The texture of `frame` with `radius`, smoothed by `smoothing`.
     fn texture(&self, frame: &ImageView<'_>, radius: usize, smoothing: usize) -> Arc<Texture> {
-        if let Some(t) = self.find(radius, smoothing, |l| Some(l.texture.clone())) {
-            return t;
+        if let Some((texture, _)) = self.lookup(radius, smoothing) {
+            return texture;
         }
         let texture = Arc::new(match smoothing {
             0 => Texture::new(frame.gray, frame.mask, radius),
             s => (*self.texture(frame, radius, 0)).clone().smoothed(s),
         });
-        let mut levels = self.levels.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-        match levels.iter().find(|l| l.radius == radius && l.smoothing == smoothing) {
-            Some(l) => l.texture.clone(),
-            None => {
-                levels.push(CachedLevel { radius, smoothing, texture: texture.clone(), gradients: None });
-                texture
-            }
-        }
+        self.store(radius, smoothing, (texture, None)).0
     }
 
     /// [`TextureCache::texture`] with its gradients.
     fn gradient_texture(&self, frame: &ImageView<'_>, radius: usize, smoothing: usize) -> GradientTexture {
-        let texture = self.texture(frame, radius, smoothing);
-        if let Some(gradients) = self.find(radius, smoothing, |l| l.gradients.clone()) {
-            return GradientTexture { texture, gradients };
-        }
-        let gradients = Arc::new(gradients_of(&texture));
-        let mut levels = self.levels.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-        let level = levels.iter_mut().find(|l| l.radius == radius && l.smoothing == smoothing);
-        let gradients = match level {
-            Some(l) => l.gradients.get_or_insert(gradients).clone(),
-            None => gradients,
+        let (texture, gradients) = match self.lookup(radius, smoothing) {
+            Some((texture, Some(gradients))) => (texture, gradients),
+            _ => {
+                let texture = self.texture(frame, radius, smoothing);
+                let gradients = Arc::new(gradients_of(&texture));
+                let (texture, stored) = self.store(radius, smoothing, (texture, Some(gradients.clone())));
+                (texture, stored.unwrap_or(gradients))
+            }
         };
         GradientTexture { texture, gradients }
     }
 }
 
 impl ImageView<'_> {
+    /// `read` on the frame's [`TextureCache`], or on one made for this call.
+    fn with_cache<T>(&self, read: impl FnOnce(&TextureCache) -> T) -> T {
+        match self.textures {
+            Some(cache) => read(cache),
+            None => read(&TextureCache::new()),
+        }
+    }
+
     /// The frame's texture with `radius` ([`Texture::new`] on its mask's box), smoothed by a box
     /// of half-width `smoothing` (0: as it is): from the frame's [`TextureCache`] when it has
     /// one.
     pub(crate) fn texture(&self, radius: usize, smoothing: usize) -> Arc<Texture> {
-        match self.textures {
-            Some(cache) => cache.texture(self, radius, smoothing),
-            None => TextureCache::new().texture(self, radius, smoothing),
-        }
+        self.with_cache(|cache| cache.texture(self, radius, smoothing))
     }
 
     /// [`ImageView::texture`] with its gradients.
     pub(crate) fn gradient_texture(&self, radius: usize, smoothing: usize) -> GradientTexture {
-        match self.textures {
-            Some(cache) => cache.gradient_texture(self, radius, smoothing),
-            None => TextureCache::new().gradient_texture(self, radius, smoothing),
-        }
+        self.with_cache(|cache| cache.gradient_texture(self, radius, smoothing))
     }
 }
 

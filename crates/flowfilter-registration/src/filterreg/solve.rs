@@ -171,10 +171,10 @@ struct EmState {
     converged: bool,
     history: Vec<IterationRecord>,
     warnings: Vec<RegistrationWarning>,
-    /// Whether Auto has switched to the exact E-step (it stays there).
+    /// Whether Auto has switched to the exact E-step.
     exact_phase: bool,
-    /// The last iteration's E-step (lattice or not) and how often it has switched.
-    last_lattice: Option<bool>,
+    /// How often Auto's E-step has switched between the lattice and the exact sums from one
+    /// iteration to the next.
     switches: usize,
     /// The evenly spread subset of the source visited while the pose settles (every k-th
     /// point in spatial order, each standing for its share of the cloud); `None` once the
@@ -212,7 +212,6 @@ impl EmState {
             history: vec![],
             warnings: vec![],
             exact_phase: false,
-            last_lattice: None,
             switches: 0,
             subset,
             mixing,
@@ -238,19 +237,20 @@ impl EmState {
                 // point has thousands of neighbours (280 ms per iteration on 17k points).
                 let share = self.subset.as_ref().map_or(1.0, |(pts, _)| pts.len() as f64 / prep.source.len() as f64);
                 let cost = prep.exact_below.map(|r| (4.0 * sigma / r).powi(2) * share / (0.5 * (share + 1.0)));
-                self.exact_phase = exact_next(self.exact_phase, cost);
-                !self.exact_phase
+                let exact = exact_next(self.exact_phase, cost);
+                // The first iteration's choice is no switch.
+                if self.iterations > 0 && exact != self.exact_phase {
+                    self.switches += 1;
+                }
+                self.exact_phase = exact;
+                !exact
             }
         }
     }
 
-    /// Count a switch of the E-step to `use_lattice`; true once the switches reach
-    /// `max_e_step_switches` (the kernel cycles between the two E-steps' sums).
-    fn cycling(&mut self, cfg: &FilterRegConfig, use_lattice: bool) -> bool {
-        if self.last_lattice.is_some_and(|l| l != use_lattice) {
-            self.switches += 1;
-        }
-        self.last_lattice = Some(use_lattice);
+    /// Whether a point-to-plane registration's E-step has switched `max_e_step_switches` times
+    /// (its kernel cycles between the two E-steps' sums).
+    fn cycling(&self, cfg: &FilterRegConfig) -> bool {
         cfg.variant == FilterRegVariant::PointToPlane
             && cfg.max_e_step_switches > 0
             && self.switches >= cfg.max_e_step_switches
@@ -347,7 +347,7 @@ impl FilterReg {
         for it in 0..cfg.max_iterations {
             let sigma = em.sigma2.sqrt();
             let use_lattice = em.use_lattice(cfg, &prep, sigma);
-            if em.cycling(cfg, use_lattice) {
+            if em.cycling(cfg) {
                 em.warnings.push(RegistrationWarning::KernelCycling { iterations: it, switches: em.switches });
                 break;
             }
