@@ -393,7 +393,7 @@ pub fn align(
     // same whatever the thread count).
     let (model_cache, target_cache) = (TextureCache::new(), TextureCache::new());
     let (model, target) = (&model.or_cache(&model_cache), &target.or_cache(&target_cache));
-    rayon::join(|| level_textures(model, cfg), || level_textures(target, cfg));
+    rayon::join(|| prepare_textures(model, cfg), || prepare_textures(target, cfg));
     let (forward, backward) = rayon::join(|| Alignment::new(model, target, cfg), || Alignment::new(target, model, cfg));
     let forward = forward?;
     let Some(backward) = backward else {
@@ -531,9 +531,11 @@ impl<'a> Alignment<'a> {
     }
 }
 
-/// A frame's textures at every level of an alignment (as they are, then smoothed by each
-/// non-zero `cfg.smoothing_px` in turn) with their gradients, into the frame's cache.
-fn level_textures(frame: &ImageView<'_>, cfg: &AlignConfig) {
+/// Compute into `frame`'s [`crate::TextureCache`] the textures an alignment with `cfg` reads:
+/// at every level (as they are, then smoothed by each non-zero `cfg.smoothing_px` in turn), with
+/// their gradients. A caller with time to spare on one thread (beside a registration) spends it
+/// here; the alignment then finds them built. Without a cache the work is lost.
+pub fn prepare_textures(frame: &ImageView<'_>, cfg: &AlignConfig) {
     let levels = std::iter::once(0).chain(cfg.smoothing_px.iter().copied().filter(|s| *s > 0));
     for s in levels {
         frame.gradient_texture(cfg.texture_radius_px, s);

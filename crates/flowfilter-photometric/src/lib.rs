@@ -24,7 +24,7 @@ pub mod texture;
 pub mod turns;
 mod view;
 
-pub use align::{AlignConfig, AlignReport, Aligner, Alignment, Scales, align};
+pub use align::{AlignConfig, AlignReport, Aligner, Alignment, Scales, align, prepare_textures};
 pub use gate::{JudgeGate, evidence_settled};
 pub use judge::{Agreement, JudgeConfig, JudgeReport, Sweep, Textures, agreement, ambiguity, photometric_score, sweep};
 pub use texture::{Texture, TextureCache, high_pass};

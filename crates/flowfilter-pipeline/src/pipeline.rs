@@ -367,7 +367,10 @@ impl Pipeline {
             return None;
         }
         let tr = Instant::now();
-        let prior = self.registrar.prior(problem).ok()??;
+        // The registration leaves a thread idle much of its time: the frames' alignment
+        // textures, which the alignment below (or the full pipeline's) reads, are built there.
+        let (prior, ()) = rayon::join(|| self.registrar.prior(problem), || self.prepare_textures(model, target));
+        let prior = prior.ok()??;
         let mut reg = prior.clone();
         flowfilter_registration::assess(problem, &mut reg);
         let registration_ms = tr.elapsed().as_secs_f64() * 1e3;
@@ -387,6 +390,17 @@ impl Pipeline {
             visible_fraction: agreement.as_ref().map(judge::Agreement::visible_fraction),
         };
         Some(FirstTry { prior, reg, aligned, report, registration_ms, align_ms: ta.elapsed().as_secs_f64() * 1e3 })
+    }
+
+    /// Both frames' textures of the direct alignment, into their caches (when it runs).
+    fn prepare_textures(&self, model: &PreparedFrame, target: &PreparedFrame) {
+        let cfg = &self.config.align;
+        if cfg.enabled {
+            rayon::join(
+                || align::prepare_textures(&model.image_view(), cfg),
+                || align::prepare_textures(&target.image_view(), cfg),
+            );
+        }
     }
 
     /// The estimate of a scene whose geometric answer the images confirmed (no flow ran).
