@@ -68,28 +68,33 @@ fn valid_min_max(src: &[f32], w: usize, (x0, x1): (usize, usize), (y0, y1): (usi
 enum WindowExtremes<'a> {
     /// Every pixel's minimum and maximum, row by row of the map's width.
     Swept { min: Vec<f32>, max: Vec<f32>, width: usize },
-    /// The map's depths and width, read window by window.
-    Read { src: &'a [f32], width: usize },
+    /// The map, read window by window (`half`: the window's half-width).
+    Read { depth: &'a DepthMap, half: usize },
 }
 
 impl<'a> WindowExtremes<'a> {
-    fn new(depth: &'a DepthMap, window: usize) -> Self {
-        let (src, width) = (depth.as_slice(), depth.width());
-        let valid = src.iter().filter(|&&z| z > 0.0).count();
-        if 2 * valid > src.len() {
+    /// The extremes of `depth`'s `window x window` windows, `valid` of its pixels holding a
+    /// reading.
+    fn new(depth: &'a DepthMap, window: usize, valid: usize) -> Self {
+        if 2 * valid > depth.as_slice().len() {
             let (min, max) = window_min_max(depth, window);
-            Self::Swept { min, max, width }
+            Self::Swept { min, max, width: depth.width() }
         } else {
-            Self::Read { src, width }
+            Self::Read { depth, half: window / 2 }
         }
     }
 
-    /// The smallest and largest valid depth of the window `xs x ys` of pixel `(x, y)` (the
-    /// `window x window` square about it, clamped to the map).
-    fn at(&self, (x, y): (usize, usize), xs: (usize, usize), ys: (usize, usize)) -> (f32, f32) {
+    /// The smallest and largest valid depth of the window about pixel `(x, y)` (clamped to the
+    /// map).
+    fn at(&self, x: usize, y: usize) -> (f32, f32) {
         match self {
             Self::Swept { min, max, width } => (min[y * width + x], max[y * width + x]),
-            Self::Read { src, width } => valid_min_max(src, *width, xs, ys),
+            Self::Read { depth, half } => {
+                let (w, h) = depth.dims();
+                let xs = (x.saturating_sub(*half), (x + half).min(w - 1));
+                let ys = (y.saturating_sub(*half), (y + half).min(h - 1));
+                valid_min_max(depth.as_slice(), w, xs, ys)
+            }
         }
     }
 }
@@ -99,10 +104,12 @@ impl<'a> WindowExtremes<'a> {
 /// (BigBIRD: 7x7 and 1000 raw units = 10 cm).
 pub fn bigbird_discontinuity(depth: &DepthMap, window: usize, threshold_m: f64) -> (DepthMap, usize) {
     let (w, h) = depth.dims();
-    let r = window / 2;
     let (src, t) = (depth.as_slice(), threshold_m as f32);
     let steps = |z: f32, (lo, hi): (f32, f32)| z > 0.0 && (hi - z > t || z - lo > t);
-    let out: Vec<f32> = match WindowExtremes::new(depth, window) {
+    let valid = src.iter().filter(|&&z| z > 0.0).count();
+    let out: Vec<f32> = match WindowExtremes::new(depth, window, valid) {
+        // Dense: one pass over the swept extremes (a serial map that vectorises; the per-pixel
+        // loop below took a Carmine frame's step filter 0.58 -> 0.75 ms).
         WindowExtremes::Swept { min, max, .. } => src
             .iter()
             .zip(min.iter().zip(&max))
@@ -111,10 +118,9 @@ pub fn bigbird_discontinuity(depth: &DepthMap, window: usize, threshold_m: f64) 
         read => {
             let mut out = vec![0.0f32; w * h];
             out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-                let ys = (y.saturating_sub(r), (y + r).min(h - 1));
                 for (x, o) in row.iter_mut().enumerate() {
                     let z = src[y * w + x];
-                    if z > 0.0 && !steps(z, read.at((x, y), (x.saturating_sub(r), (x + r).min(w - 1)), ys)) {
+                    if z > 0.0 && !steps(z, read.at(x, y)) {
                         *o = z;
                     }
                 }
@@ -196,7 +202,8 @@ pub fn gaussian_window(depth: &DepthMap, cfg: &GaussianFilterConfig) -> (DepthMa
     };
     // Windows whose depth range is small hold one smooth surface; only the others (straddling a
     // discontinuity) need the robust fit.
-    let extremes = WindowExtremes::new(depth, cfg.window);
+    // The count integral's last cell: the map's readings.
+    let extremes = WindowExtremes::new(depth, cfg.window, ic[h * stride + w] as usize);
     let mut out = vec![0.0f32; w * h];
     out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
         let mut vals: Vec<f32> = Vec::with_capacity(cfg.window * cfg.window);
@@ -219,7 +226,7 @@ pub fn gaussian_window(depth: &DepthMap, cfg: &GaussianFilterConfig) -> (DepthMa
                 // the noise, so the cheap estimate decides.
                 WindowEstimator::Robust
                     if std > cfg.sigma_floor_m && {
-                        let (lo, hi) = extremes.at((x, y), (x0, x1), (y0, y1));
+                        let (lo, hi) = extremes.at(x, y);
                         f64::from(hi - lo) > cfg.single_surface_range_m
                     } =>
                 {
@@ -313,14 +320,14 @@ mod tests {
         });
         let (w, h) = d.dims();
         for window in [3, 5, 7] {
-            let r = window / 2;
             let (mn, mx) = window_min_max(&d, window);
+            // No reading counted: the windows are read pixel by pixel.
+            let read = WindowExtremes::new(&d, window, 0);
+            assert!(matches!(read, WindowExtremes::Read { .. }));
             for y in 0..h {
                 for x in 0..w {
-                    let ys = (y.saturating_sub(r), (y + r).min(h - 1));
-                    let xs = (x.saturating_sub(r), (x + r).min(w - 1));
                     let k = y * w + x;
-                    let (lo, hi) = valid_min_max(d.as_slice(), w, xs, ys);
+                    let (lo, hi) = read.at(x, y);
                     assert_eq!((lo.to_bits(), hi.to_bits()), (mn[k].to_bits(), mx[k].to_bits()), "{x} {y}");
                 }
             }
