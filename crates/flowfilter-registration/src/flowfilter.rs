@@ -486,8 +486,17 @@ impl FlowFilter {
         // The flow result and the flow-free registrations the checks weigh it against do not
         // depend on one another: they run side by side.
         let plain = p.geometry_only();
+        // A flow pose this near the initial pose starts FilterReg where the run from the initial
+        // pose starts: the clouds alone from there would repeat that run.
+        let (turn_deg, shift_m) = pose_distance(&pose, &p.init);
+        let repeats_init = turn_deg < cfg.settled_min_turn_deg && shift_m < LOCAL_START_SIGMA_M;
         let ((flow_result, local), (from_init, icp)) = rayon::join(
-            || rayon::join(|| self.filterreg_from_flow(p, pairs, pose, inliers), || self.local(p, pose)),
+            || {
+                rayon::join(
+                    || self.filterreg_from_flow(p, pairs, pose, inliers),
+                    || if repeats_init { Ok(None) } else { self.local(p, pose) },
+                )
+            },
             || rayon::join(|| self.geometry_from_init(&plain, p), || self.motion_icp(&plain)),
         );
         let alternatives = FlowFree { from_init: from_init?, icp: icp?, local: local? };
@@ -528,7 +537,7 @@ impl FlowFilter {
             return Ok(None);
         }
         let mut local_cfg = self.geometric_config(p);
-        local_cfg.init_sigma2.get_or_insert(1e-4);
+        local_cfg.init_sigma2.get_or_insert(LOCAL_START_SIGMA_M * LOCAL_START_SIGMA_M);
         FilterReg::new(local_cfg)?.register(&p.geometry_only().with_init(pose)).map(Some)
     }
 
@@ -574,7 +583,7 @@ impl FlowFilter {
         }
         // Start sigma at the scale of the flow pose's residual mismatch rather than the
         // all-pairs spread: the initial pose is already close.
-        fr_cfg.init_sigma2.get_or_insert(1e-4);
+        fr_cfg.init_sigma2.get_or_insert(LOCAL_START_SIGMA_M * LOCAL_START_SIGMA_M);
         FilterReg::new(fr_cfg)?.register(&problem)
     }
 
@@ -669,6 +678,9 @@ impl FlowFilter {
         flow_result
     }
 }
+
+/// The kernel width FilterReg starts with from the flow pose (metres): the pose is already close.
+const LOCAL_START_SIGMA_M: f64 = 0.01;
 
 /// The flow-free registrations the checks weigh the flow result against.
 struct FlowFree {
