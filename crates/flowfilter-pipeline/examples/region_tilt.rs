@@ -33,8 +33,10 @@ fn main() -> Result<(), Error> {
     let whole_reference = args.next().is_none_or(|r| r == "whole");
     let data = PathBuf::from(std::env::var("FLOWFILTER_REAL").unwrap_or("../shared/data/realsense-shelf".into()));
     let pipeline = Pipeline::from_config(PipelineConfig::default())?;
-    let mut rows = vec![];
-    println!("sequence from to region | depth tilt x y (deg) | tilt error x y (deg) | geodesic error (deg)");
+    let mut rows: Vec<Row> = vec![];
+    println!(
+        "sequence from to region | depth tilt x y (deg) | tilt error x y (deg) | geodesic error (deg) | centre x y (px)"
+    );
     let mut sequences: Vec<_> = std::fs::read_dir(&masks)?.filter_map(Result::ok).map(|e| e.path()).collect();
     sequences.sort();
     for seq_masks in sequences.iter().filter(|p| p.is_dir()) {
@@ -67,16 +69,23 @@ fn main() -> Result<(), Error> {
             let Some(depth) = depth_tilt(&model, &whole_target, &reference) else { continue };
             let error = (estimate.rotation * reference.rotation.inverse()).scaled_axis();
             let deg = |v: f64| v.to_degrees();
+            let centre = mask_centre(&model.mask);
             println!(
-                "{name} {from} {to} {region} | {:.2} {:.2} | {:.2} {:.2} | {:.2}",
+                "{name} {from} {to} {region} | {:.2} {:.2} | {:.2} {:.2} | {:.2} | {:.0} {:.0}",
                 deg(depth.x),
                 deg(depth.y),
                 deg(error.x),
                 deg(error.y),
-                deg(error.norm())
+                deg(error.norm()),
+                centre.x,
+                centre.y
             );
             if error.norm().to_degrees() <= 5.0 {
-                rows.push((depth.map(f64::to_degrees), Vector2::new(deg(error.x), deg(error.y))));
+                rows.push(Row {
+                    depth: depth.map(f64::to_degrees),
+                    error: Vector2::new(deg(error.x), deg(error.y)),
+                    centre,
+                });
             }
         }
     }
@@ -155,39 +164,81 @@ fn depth_tilt(model: &PreparedFrame, target: &PreparedFrame, motion: &Pose) -> O
     Some(Vector2::new(plane[2] / z0, -plane[1] / z0))
 }
 
-/// The summary lines over `(depth tilt, tilt error)` pairs (degrees).
-fn summarise(rows: &[(Vector2<f64>, Vector2<f64>)]) {
+/// The mean pixel of `mask` (its centre in the image).
+fn mask_centre(mask: &flowfilter_pipeline::Mask) -> Vector2<f64> {
+    let (w, h) = mask.dims();
+    let (mut sum, mut n) = (Vector2::zeros(), 0.0f64);
+    for (x, y) in (0..h).flat_map(|y| (0..w).map(move |x| (x, y))).filter(|&(x, y)| *mask.at(x, y)) {
+        sum += Vector2::new(x as f64, y as f64);
+        n += 1.0;
+    }
+    sum / n.max(1.0)
+}
+
+/// One region pair: the depth's tilt and the estimate's tilt error (degrees, about the camera's
+/// x and y axes), and the region's centre in the model image (pixels).
+struct Row {
+    depth: Vector2<f64>,
+    error: Vector2<f64>,
+    centre: Vector2<f64>,
+}
+
+/// The summary lines over the pairs within 5 deg of the reference.
+fn summarise(rows: &[Row]) {
     if rows.len() < 3 {
         println!("{} pairs within 5 deg of the reference: too few to summarise", rows.len());
         return;
     }
-    let correlation = |k: usize| {
-        let n = rows.len() as f64;
-        let (mx, my) = (rows.iter().map(|r| r.0[k]).sum::<f64>() / n, rows.iter().map(|r| r.1[k]).sum::<f64>() / n);
-        let cov: f64 = rows.iter().map(|r| (r.0[k] - mx) * (r.1[k] - my)).sum();
-        let (vx, vy): (f64, f64) =
-            rows.iter().fold((0.0, 0.0), |(a, b), r| (a + (r.0[k] - mx).powi(2), b + (r.1[k] - my).powi(2)));
-        cov / (vx * vy).sqrt()
+    let n = rows.len() as f64;
+    let correlation = |a: &dyn Fn(&Row) -> f64, b: &dyn Fn(&Row) -> f64| {
+        let (ma, mb) = (rows.iter().map(a).sum::<f64>() / n, rows.iter().map(b).sum::<f64>() / n);
+        let cov: f64 = rows.iter().map(|r| (a(r) - ma) * (b(r) - mb)).sum();
+        let (va, vb): (f64, f64) =
+            rows.iter().fold((0.0, 0.0), |(x, y), r| (x + (a(r) - ma).powi(2), y + (b(r) - mb).powi(2)));
+        cov / (va * vb).sqrt()
     };
-    let slope = rows.iter().map(|r| r.0.dot(&r.1)).sum::<f64>() / rows.iter().map(|r| r.0.norm_squared()).sum::<f64>();
-    let median_without = |k: f64| {
-        let mut v: Vec<f64> = rows.iter().map(|r| (r.1 - r.0 * k).norm()).collect();
+    let slope = rows.iter().map(|r| r.depth.dot(&r.error)).sum::<f64>()
+        / rows.iter().map(|r| r.depth.norm_squared()).sum::<f64>();
+    let median = |mut v: Vec<f64>| {
         v.sort_by(f64::total_cmp);
         v[v.len() / 2]
     };
-    let mut depth: Vec<f64> = rows.iter().map(|r| r.0.norm()).collect();
-    depth.sort_by(f64::total_cmp);
+    let without = |k: f64| median(rows.iter().map(|r| (r.error - r.depth * k).norm()).collect());
     println!(
         "{} pairs within 5 deg of the reference: correlation of the tilt error with the depth's tilt {:.2} (x) {:.2} (y), \
          slope {:.2}; median depth tilt {:.2} deg; median tilt error {:.2} deg, {:.2} with half the depth's tilt taken out, \
          {:.2} with all of it",
         rows.len(),
-        correlation(0),
-        correlation(1),
+        correlation(&|r| r.depth.x, &|r| r.error.x),
+        correlation(&|r| r.depth.y, &|r| r.error.y),
         slope,
-        depth[depth.len() / 2],
-        median_without(0.0),
-        median_without(0.5),
-        median_without(1.0)
+        median(rows.iter().map(|r| r.depth.norm()).collect()),
+        without(0.0),
+        without(0.5),
+        without(1.0)
     );
+    // What the depth's share leaves, fitted by a plane over the image (a lens or extrinsic error
+    // would grow with the region's place in the image).
+    let fits: Vec<String> = (0..2)
+        .map(|k| {
+            let left = |r: &Row| r.error[k] - slope * r.depth[k];
+            let (mut a, mut b) = (Matrix3::zeros(), Vector3::zeros());
+            for r in rows {
+                let x = Vector3::new(1.0, r.centre.x / 320.0 - 1.0, r.centre.y / 240.0 - 1.0);
+                a += x * x.transpose();
+                b += x * left(r);
+            }
+            let Some(c) = a.cholesky().map(|ch| ch.solve(&b)) else { return "no fit".into() };
+            let mean = rows.iter().map(left).sum::<f64>() / n;
+            let total: f64 = rows.iter().map(|r| (left(r) - mean).powi(2)).sum();
+            let fitted: f64 = rows
+                .iter()
+                .map(|r| {
+                    (left(r) - (c[0] + c[1] * (r.centre.x / 320.0 - 1.0) + c[2] * (r.centre.y / 240.0 - 1.0))).powi(2)
+                })
+                .sum();
+            format!("{} mean {:.2} deg, R^2 {:.2}", ["x", "y"][k], mean, 1.0 - fitted / total)
+        })
+        .collect();
+    println!("the tilt error less the depth's share against the region's place in the image: {}", fits.join("; "));
 }
