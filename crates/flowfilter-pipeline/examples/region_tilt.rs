@@ -16,8 +16,10 @@
 //! pairs' frame gap (default 1), the reference (`whole`, the default, or `calibrated`); the
 //! sequences are read from `../shared/data/realsense-shelf` (`FLOWFILTER_REAL` to change it).
 //! Prints one row per pair, then, over the pairs within 5 deg of the reference: the correlation
-//! of the region's tilt error with the depth's tilt, the slope of the one on the other, and the
-//! median tilt error with none, half and all of the depth's tilt taken out.
+//! of the region's tilt error with the depth's tilt, the slope of the one on the other, the
+//! median tilt error with none, half and all of the depth's tilt taken out, and how much of what
+//! the depth's share leaves a plane over the image explains (a lens or extrinsic calibration
+//! error would grow with the region's place in the image).
 
 use flowfilter_camera::CameraFile;
 use flowfilter_pipeline::{FrameFiles, MaskSource, Pipeline, PipelineConfig, Pose, PreparedFrame};
