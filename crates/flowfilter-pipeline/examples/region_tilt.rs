@@ -118,8 +118,11 @@ impl Sequence {
     fn motion(&self, from: usize, to: usize) -> Result<Pose, Error> {
         let pose = |n: usize| -> Result<Pose, Error> {
             let m = &self.poses["camera_to_world_calibrated"][n.to_string()];
-            let at = |r: usize, c: usize| m[r][c].as_f64().ok_or("poses.json: not a 4x4 matrix");
-            let r = Matrix3::from_fn(|r, c| at(r, c).unwrap_or(f64::NAN));
+            let at = |r: usize, c: usize| m[r][c].as_f64().ok_or(format!("poses.json: frame {n} is not a 4x4 matrix"));
+            let mut r = Matrix3::zeros();
+            for (i, j) in (0..3).flat_map(|i| (0..3).map(move |j| (i, j))) {
+                r[(i, j)] = at(i, j)?;
+            }
             let t = Translation3::new(at(0, 3)?, at(1, 3)?, at(2, 3)?);
             Ok(Pose::from_parts(t, UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix(&r))))
         };
