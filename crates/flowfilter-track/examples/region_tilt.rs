@@ -9,7 +9,7 @@
 //!
 //! ```sh
 //! cargo xtask bench-real --gaps 1 --no-whole --methods flowfilter --save-masks target/region-masks
-//! cargo run --release -p flowfilter-pipeline --example region_tilt -- target/region-masks 1 whole
+//! cargo run --release -p flowfilter-track --example region_tilt -- target/region-masks 1 whole
 //! ```
 //!
 //! Arguments: the masks' folder (one folder per sequence, as `--save-masks` writes them), the
@@ -21,9 +21,11 @@
 //! the depth's share leaves a plane over the image explains (a lens or extrinsic calibration
 //! error would grow with the region's place in the image).
 
-use flowfilter_camera::CameraFile;
-use flowfilter_pipeline::{FrameFiles, MaskSource, Pipeline, PipelineConfig, Pose, PreparedFrame};
-use nalgebra::{Matrix3, Rotation3, Translation3, UnitQuaternion, Vector2, Vector3};
+use flowfilter_pipeline::{CameraFile, FrameFiles, MaskSource, Pipeline, PipelineConfig, Pose, PreparedFrame};
+use flowfilter_track::tum::read_calibrated_poses;
+use nalgebra::{Matrix3, Vector2, Vector3};
+use std::collections::hash_map::Entry;
+use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 
 type Error = Box<dyn std::error::Error>;
@@ -50,6 +52,8 @@ fn main() -> Result<(), Error> {
             .filter(|n| n.ends_with(".model.png"))
             .collect();
         models.sort();
+        // Each pair's whole target frame and reference, made once for both of its regions.
+        let mut pairs: HashMap<usize, (PreparedFrame, Pose)> = HashMap::new();
         for model_mask in models {
             // `frame-NNNNNN.region-K.model.png`
             let from: usize = model_mask.get(6..12).ok_or("not a frame-NNNNNN mask")?.parse()?;
@@ -61,14 +65,18 @@ fn main() -> Result<(), Error> {
             let target_source = if target_mask.exists() { MaskSource::Binary(target_mask) } else { MaskSource::None };
             let target = pipeline.prepare(&sequence.frame(to, target_source)?)?;
             let estimate = pipeline.estimate_prepared(&model, &target)?.pose;
-            let whole_target = pipeline.prepare(&sequence.frame(to, MaskSource::None)?)?;
-            let reference = if whole_reference {
-                let whole_model = pipeline.prepare(&sequence.frame(from, MaskSource::None)?)?;
-                pipeline.estimate_prepared(&whole_model, &whole_target)?.pose
-            } else {
-                sequence.motion(from, to)?
-            };
-            let Some(depth) = depth_tilt(&model, &whole_target, &reference) else { continue };
+            if let Entry::Vacant(slot) = pairs.entry(from) {
+                let whole_target = pipeline.prepare(&sequence.frame(to, MaskSource::None)?)?;
+                let reference = if whole_reference {
+                    let whole_model = pipeline.prepare(&sequence.frame(from, MaskSource::None)?)?;
+                    pipeline.estimate_prepared(&whole_model, &whole_target)?.pose
+                } else {
+                    sequence.motion(from, to)?
+                };
+                slot.insert((whole_target, reference));
+            }
+            let (whole_target, reference) = &pairs[&from];
+            let Some(depth) = depth_tilt(&model, whole_target, reference) else { continue };
             let error = (estimate.rotation * reference.rotation.inverse()).scaled_axis();
             let deg = |v: f64| v.to_degrees();
             let centre = mask_centre(&model.mask);
@@ -95,17 +103,17 @@ fn main() -> Result<(), Error> {
     Ok(())
 }
 
-/// One shared sequence: its camera and calibrated poses.
+/// One shared sequence: its camera and calibrated camera poses.
 struct Sequence {
     dir: PathBuf,
     camera: CameraFile,
-    poses: serde_json::Value,
+    poses: BTreeMap<u64, Pose>,
 }
 
 impl Sequence {
     fn open(dir: &Path) -> Result<Self, Error> {
         let camera = CameraFile::from_file(&dir.join("camera.json"))?;
-        let poses = serde_json::from_str(&std::fs::read_to_string(dir.join("poses.json"))?)?;
+        let poses = read_calibrated_poses(&dir.join("poses.json"))?;
         Ok(Self { dir: dir.to_path_buf(), camera, poses })
     }
 
@@ -116,16 +124,7 @@ impl Sequence {
 
     /// The calibrated motion of the scene from frame `from`'s camera to frame `to`'s.
     fn motion(&self, from: usize, to: usize) -> Result<Pose, Error> {
-        let pose = |n: usize| -> Result<Pose, Error> {
-            let m = &self.poses["camera_to_world_calibrated"][n.to_string()];
-            let at = |r: usize, c: usize| m[r][c].as_f64().ok_or(format!("poses.json: frame {n} is not a 4x4 matrix"));
-            let mut r = Matrix3::zeros();
-            for (i, j) in (0..3).flat_map(|i| (0..3).map(move |j| (i, j))) {
-                r[(i, j)] = at(i, j)?;
-            }
-            let t = Translation3::new(at(0, 3)?, at(1, 3)?, at(2, 3)?);
-            Ok(Pose::from_parts(t, UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix(&r))))
-        };
+        let pose = |n: usize| self.poses.get(&(n as u64)).ok_or(format!("poses.json: no pose of frame {n}"));
         Ok(pose(to)?.inverse() * pose(from)?)
     }
 }
