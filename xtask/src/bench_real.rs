@@ -680,6 +680,32 @@ mod tests {
         assert!(codes.contains(&"flow_fallback"), "the pyramid alone: {off_deg} deg, {codes:?}");
     }
 
+    /// A region whose brightness changed with the view: shelf-A's region 51 (pair 11 -> 13, 25
+    /// deg apart; its first region), 2.8 times darker in the target frame (the camera's
+    /// exposure and the poster's shading). Tracked again from the wide-baseline guides with
+    /// plain windows, none of its tracks is forward-backward consistent and Flow Filter falls
+    /// back to the clouds (`flow_fallback`); with the windows' brightness matched
+    /// (`[flow.wide] match_brightness`) over a hundred are, and the flow decides.
+    #[test]
+    fn a_region_whose_exposure_changed_is_tracked_with_its_brightness_matched() {
+        let (a, b, id) = (11u32, 13u32, 51u64);
+        let seed = seed_of("shelf-A", 0, &[a.into(), b.into(), 0]);
+        let masks = (seed_of("shelf-A", 0, &[a.into(), id, 1]), seed_of("shelf-A", 0, &[b.into(), id, 1]));
+        let mut config = default_config();
+        let Some((matched, on, on_shift)) = estimate_region("shelf-A", (a, b), seed, masks, config.clone(), None)
+        else {
+            return;
+        };
+        let codes: Vec<&str> = matched.warnings.iter().map(|w| w.code()).collect();
+        assert!(!codes.contains(&"flow_fallback"), "matched: {on} deg, {codes:?}");
+        assert!(matched.correspondences.is_some_and(|c| c.consistent >= 100), "matched: {:?}", matched.correspondences);
+        assert!(on < 5.0 && on_shift < 0.05, "matched: {on} deg, {on_shift} m");
+        config.flow.wide.match_brightness = false;
+        let (plain, off, _) = estimate_region("shelf-A", (a, b), seed, masks, config, None).unwrap();
+        let codes: Vec<&str> = plain.warnings.iter().map(|w| w.code()).collect();
+        assert!(codes.contains(&"flow_fallback"), "plain windows: {off} deg, {codes:?}, {:?}", plain.correspondences);
+    }
+
     /// Whole frames of a shelf 25 degrees apart (shelf-G 10 -> 12, the camera circling the bin):
     /// the pyramid finds no consistent pair and the coarse search does not place the frame. The
     /// clouds' shapes do (`[flow.wide.geometry]`): tracked from where their global registration

@@ -29,7 +29,7 @@ mod stage;
 
 pub use config::{
     BigBirdFilterConfig, CloudConfig, DepthConfig, GaussianFilterConfig, InterpolationConfig, InterpolationMethod,
-    NormalMethod, RegistrationConfig, RegistrationMethod, WindowEstimator,
+    NormalMethod, RangeConfig, RegistrationConfig, RegistrationMethod, WindowEstimator,
 };
 pub use error::DepthError;
 pub use stage::{DepthStage, ProcessedDepth};

@@ -25,6 +25,9 @@ const ROI_Z_SLACK_M: f64 = 0.02;
 pub struct DepthStats {
     /// Raw pixels with a reading.
     pub raw_valid: usize,
+    /// Readings outside the sensor's working range ([`crate::RangeConfig`]) in the region
+    /// processed.
+    pub out_of_range: usize,
     /// Rejected by the BigBIRD discontinuity filter.
     pub rejected_discontinuity: usize,
     /// Rejected by the Gaussian window filter.
@@ -259,10 +262,20 @@ impl DepthStage {
     ) -> DepthMap {
         let cfg = &self.config;
         let (rw, rh) = (rx1 - rx0 + 1, ry1 - ry0 + 1);
+        let range = &cfg.range;
         let mut depth = DepthMap::from_fn(rw, rh, |x, y| {
             let d = *raw.at(rx0 + x, ry0 + y);
-            if d == 0 { 0.0 } else { (f64::from(d) * unit) as f32 }
+            let z = f64::from(d) * unit;
+            if d == 0 || !range.contains(z) { 0.0 } else { z as f32 }
         });
+        stats.out_of_range = (0..rh)
+            .map(|y| {
+                raw.row(ry0 + y)[rx0..rx0 + rw]
+                    .iter()
+                    .filter(|&&d| d > 0 && !range.contains(f64::from(d) * unit))
+                    .count()
+            })
+            .sum();
         laps.lap(stats, "crop");
         if cfg.gaussian_filter.enabled {
             let (d, n) = gaussian_window(&depth, &cfg.gaussian_filter);

@@ -120,3 +120,41 @@ fn a_large_mask_gives_a_cloud_of_every_second_pixel_with_the_same_points_and_nor
         assert!((normals[i] - full_normals[k]).norm() < 1e-12, "the normal at {p:?} differs");
     }
 }
+
+/// The sensor's working range (`[depth.range]`): a robot's camera sees its own gripper a few
+/// centimetres away in every frame. Readings nearer than `min_m` (or farther than `max_m`) are
+/// dropped before any filter: neither the depth nor the cloud holds them, and the stage counts
+/// them; by default every reading is kept. A range that is empty or not finite is refused,
+/// naming the key.
+#[test]
+fn readings_outside_the_working_range_are_dropped() {
+    let (sensor, mut raw, mask, color, z) = frame();
+    // A "gripper" 8 cm away over the mask's top-left corner.
+    for y in 30..45 {
+        for x in 40..60 {
+            *raw.at_mut(x, y) = 800;
+        }
+    }
+    let run = |cfg: DepthConfig| DepthStage::new(cfg).unwrap().process(&raw, &color, &mask, &sensor).unwrap();
+    let kept = run(DepthConfig::default());
+    assert!((f64::from(*kept.depth.at(45, 35)) - 0.08).abs() < 1e-3, "by default every reading is kept");
+    assert_eq!(kept.stats.out_of_range, 0);
+    let mut cfg = DepthConfig::default();
+    cfg.range.min_m = 0.2;
+    let cut = run(cfg.clone());
+    assert_eq!(cut.stats.out_of_range, 20 * 15);
+    assert!(cut.cloud.points.iter().all(|p| p.z > 0.2), "a point nearer than the range");
+    assert!((f64::from(*cut.depth.at(100, 60)) - z(100, 60)).abs() < 5e-4, "the rest is kept");
+    cfg.range.max_m = 0.7;
+    let near = run(cfg.clone());
+    assert!(near.cloud.points.iter().all(|p| p.z > 0.2 && p.z <= 0.7 + 1e-3), "a point outside the range");
+    assert_eq!(*near.depth.at(110, 60), 0.0, "beyond max_m");
+    for (min, max, key) in [(-0.1, 0.0, "range.min_m"), (0.5, 0.3, "range.max_m"), (f64::NAN, 0.0, "range.min_m")] {
+        let mut bad = DepthConfig::default();
+        (bad.range.min_m, bad.range.max_m) = (min, max);
+        let e = DepthStage::new(bad).err().expect("refused").to_string();
+        assert!(e.contains(key), "{e}");
+    }
+    let e = toml::from_str::<DepthConfig>("[range]\nmin = 0.2\n").unwrap_err().to_string();
+    assert!(e.contains("min"), "{e}");
+}

@@ -134,6 +134,13 @@ pub trait FlowEstimator: Send + Sync {
     fn window_matcher(&self) -> Option<&dyn WindowMatcher> {
         None
     }
+
+    /// The same estimator matching each window's brightness before comparing it (Lucas-Kanade
+    /// with [`LucasKanade::match_brightness`]), for a pair whose exposure changed; `None` when
+    /// the estimator has no such mode or is already in it (the default: `None`).
+    fn brightness_matched(&self) -> Option<Box<dyn FlowEstimator>> {
+        None
+    }
 }
 
 /// Estimators that match image windows (Lucas-Kanade): they can also warp each window by the
@@ -200,6 +207,11 @@ pub struct LucasKanade {
     pub min_eigen: f32,
     /// Grid step (pixels) of the dense mode.
     pub dense_step: usize,
+    /// Match each window's brightness to its template's on every pair
+    /// ([`LkParams::match_brightness`]; off by default, as in OpenCV: the correspondence stage
+    /// switches it on for the pairs whose brightness changed,
+    /// [`crate::correspondences::CorrespondenceParams::match_brightness_above`]).
+    pub match_brightness: bool,
 }
 
 impl Default for LucasKanade {
@@ -212,6 +224,7 @@ impl Default for LucasKanade {
             epsilon: p.epsilon,
             min_eigen: p.min_eigen,
             dense_step: 4,
+            match_brightness: p.match_brightness,
         }
     }
 }
@@ -232,6 +245,7 @@ impl LucasKanade {
             max_iterations: self.max_iterations,
             epsilon: self.epsilon,
             min_eigen: self.min_eigen,
+            match_brightness: self.match_brightness,
         }
     }
 
@@ -295,6 +309,11 @@ impl FlowEstimator for LucasKanade {
 
     fn window_matcher(&self) -> Option<&dyn WindowMatcher> {
         Some(self)
+    }
+
+    fn brightness_matched(&self) -> Option<Box<dyn FlowEstimator>> {
+        (!self.match_brightness)
+            .then(|| Box::new(Self { match_brightness: true, ..self.clone() }) as Box<dyn FlowEstimator>)
     }
 
     fn dense(&self, from: &Gray, to: &Gray, mask: Option<&Mask>) -> Result<FlowField, FlowError> {

@@ -559,8 +559,13 @@ impl Pipeline {
                 Some(&searched)
             }
         };
+        // Tracked again from a wide-baseline guide: each window's brightness matched when so set.
+        let from_wide_guide = |guide: &Pose| match wide.match_brightness {
+            true => finder.find_guided_matched(model, target, guide),
+            false => finder.find_guided(model, target, guide),
+        };
         if let Some(guide) = view.and_then(|view| crate::wide::wide_guide(model, view, wide)) {
-            sets.push(finder.find_guided(model, target, &guide)?);
+            sets.push(from_wide_guide(&guide)?);
             sources.push("wide");
         }
         // The clouds' shapes where the search runs and no set of tracks so far found a motion
@@ -572,7 +577,7 @@ impl Pipeline {
             && !sets[1..].iter().any(|set| crate::wide::consensus(&set.pairs, wide).is_some())
             && let Some(guide) = crate::wide::geometric_guide(model, target, wide)
         {
-            sets.push(finder.find_guided(model, target, &guide)?);
+            sets.push(from_wide_guide(&guide)?);
             sources.push("geometry");
         }
         // Feature matches where the search runs: their own set, and the region tracked again
@@ -583,7 +588,7 @@ impl Pipeline {
             sets.push(matched);
             sources.push("features");
             if let Some(guide) = guide {
-                sets.push(finder.find_guided(model, target, &guide)?);
+                sets.push(from_wide_guide(&guide)?);
                 sources.push("features-guided");
             }
         }

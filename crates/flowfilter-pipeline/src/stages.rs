@@ -237,19 +237,58 @@ pub trait CorrespondenceFinder: Send + Sync {
         let _ = guide;
         self.find(model, target)
     }
+
+    /// [`CorrespondenceFinder::find_guided`] with each window's brightness matched to its
+    /// template's, for a region tracked again from a wide-baseline guide
+    /// ([`crate::WideBaselineConfig::match_brightness`]). Finders without such a mode (the
+    /// default) search as `find_guided` does.
+    ///
+    /// # Errors
+    /// As [`CorrespondenceFinder::find`].
+    fn find_guided_matched(
+        &self,
+        model: &PreparedFrame,
+        target: &PreparedFrame,
+        guide: &Pose,
+    ) -> Result<FlowPairs, PipelineError> {
+        self.find_guided(model, target, guide)
+    }
 }
 
 /// The default finder: optical flow by any [`FlowEstimator`], forward-backward consistency,
 /// target mask and depth checks, depth-change outliers (stage 4 of the method).
 pub struct FlowCorrespondenceFinder {
     estimator: Box<dyn FlowEstimator>,
+    /// The estimator matching each window's brightness, when it has such a mode
+    /// ([`FlowEstimator::brightness_matched`]).
+    matched: Option<Box<dyn FlowEstimator>>,
     params: CorrespondenceParams,
 }
 
 impl FlowCorrespondenceFinder {
     /// A finder from an estimator and the rejection parameters.
     pub fn new(estimator: Box<dyn FlowEstimator>, params: CorrespondenceParams) -> Self {
-        Self { estimator, params }
+        let matched = estimator.brightness_matched();
+        Self { estimator, matched, params }
+    }
+
+    /// The pairs of `estimator` tracked from `guide`.
+    fn tracked_from(
+        &self,
+        estimator: &dyn FlowEstimator,
+        model: &PreparedFrame,
+        target: &PreparedFrame,
+        guide: &Pose,
+    ) -> Result<FlowPairs, PipelineError> {
+        let guide = FlowGuide { camera: &model.sensor.color, pose: guide };
+        Ok(flow_correspondences_guided(
+            estimator,
+            &model.view(),
+            &target.view(),
+            &model.rays,
+            &self.params,
+            Some(guide),
+        )?)
     }
 }
 
@@ -268,14 +307,15 @@ impl CorrespondenceFinder for FlowCorrespondenceFinder {
         target: &PreparedFrame,
         guide: &Pose,
     ) -> Result<FlowPairs, PipelineError> {
-        let guide = FlowGuide { camera: &model.sensor.color, pose: guide };
-        Ok(flow_correspondences_guided(
-            self.estimator.as_ref(),
-            &model.view(),
-            &target.view(),
-            &model.rays,
-            &self.params,
-            Some(guide),
-        )?)
+        self.tracked_from(self.estimator.as_ref(), model, target, guide)
+    }
+
+    fn find_guided_matched(
+        &self,
+        model: &PreparedFrame,
+        target: &PreparedFrame,
+        guide: &Pose,
+    ) -> Result<FlowPairs, PipelineError> {
+        self.tracked_from(self.matched.as_deref().unwrap_or(self.estimator.as_ref()), model, target, guide)
     }
 }
