@@ -234,6 +234,8 @@ struct Keyframe {
     index: usize,
     frame: PreparedFrame,
     pose: Pose,
+    /// Its pose rests on an uncertain frame ([`Previous::doubtful`]).
+    doubtful: bool,
 }
 
 /// The previous frame, prepared with the object's mask, when it was tracked.
@@ -241,6 +243,9 @@ struct Previous {
     index: usize,
     frame: PreparedFrame,
     pose: Pose,
+    /// Its pose rests on a doubtful estimate: it was uncertain, or it converged against a
+    /// frame whose pose does.
+    doubtful: bool,
 }
 
 /// An estimate that did not converge, kept in case no other does.
@@ -374,11 +379,11 @@ impl Tracker {
         let frame = pipeline.prepare(first).map_err(TrackError::FirstFrame)?;
         let object = !frame.unmasked;
         let size = frame.gray.dims();
-        let previous = Previous { index: 0, frame: frame.clone(), pose: Pose::identity() };
+        let previous = Previous { index: 0, frame: frame.clone(), pose: Pose::identity(), doubtful: false };
         Ok(Self {
             pipeline: Arc::new(pipeline),
             config,
-            keyframes: vec![Keyframe { index: 0, frame, pose: Pose::identity() }],
+            keyframes: vec![Keyframe { index: 0, frame, pose: Pose::identity(), doubtful: false }],
             current: 0,
             previous: Some(previous),
             object,
@@ -622,7 +627,7 @@ impl Tracker {
                 // Not a keyframe, but the next frame's nearest view: it is estimated against this
                 // one (a short motion) when no keyframe converges, as chaining would.
                 self.velocity = self.velocity_to(index, &pose);
-                self.previous = Some(Previous { index, frame, pose });
+                self.previous = Some(Previous { index, frame, pose, doubtful: true });
                 self.last_pose = pose;
                 TrackedFrame {
                     index,
@@ -726,7 +731,15 @@ impl Tracker {
             return self
                 .lose(index, format!("the object's mask emptied ({mask_px} pixels): it left the view or is hidden"));
         }
-        let state = if self.lost { TrackState::Recovered } else { TrackState::Tracking };
+        // Converged against a frame whose own pose rests on an uncertain one: the pose from the
+        // first frame rests on that doubt too, and the frame is reported uncertain (its
+        // estimate and everything else as for a tracked frame).
+        let doubtful = !self.lost && self.rests_on_doubt(reference);
+        let state = match (self.lost, doubtful) {
+            (true, _) => TrackState::Recovered,
+            (false, true) => TrackState::Uncertain,
+            (false, false) => TrackState::Tracking,
+        };
         self.velocity = if self.lost { Pose::identity() } else { self.velocity_to(index, &pose) };
         self.lost = false;
         self.uncertain_run = 0;
@@ -737,13 +750,14 @@ impl Tracker {
         let from_keyframe = pose * self.keyframes[self.current].pose.inverse();
         let far = self.makes_keyframe(&from_keyframe);
         if far {
-            self.add_keyframe(Keyframe { index, frame: frame.clone(), pose });
+            self.add_keyframe(Keyframe { index, frame: frame.clone(), pose, doubtful });
         }
-        self.previous = Some(Previous { index, frame, pose });
+        self.previous = Some(Previous { index, frame, pose, doubtful });
         let codes = warning_codes(&e);
-        let reason = match e.registration.converged {
-            true => Some(codes).filter(|r| !r.is_empty()),
-            false => Some(format!("{codes}: settled by the motion")),
+        let reason = match (doubtful, e.registration.converged) {
+            (true, _) => Some(format!("converged against frame {reference}, whose pose rests on an uncertain frame")),
+            (false, true) => Some(codes).filter(|r| !r.is_empty()),
+            (false, false) => Some(format!("{codes}: settled by the motion")),
         };
         TrackedFrame {
             index,
@@ -758,6 +772,13 @@ impl Tracker {
             estimate: Some(e),
             traced: None,
         }
+    }
+
+    /// Whether frame `reference` (the previous frame or a keyframe) has a pose that rests on an
+    /// uncertain frame.
+    fn rests_on_doubt(&self, reference: usize) -> bool {
+        let previous = self.previous.as_ref().filter(|p| p.index == reference).map(|p| p.doubtful);
+        previous.or_else(|| self.keyframes.iter().find(|k| k.index == reference).map(|k| k.doubtful)).unwrap_or(false)
     }
 
     /// `target` with the object's mask carried from `reference` by `motion`, and the mask's
