@@ -636,6 +636,13 @@ mod tests {
         Some((e, errors.geodesic_error_deg, errors.translation_error_m))
     }
 
+    /// The seeds `bench-real` (seed 0) draws pair `(a, b)`'s `k`-th region with, and its
+    /// masks in both frames as region `id`: what `--save-masks` names `region-ID`.
+    fn bench_region_seeds(name: &str, (a, b): (u32, u32), k: u64, id: u64) -> (u64, (u64, u64)) {
+        let seed = seed_of(name, 0, &[a.into(), b.into(), k]);
+        (seed, (seed_of(name, 0, &[a.into(), id, 1]), seed_of(name, 0, &[b.into(), id, 1])))
+    }
+
     fn default_config() -> PipelineConfig {
         PipelineConfig::from_file(&crate::repo_root().join("configs/flowfilter.toml")).unwrap()
     }
@@ -664,8 +671,7 @@ mod tests {
     fn a_region_beyond_the_pyramids_reach_is_tracked_from_the_coarse_search() {
         // The bench's region 11 of the tote (pair 5 -> 6, its first region) and its masks.
         let (a, b, id) = (5u32, 6u32, 11u64);
-        let seed = seed_of("tote", 0, &[a.into(), b.into(), 0]);
-        let masks = (seed_of("tote", 0, &[a.into(), id, 1]), seed_of("tote", 0, &[b.into(), id, 1]));
+        let (seed, masks) = bench_region_seeds("tote", (a, b), 0, id);
         let mut config = default_config();
         let Some((guided, on, on_shift)) = estimate_region("tote", (a, b), seed, masks, config.clone(), None) else {
             return;
@@ -689,8 +695,7 @@ mod tests {
     #[test]
     fn a_region_whose_exposure_changed_is_tracked_with_its_brightness_matched() {
         let (a, b, id) = (11u32, 13u32, 51u64);
-        let seed = seed_of("shelf-A", 0, &[a.into(), b.into(), 0]);
-        let masks = (seed_of("shelf-A", 0, &[a.into(), id, 1]), seed_of("shelf-A", 0, &[b.into(), id, 1]));
+        let (seed, masks) = bench_region_seeds("shelf-A", (a, b), 0, id);
         let mut config = default_config();
         let Some((matched, on, on_shift)) = estimate_region("shelf-A", (a, b), seed, masks, config.clone(), None)
         else {
@@ -808,8 +813,7 @@ mod tests {
     #[test]
     fn feature_matches_of_a_region_25_degrees_away_agree_with_the_truth() {
         let (a, b) = (1u32, 3u32);
-        let seed = seed_of("shelf-A", 0, &[a.into(), b.into(), 1]);
-        let masks = (seed_of("shelf-A", 0, &[a.into(), 4, 1]), seed_of("shelf-A", 0, &[b.into(), 4, 1]));
+        let (seed, masks) = bench_region_seeds("shelf-A", (a, b), 1, 4);
         let Some((model, target, truth)) = region_pair("shelf-A", (a, b), seed, masks, None) else { return };
         let mut config = default_config();
         config.flow.wide.features.enabled = true;

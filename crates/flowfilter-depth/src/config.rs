@@ -59,6 +59,11 @@ impl RangeConfig {
     pub fn contains(&self, z: f64) -> bool {
         z >= self.min_m && (self.max_m <= 0.0 || z <= self.max_m)
     }
+
+    /// Whether every reading lies in the range (the default: no bound set).
+    pub fn is_unbounded(&self) -> bool {
+        self.min_m <= 0.0 && self.max_m <= 0.0
+    }
 }
 
 /// How the Gaussian window filter estimates the window's mean and spread.

@@ -268,14 +268,16 @@ impl DepthStage {
             let z = f64::from(d) * unit;
             if d == 0 || !range.contains(z) { 0.0 } else { z as f32 }
         });
-        stats.out_of_range = (0..rh)
-            .map(|y| {
-                raw.row(ry0 + y)[rx0..rx0 + rw]
-                    .iter()
-                    .filter(|&&d| d > 0 && !range.contains(f64::from(d) * unit))
-                    .count()
-            })
-            .sum();
+        // Counted only where a bound is set: by default every reading is in range.
+        stats.out_of_range = match range.is_unbounded() {
+            true => 0,
+            false => (0..rh)
+                .map(|y| {
+                    let row = &raw.row(ry0 + y)[rx0..rx0 + rw];
+                    row.iter().filter(|&&d| d > 0 && !range.contains(f64::from(d) * unit)).count()
+                })
+                .sum(),
+        };
         laps.lap(stats, "crop");
         if cfg.gaussian_filter.enabled {
             let (d, n) = gaussian_window(&depth, &cfg.gaussian_filter);
