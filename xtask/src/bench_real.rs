@@ -711,6 +711,28 @@ mod tests {
         assert!(codes.contains(&"flow_fallback"), "plain windows: {off} deg, {codes:?}, {:?}", plain.correspondences);
     }
 
+    /// A region whose shape fits other poses (shelf-D 6 -> 8, 26 degrees: a poster's plane and
+    /// the bin's wall): the flow found its motion, and the motion check, seeing the clouds fit
+    /// as well from no motion, kept a geometric registration some 20 degrees off. Both aligned
+    /// on the images, the flow's result matches far better (`[judge] weigh_overruled_flow`):
+    /// it is kept, reported as `flow_restored` and not converged, within 5 degrees.
+    #[test]
+    fn the_images_restore_a_flow_result_the_motion_check_overruled() {
+        let (a, b, id) = (6u32, 8u32, 42u64);
+        let (seed, masks) = bench_region_seeds("shelf-D", (a, b), 1, id);
+        let mut config = default_config();
+        let Some((restored, on, _)) = estimate_region("shelf-D", (a, b), seed, masks, config.clone(), None) else {
+            return;
+        };
+        let codes: Vec<&str> = restored.warnings.iter().map(|w| w.code()).collect();
+        assert!(codes.contains(&"flow_restored") && !codes.contains(&"motion_check"), "weighed: {on} deg, {codes:?}");
+        assert!(on < 5.0 && !restored.registration.converged, "weighed: {on} deg, {codes:?}");
+        config.judge.weigh_overruled_flow = false;
+        let (overruled, off, _) = estimate_region("shelf-D", (a, b), seed, masks, config, None).unwrap();
+        let codes: Vec<&str> = overruled.warnings.iter().map(|w| w.code()).collect();
+        assert!(codes.contains(&"motion_check") && off > 15.0, "not weighed: {off} deg, {codes:?}");
+    }
+
     /// Whole frames of a shelf 25 degrees apart (shelf-G 10 -> 12, the camera circling the bin):
     /// the pyramid finds no consistent pair and the coarse search does not place the frame. The
     /// clouds' shapes do (`[flow.wide.geometry]`): tracked from where their global registration

@@ -66,6 +66,16 @@ pub struct JudgeConfig {
     /// ... and at most this many Gauss-Newton steps per level (the rest of `[align]` as
     /// configured).
     pub candidate_iterations: usize,
+    /// Where a geometric check overruled the flow's result (the clouds alone fit as well from
+    /// the initial pose), weigh the two on the images, each aligned as the candidates are, and
+    /// keep the flow's when it matches clearly better (its score below [`JudgeConfig::ratio`]
+    /// times the other's). A surface whose shape fits several poses (a tote's walls, a poster's
+    /// plane and its bin) lets the clouds move anywhere; its texture does not.
+    pub weigh_overruled_flow: bool,
+    /// ... and only when the flow's aligned score is at most this: the images confirm it, as
+    /// they must a scene's geometric answer (`[geometry_first] max_score`), not merely prefer
+    /// it to a worse one.
+    pub restore_max_score: f64,
 }
 
 impl Default for JudgeConfig {
@@ -87,6 +97,8 @@ impl Default for JudgeConfig {
             align_candidates: true,
             candidate_pixels: 400,
             candidate_iterations: 5,
+            weigh_overruled_flow: true,
+            restore_max_score: 0.5,
         }
     }
 }
@@ -108,6 +120,7 @@ impl JudgeConfig {
         params::non_negative("ambiguity_min_turn_deg", self.ambiguity_min_turn_deg)?;
         params::count_positive("candidate_pixels", self.candidate_pixels)?;
         params::count_positive("candidate_iterations", self.candidate_iterations)?;
+        params::positive("restore_max_score", self.restore_max_score)?;
         self.gate.validate().map_err(|e| e.within("gate"))?;
         self.sweep.validate().map_err(|e| e.within("sweep"))
     }

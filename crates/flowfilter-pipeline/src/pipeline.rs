@@ -15,7 +15,7 @@ use flowfilter_photometric::align::{self, AlignConfig, AlignReport, Alignment};
 use flowfilter_photometric::gate::evidence_settled;
 use flowfilter_photometric::judge::{self, JudgeReport};
 use flowfilter_photometric::{TurnCandidate, TurnHypotheses};
-use flowfilter_registration::{Registrar, Registration, RegistrationProblem, registrar_by_name};
+use flowfilter_registration::{Registrar, Registration, RegistrationProblem, RegistrationWarning, registrar_by_name};
 use std::time::Instant;
 
 /// Two RGB-D frames in, a relative pose out.
@@ -326,6 +326,8 @@ impl Pipeline {
         }
         times.registration = tr.elapsed().as_secs_f64() * 1e3;
         let tj = Instant::now();
+        let (reg, restored) = self.weigh_overruled_flow(model, target, reg);
+        warnings.extend(restored);
         let (reg, judge) = if found.is_some() { self.judge(model, target, &problem, reg)? } else { (reg, None) };
         times.judge = tj.elapsed().as_secs_f64() * 1e3;
         let tp = Instant::now();
@@ -731,6 +733,49 @@ impl Pipeline {
         report.retracked_transform = Some(matrix_rows(&pose));
         let warning = self.ambiguity(&hypotheses, &aligned_sweep, Some(score), Some((candidate.axis, candidate.deg)));
         Ok((moved_to(reg, pose), Some(Judged { report: Some(report), candidates, retracked: None, warning })))
+    }
+
+    /// The flow's result where a geometric check overruled it and the images match it clearly
+    /// better ([`judge::JudgeConfig::weigh_overruled_flow`]): each pose aligned as the judge's
+    /// candidates are, then scored on the judge's grid; the flow's is kept when its score is
+    /// below `ratio` times the check's and at most `restore_max_score`. Else the registration as
+    /// it came (without the overruled result).
+    fn weigh_overruled_flow(
+        &self,
+        model: &PreparedFrame,
+        target: &PreparedFrame,
+        mut reg: Registration,
+    ) -> (Registration, Option<PipelineWarning>) {
+        let cfg = &self.config.judge;
+        let Some(flow) = reg.overruled_flow.take() else { return (reg, None) };
+        if !cfg.enabled || !cfg.weigh_overruled_flow {
+            return (reg, None);
+        }
+        let images = judge::Textures::new(&model.image_view(), &target.image_view(), cfg);
+        let quick = self.candidate_alignment();
+        let target_view = target.image_view();
+        let alignment =
+            cfg.align_candidates.then(|| Alignment::new(&model.image_view(), &target_view, &quick)).flatten();
+        let score = |pose: &Pose| {
+            let aligned = alignment.as_ref().and_then(|a| a.run(pose)).map_or(*pose, |(p, _)| p);
+            judge::photometric_score(&images, &aligned, cfg)
+        };
+        let (Some(check_score), Some(flow_score)) = (score(&reg.transform), score(&flow.transform)) else {
+            return (reg, None);
+        };
+        if flow_score >= cfg.ratio * check_score || flow_score > cfg.restore_max_score {
+            return (reg, None);
+        }
+        let check =
+            reg.warnings
+                .iter()
+                .find_map(|w| match w {
+                    RegistrationWarning::MotionCheck { kept, .. }
+                    | RegistrationWarning::GeometricCheck { kept, .. } => Some(*kept),
+                    _ => None,
+                })
+                .unwrap_or("a geometric registration");
+        (*flow, Some(PipelineWarning::FlowRestored { check, flow_score, check_score }))
     }
 
     /// The alignment the judge runs on its candidates: `[align]` with `judge.candidate_pixels`

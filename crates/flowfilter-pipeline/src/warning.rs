@@ -59,6 +59,16 @@ pub enum PipelineWarning {
         /// The turns that are as good, degrees.
         turns_deg: Vec<f64>,
     },
+    /// A geometric check had overruled the flow's result; the images, both aligned, matched the
+    /// flow's clearly better, and it was kept ([`flowfilter_photometric::judge::JudgeConfig::weigh_overruled_flow`]).
+    FlowRestored {
+        /// The check's registration that had been kept.
+        check: &'static str,
+        /// The flow result's texture score (1 - correlation; lower agrees better).
+        flow_score: f64,
+        /// The check's result's texture score.
+        check_score: f64,
+    },
     /// The registration backend's warning.
     Registration(RegistrationWarning),
 }
@@ -73,6 +83,7 @@ impl PipelineWarning {
             Self::MaskPropagated { .. } => "mask_propagated",
             Self::WideBounds { .. } => "wide_bounds",
             Self::AmbiguousPose { .. } => "ambiguous_pose",
+            Self::FlowRestored { .. } => "flow_restored",
             Self::Registration(w) => w.code(),
         }
     }
@@ -85,7 +96,7 @@ impl PipelineWarning {
     /// within 2 degrees).
     pub fn is_doubtful(&self) -> bool {
         match self {
-            Self::AmbiguousPose { .. } | Self::WideBounds { .. } => true,
+            Self::AmbiguousPose { .. } | Self::WideBounds { .. } | Self::FlowRestored { .. } => true,
             Self::Registration(w) => {
                 w.is_implausible()
                     || matches!(w, RegistrationWarning::FlowFallback { .. } | RegistrationWarning::MotionCheck { .. })
@@ -148,6 +159,11 @@ impl fmt::Display for PipelineWarning {
                     pivot_m[2]
                 )
             }
+            Self::FlowRestored { check, flow_score, check_score } => write!(
+                f,
+                "flow restored: a geometric check had kept {check} over the flow result; the images match the \
+                 flow result better (texture score {flow_score:.3} against {check_score:.3}, both aligned): kept it"
+            ),
             Self::Registration(w) => w.fmt(f),
         }
     }

@@ -73,6 +73,7 @@ impl Registrar for PairsOnly {
             warnings: vec![],
             correspondence_set: Some(0),
             uncertainty: None,
+            overruled_flow: None,
         })
     }
 

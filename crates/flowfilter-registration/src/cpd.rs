@@ -814,6 +814,7 @@ impl Cpd {
             warnings,
             correspondence_set: None,
             uncertainty: None,
+            overruled_flow: None,
         })
     }
 }

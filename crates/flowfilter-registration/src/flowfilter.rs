@@ -323,8 +323,8 @@ struct Solved {
     registration: Registration,
     /// Whether trusted flow was used (the polish and the refinement follow only then).
     flow_used: bool,
-    /// The flow result's pose when a geometric check replaced it.
-    overruled: Option<Pose>,
+    /// The flow result when a geometric check replaced it.
+    overruled: Option<Registration>,
 }
 
 impl Solved {
@@ -360,10 +360,21 @@ impl FlowFilter {
         let Solved { registration: mut r, flow_used, overruled } = self.solve(p, chosen.as_ref())?;
         // Without trusted flow the result is plain FilterReg, as documented: no polish.
         if flow_used {
-            r = self.polish(p, chosen.as_ref().map(|c| c.pairs), r)?;
+            let pairs = chosen.as_ref().map(|c| c.pairs);
+            r = self.polish(p, pairs, r)?;
+            // The overruled flow result, polished and refined as the answer is: each one's bounds
+            // reach the other.
+            let overruled = overruled.map(|f| self.polish(p, pairs, f)).transpose()?;
             if let Some(c) = &chosen {
-                self.refine(c.pairs, overruled.as_ref(), &mut r);
+                self.refine(c.pairs, overruled.as_ref().map(|f| &f.transform), &mut r);
             }
+            r.overruled_flow = overruled.map(|mut f| {
+                if let Some(c) = &chosen {
+                    self.refine(c.pairs, Some(&r.transform), &mut f);
+                }
+                f.correspondence_set = chosen.as_ref().map(|c| c.index);
+                Box::new(f)
+            });
         }
         r.correspondence_set = chosen.map(|c| c.index);
         Ok(r)
@@ -607,15 +618,15 @@ impl FlowFilter {
         if cfg.motion_margin_deg >= 0.0
             && let Some(r) = self.motion_check(plain, &from_init, icp, &flow_result, s_flow, &score)
         {
-            return Ok(Solved { registration: r, flow_used: true, overruled: Some(flow_result.transform) });
+            return Ok(Solved { registration: r, flow_used: true, overruled: Some(flow_result) });
         }
         let mut alternatives = vec![("FilterReg from the initial pose", from_init)];
         if let Some(local) = local {
             alternatives.push(("FilterReg from the flow pose without the flow term", local));
         }
         let flow_pose = flow_result.transform;
-        let registration = self.fit_check(alternatives, flow_result, s_flow, &score);
-        let overruled = (registration.transform != flow_pose).then_some(flow_pose);
+        let registration = self.fit_check(alternatives, flow_result.clone(), s_flow, &score);
+        let overruled = (registration.transform != flow_pose).then_some(flow_result);
         Ok(Solved { registration, flow_used: true, overruled })
     }
 

@@ -195,6 +195,7 @@ impl Icp {
             warnings,
             correspondence_set: None,
             uncertainty: None,
+            overruled_flow: None,
         })
     }
 }

@@ -118,6 +118,10 @@ pub struct Registration {
     pub correspondence_set: Option<usize>,
     /// How far the pose may be off, when the backend can tell.
     pub uncertainty: Option<Uncertainty>,
+    /// Flow Filter: the flow's own result (polished and refined alike) when a geometric check
+    /// overruled it ([`RegistrationWarning::MotionCheck`], [`RegistrationWarning::GeometricCheck`]):
+    /// the other answer the frames support, for a caller that can weigh the two on the images.
+    pub overruled_flow: Option<Box<Registration>>,
 }
 
 impl Registration {
@@ -136,6 +140,7 @@ impl Registration {
             warnings: vec![],
             correspondence_set: None,
             uncertainty: None,
+            overruled_flow: None,
         }
     }
 }

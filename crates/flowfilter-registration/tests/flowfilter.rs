@@ -171,6 +171,12 @@ fn geometry_that_moves_overrules_flow_that_stands_still() {
         "{:?}",
         checked.warnings
     );
+    // The overruled flow result comes back beside the answer (for a caller that can weigh the
+    // two on the images): standing still, its bounds reaching the answer.
+    let flow = checked.overruled_flow.as_deref().expect("the overruled flow result");
+    assert!(err(&flow.transform) > 15.0, "{} deg", err(&flow.transform));
+    assert!(flow.uncertainty.is_some_and(|b| b.rotation_deg >= 19.0), "{:?}", flow.uncertainty);
+    assert!(unchecked.overruled_flow.is_none());
 }
 
 #[test]

@@ -402,6 +402,7 @@ fn finish(
             warnings: vec![RegistrationWarning::Diverged { method: "FilterReg" }],
             correspondence_set: None,
             uncertainty: None,
+            overruled_flow: None,
         };
     }
     // The last exact iteration's lists (when they were gathered for every point) answer
@@ -426,6 +427,7 @@ fn finish(
         warnings: em.warnings,
         correspondence_set: None,
         uncertainty: None,
+        overruled_flow: None,
     }
 }
 
