@@ -90,10 +90,10 @@ impl PipelineWarning {
 
     /// Whether the condition means the estimate may be far off even though it is plausible:
     /// the flow gave no rigid consensus (the clouds alone decided), a geometric registration
-    /// overruled the flow, other poses fit as well, or its own bounds are wide. The pipeline
-    /// reports such an estimate as not converged (on the real shelf and tote sequences of
-    /// `cargo xtask bench-real`: 73 of the 76 estimates over 5 degrees off, and 75 of the 289
-    /// within 2 degrees).
+    /// overruled the flow or the images restored the flow's result over it, other poses fit as
+    /// well, or its own bounds are wide. The pipeline reports such an estimate as not converged
+    /// (on the real shelf and tote sequences of `cargo xtask bench-real`: 41 of the 44 estimates
+    /// over 5 degrees off, and 68 of the 317 within 2 degrees).
     pub fn is_doubtful(&self) -> bool {
         match self {
             Self::AmbiguousPose { .. } | Self::WideBounds { .. } | Self::FlowRestored { .. } => true,
