@@ -62,7 +62,10 @@ pub struct AlignConfig {
     /// light and stereo alike). A difference of two quantised depths can be off by a step, and
     /// where most differences fall on the same step their spread (the robust scale) says less.
     pub depth_step_at_1m_m: f64,
-    /// The aligned pose may turn at most this far from the pose it started from (degrees)...
+    /// The aligned pose may turn at most this far from the pose it started from (degrees): the
+    /// judge's candidates are 6 degrees apart, and aligned, the one nearest the true turn must
+    /// reach it (3 degrees, half the spacing, left real regions at 25-30 degrees and turntable
+    /// pairs short of where their images agree best)...
     pub max_turn_deg: f64,
     /// ... and move its model pixels at most this far (metres); beyond either, the start is
     /// kept.
@@ -90,7 +93,7 @@ impl Default for AlignConfig {
             truncation: 3.0,
             min_depth_noise_m: 0.001,
             depth_step_at_1m_m: 0.0029,
-            max_turn_deg: 3.0,
+            max_turn_deg: 6.0,
             max_shift_m: 0.02,
             row_shear_sd: 0.01,
             symmetric: true,

@@ -92,8 +92,8 @@ impl PipelineWarning {
     /// the flow gave no rigid consensus (the clouds alone decided), a geometric registration
     /// overruled the flow or the images restored the flow's result over it, other poses fit as
     /// well, or its own bounds are wide. The pipeline reports such an estimate as not converged
-    /// (on the real shelf and tote sequences of `cargo xtask bench-real`: 41 of the 44 estimates
-    /// over 5 degrees off, and 68 of the 317 within 2 degrees).
+    /// (on the real shelf and tote sequences of `cargo xtask bench-real`: 38 of the 41 estimates
+    /// over 5 degrees off, and 73 of the 322 within 2 degrees).
     pub fn is_doubtful(&self) -> bool {
         match self {
             Self::AmbiguousPose { .. } | Self::WideBounds { .. } | Self::FlowRestored { .. } => true,
