@@ -62,6 +62,9 @@ pub struct AlignConfig {
     /// light and stereo alike). A difference of two quantised depths can be off by a step, and
     /// where most differences fall on the same step their spread (the robust scale) says less.
     pub depth_step_at_1m_m: f64,
+    /// ... and at least this many metres per degree the pose turns (0: off): one surface's
+    /// depth, read from two views, differs more the further the view turned.
+    pub depth_noise_per_deg_m: f64,
     /// The aligned pose may turn at most this far from the pose it started from (degrees): the
     /// judge's candidates are 6 degrees apart, and aligned, the one nearest the true turn must
     /// reach it (3 degrees, half the spacing, left real regions at 25-30 degrees and turntable
@@ -93,6 +96,7 @@ impl Default for AlignConfig {
             truncation: 3.0,
             min_depth_noise_m: 0.001,
             depth_step_at_1m_m: 0.0029,
+            depth_noise_per_deg_m: 0.0,
             max_turn_deg: 6.0,
             max_shift_m: 0.02,
             row_shear_sd: 0.01,
@@ -114,6 +118,7 @@ impl AlignConfig {
         params::positive("truncation", self.truncation)?;
         params::positive("min_depth_noise_m", self.min_depth_noise_m)?;
         params::non_negative("depth_step_at_1m_m", self.depth_step_at_1m_m)?;
+        params::non_negative("depth_noise_per_deg_m", self.depth_noise_per_deg_m)?;
         params::positive("max_turn_deg", self.max_turn_deg)?;
         params::positive("max_shift_m", self.max_shift_m)?;
         params::non_negative("row_shear_sd", self.row_shear_sd)
@@ -654,7 +659,8 @@ fn scales(samples: &[ObjectSample], view: &TargetView<'_>, state: &State, cfg: &
     }
     let gain = (sbb / saa).sqrt();
     let texture = mad(visible.iter().map(|(b, a, _)| b - gain * a).collect());
-    let depth = mad(visible.iter().map(|(_, _, d)| *d).collect()).max(cfg.min_depth_noise_m);
+    let turned = cfg.depth_noise_per_deg_m * state.pose.rotation.angle().to_degrees();
+    let depth = mad(visible.iter().map(|(_, _, d)| *d).collect()).max(cfg.min_depth_noise_m).max(turned);
     (texture > 1e-9).then_some(Scales { texture, depth, gain })
 }
 

@@ -5,7 +5,7 @@ mod common;
 use common::{frame, truth};
 use flowfilter_eval::PoseErrors;
 use flowfilter_geometry::{Pose, Vector3};
-use flowfilter_pipeline::align::{AlignConfig, align};
+use flowfilter_pipeline::align::{AlignConfig, Aligner, align};
 use flowfilter_pipeline::{Pipeline, PipelineConfig, PreparedFrame, RgbdFrame};
 use flowfilter_synth::{FrameDraw, Rig, Scene, procedural};
 use nalgebra::{Translation3, UnitQuaternion};
@@ -156,4 +156,23 @@ fn a_rolling_shutter_shear_is_estimated_and_kept_out_of_the_pose() {
     let (_, report) = align(&a.image_view(), &b.image_view(), &off_by(&t, &a, 0.5, Vector3::zeros()), &sheared)
         .expect("the can has texture");
     assert_eq!(report.row_shear_px_per_row, [0.0; 2], "a shear found on frames without one: {report:?}");
+}
+
+/// `depth_noise_per_deg_m`: the depth residual's noise is taken as at least that much per degree
+/// the pose turns (one surface read from two views turned apart disagrees more), so a pose
+/// turned 15 degrees weighs its depth residuals as 3 mm noisy at 0.2 mm per degree, and as
+/// the robust spread says without it.
+#[test]
+fn the_depth_noise_floor_grows_with_the_turn() {
+    let (a, b, t) = can_pair(15, |_| {});
+    let noise = |per_deg: f64| {
+        let cfg = AlignConfig { depth_noise_per_deg_m: per_deg, ..AlignConfig::default() };
+        let aligner = Aligner::new(&a.image_view(), &b.image_view(), &cfg, 0).expect("the can has texture");
+        aligner.noise(&t).expect("visible in both").1
+    };
+    let turn = t.rotation.angle().to_degrees();
+    let (plain, floored) = (noise(0.0), noise(0.0002));
+    println!("turn {turn:.2} deg: depth noise {plain:.5} m, floored {floored:.5} m");
+    assert!(plain < 0.0025, "{plain}");
+    assert!((floored - 0.0002 * turn).abs() < 1e-9, "{floored} against {}", 0.0002 * turn);
 }
