@@ -643,6 +643,11 @@ mod tests {
         (seed, (seed_of(name, 0, &[a.into(), id, 1]), seed_of(name, 0, &[b.into(), id, 1])))
     }
 
+    /// The estimate's warning codes.
+    fn codes_of(e: &flowfilter_pipeline::Estimate) -> Vec<&'static str> {
+        e.warnings.iter().map(|w| w.code()).collect()
+    }
+
     fn default_config() -> PipelineConfig {
         PipelineConfig::from_file(&crate::repo_root().join("configs/flowfilter.toml")).unwrap()
     }
@@ -657,7 +662,7 @@ mod tests {
         let Some((e, rot, shift)) = estimate_region("shelf-G", (0, 1), 3, (4, 5), default_config(), Some(whole)) else {
             return;
         };
-        let codes: Vec<&str> = e.warnings.iter().map(|w| w.code()).collect();
+        let codes = codes_of(&e);
         assert!(codes.contains(&"mask_propagated"), "{codes:?}");
         assert!(!codes.contains(&"mask_covers_frame"), "{codes:?}");
         assert!(rot < 2.0 && shift < 0.02, "{rot} deg, {shift} m, {codes:?}");
@@ -676,13 +681,13 @@ mod tests {
         let Some((guided, on, on_shift)) = estimate_region("tote", (a, b), seed, masks, config.clone(), None) else {
             return;
         };
-        let codes: Vec<&str> = guided.warnings.iter().map(|w| w.code()).collect();
+        let codes = codes_of(&guided);
         assert!(on < 2.0 && on_shift < 0.02, "with the guide: {on} deg, {on_shift} m");
         assert!(!codes.contains(&"flow_fallback"), "with the guide: {codes:?}");
         config.flow.wide.enabled = false;
         config.flow.guided = false;
         let (off, off_deg, _) = estimate_region("tote", (a, b), seed, masks, config, None).unwrap();
-        let codes: Vec<&str> = off.warnings.iter().map(|w| w.code()).collect();
+        let codes = codes_of(&off);
         assert!(codes.contains(&"flow_fallback"), "the pyramid alone: {off_deg} deg, {codes:?}");
     }
 
@@ -701,13 +706,13 @@ mod tests {
         else {
             return;
         };
-        let codes: Vec<&str> = matched.warnings.iter().map(|w| w.code()).collect();
+        let codes = codes_of(&matched);
         assert!(!codes.contains(&"flow_fallback"), "matched: {on} deg, {codes:?}");
         assert!(matched.correspondences.is_some_and(|c| c.consistent >= 100), "matched: {:?}", matched.correspondences);
         assert!(on < 5.0 && on_shift < 0.05, "matched: {on} deg, {on_shift} m");
         config.flow.wide.match_brightness = false;
         let (plain, off, _) = estimate_region("shelf-A", (a, b), seed, masks, config, None).unwrap();
-        let codes: Vec<&str> = plain.warnings.iter().map(|w| w.code()).collect();
+        let codes = codes_of(&plain);
         assert!(codes.contains(&"flow_fallback"), "plain windows: {off} deg, {codes:?}, {:?}", plain.correspondences);
     }
 
@@ -724,12 +729,12 @@ mod tests {
         let Some((restored, on, _)) = estimate_region("shelf-D", (a, b), seed, masks, config.clone(), None) else {
             return;
         };
-        let codes: Vec<&str> = restored.warnings.iter().map(|w| w.code()).collect();
+        let codes = codes_of(&restored);
         assert!(codes.contains(&"flow_restored") && !codes.contains(&"motion_check"), "weighed: {on} deg, {codes:?}");
         assert!(on < 5.0 && !restored.registration.converged, "weighed: {on} deg, {codes:?}");
         config.judge.weigh_overruled_flow = false;
         let (overruled, off, _) = estimate_region("shelf-D", (a, b), seed, masks, config, None).unwrap();
-        let codes: Vec<&str> = overruled.warnings.iter().map(|w| w.code()).collect();
+        let codes = codes_of(&overruled);
         assert!(codes.contains(&"motion_check") && off > 15.0, "not weighed: {off} deg, {codes:?}");
     }
 
@@ -747,7 +752,7 @@ mod tests {
         let run = |config| {
             let e = flowfilter_pipeline::Pipeline::from_config(config).unwrap().estimate(&a, &b).unwrap();
             let error = flowfilter_pipeline::eval::PoseErrors::new(&e.pose, &truth, None).geodesic_error_deg;
-            let codes: Vec<&str> = e.warnings.iter().map(|w| w.code()).collect();
+            let codes = codes_of(&e);
             (error, e.registration.converged, codes.join(","))
         };
         let (on, converged, codes) = run(default_config());

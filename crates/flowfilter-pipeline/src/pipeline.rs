@@ -672,10 +672,7 @@ impl Pipeline {
         let alignment = (cfg.align_candidates && !sweep.coarse.is_empty())
             .then(|| Alignment::new(&model.image_view(), &target_view, &quick))
             .flatten();
-        let aligned_score = |pose: &Pose| {
-            let aligned = alignment.as_ref()?.run(pose).map_or(*pose, |(p, _)| p);
-            judge::photometric_score(&images, &aligned, cfg).map(|s| (s, aligned))
-        };
+        let aligned_score = |pose: &Pose| alignment.as_ref().and_then(|a| scored_aligned(&images, Some(a), pose, cfg));
         let aligned_answer = aligned_score(&reg.transform).map(|(s, _)| s);
         report.aligned_answer_score = aligned_answer;
         // The distinct candidates aligned and scored: what aligned candidates are judged by, and
@@ -756,10 +753,7 @@ impl Pipeline {
         let target_view = target.image_view();
         let alignment =
             cfg.align_candidates.then(|| Alignment::new(&model.image_view(), &target_view, &quick)).flatten();
-        let score = |pose: &Pose| {
-            let aligned = alignment.as_ref().and_then(|a| a.run(pose)).map_or(*pose, |(p, _)| p);
-            judge::photometric_score(&images, &aligned, cfg)
-        };
+        let score = |pose: &Pose| scored_aligned(&images, alignment.as_ref(), pose, cfg).map(|(s, _)| s);
         let (Some(check_score), Some(flow_score)) = (score(&reg.transform), score(&flow.transform)) else {
             return (reg, None);
         };
@@ -907,6 +901,18 @@ struct Judged {
 
 /// Candidates whose poses turn less than this from each other (degrees) are aligned once.
 const DISTINCT_TURN_DEG: f64 = 0.5;
+
+/// `pose` aligned on the images by `alignment` (as it is where there is none, or the alignment
+/// cannot run), and its texture score there: the score and the aligned pose.
+fn scored_aligned(
+    images: &judge::Textures<'_>,
+    alignment: Option<&Alignment<'_>>,
+    pose: &Pose,
+    cfg: &judge::JudgeConfig,
+) -> Option<(f64, Pose)> {
+    let aligned = alignment.and_then(|a| a.run(pose)).map_or(*pose, |(p, _)| p);
+    judge::photometric_score(images, &aligned, cfg).map(|s| (s, aligned))
+}
 
 /// The sweep's coarse candidates without those whose pose turns less than `within_deg` from
 /// one already kept (about a can's axis two of the three axes give nearly the same turns).

@@ -624,10 +624,10 @@ impl FlowFilter {
         if let Some(local) = local {
             alternatives.push(("FilterReg from the flow pose without the flow term", local));
         }
-        let flow_pose = flow_result.transform;
-        let registration = self.fit_check(alternatives, flow_result.clone(), s_flow, &score);
-        let overruled = (registration.transform != flow_pose).then_some(flow_result);
-        Ok(Solved { registration, flow_used: true, overruled })
+        Ok(match self.fit_check(alternatives, s_flow, &score) {
+            Some(registration) => Solved { registration, flow_used: true, overruled: Some(flow_result) },
+            None => Solved::by_flow(flow_result),
+        })
     }
 
     /// The motion check (see [`FlowFilterConfig::motion_margin_deg`]) on the clouds alone
@@ -666,15 +666,15 @@ impl FlowFilter {
         })
     }
 
-    /// The fit check: the best-fitting alternative replaces the flow result only when it fits
-    /// clearly better (by the margin and the ratio).
+    /// The fit check: the best-fitting alternative, which replaces the flow result (whose
+    /// residual is `s_flow`) only when it fits clearly better (by the margin and the ratio);
+    /// `None` when none does.
     fn fit_check(
         &self,
         alternatives: Vec<(&'static str, Registration)>,
-        flow_result: Registration,
         s_flow: f64,
         score: &dyn Fn(&Registration) -> f64,
-    ) -> Registration {
+    ) -> Option<Registration> {
         let cfg = &self.config;
         let best = alternatives
             .into_iter()
@@ -684,9 +684,9 @@ impl FlowFilter {
         if best.0 + cfg.geometric_margin_m < s_flow && best.0 * cfg.geometric_ratio < s_flow {
             let (s, kept, mut r) = best;
             r.warnings.push(RegistrationWarning::GeometricCheck { kept, residual_m: s, flow_residual_m: s_flow });
-            return r;
+            return Some(r);
         }
-        flow_result
+        None
     }
 }
 
