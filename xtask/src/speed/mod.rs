@@ -6,13 +6,15 @@
 //! probreg, ICP both variants against Open3D with its parameters, our CPD on every point
 //! against probreg's CPD on 2k-point subsets); DIS-medium against OpenCV's on the Sintel pairs
 //! (when `../shared/data/sintel` exists); the pipeline (two frames in, pose out) on the default
-//! benchmark's frames. Writes `speed.json` and `speed.md` into a timestamped directory.
+//! benchmark's frames; the pipeline on consecutive frames of streams (3 degrees apart, each frame
+//! prepared once). Writes `speed.json` and `speed.md` into a timestamped directory.
 
 mod clouds;
 mod ours;
 mod peers;
 mod pipeline;
 mod report;
+mod stream;
 
 use crate::bench::Protocol;
 use crate::pairs::progress;
@@ -50,7 +52,7 @@ pub struct SpeedArgs {
     /// seconds in all, up to 50 runs: short runs' minima then settle [default: 1, 0 with --quick].
     #[arg(long)]
     pub min_seconds: Option<f64>,
-    /// Pipeline methods timed on the default benchmark's frames.
+    /// Pipeline methods timed on the default benchmark's frames (and on the streams).
     #[arg(long, value_delimiter = ',', default_value = "flowfilter,filterreg-pt2pt,icp-pt2pl,cpd")]
     pub methods: Vec<String>,
     /// The pipeline configuration of the pipeline section (TOML, as `flowfilter estimate
@@ -65,8 +67,8 @@ pub struct SpeedArgs {
     /// Time ours only.
     #[arg(long)]
     pub no_peers: bool,
-    /// Sections to run: registration, flow, pipeline.
-    #[arg(long, value_delimiter = ',', default_value = "registration,flow,pipeline")]
+    /// Sections to run: registration, flow, pipeline, stream.
+    #[arg(long, value_delimiter = ',', default_value = "registration,flow,pipeline,stream")]
     pub sections: Vec<String>,
     /// Output root (a timestamped directory is created inside).
     #[arg(long, default_value = "results")]
@@ -77,7 +79,7 @@ pub struct SpeedArgs {
     pub check: bool,
 }
 
-const SECTIONS: [&str; 3] = ["registration", "flow", "pipeline"];
+const SECTIONS: [&str; 4] = ["registration", "flow", "pipeline", "stream"];
 
 /// Run the benchmark.
 pub fn run(args: &SpeedArgs) -> anyhow::Result<()> {
@@ -131,6 +133,9 @@ pub fn run(args: &SpeedArgs) -> anyhow::Result<()> {
     }
     if wants("pipeline") {
         (report.pipeline_pairs, report.pipeline) = pipeline_rows(args)?;
+    }
+    if wants("stream") {
+        (report.stream_frames, report.stream) = stream_rows(args)?;
     }
     report.write(&dir)?;
     println!("{}", report.markdown());
@@ -218,24 +223,61 @@ fn pipeline_rows(args: &SpeedArgs) -> anyhow::Result<(String, Vec<PipelineRow>)>
     if args.quick {
         protocol.base_angles.truncate(1);
     }
-    let (base, origin) = match args.pipeline.as_ref().or(protocol.pipeline.as_ref()) {
+    let (base, origin) = base_config(args, protocol.pipeline.as_ref())?;
+    let pairs = pipeline::load(&protocol, &angles, args.quick)?;
+    let rows = each_method(args, &base, "bench-speed: pipeline", pairs.pairs.len(), |config, pool| {
+        pipeline::throughput(&pairs, config, pool).map(|t| (t, vec![]))
+    })?;
+    Ok((format!("{}; pipeline configuration: {origin}", pairs.description), rows))
+}
+
+/// Every pipeline method with every thread count on the streams of consecutive frames.
+fn stream_rows(args: &SpeedArgs) -> anyhow::Result<(String, Vec<PipelineRow>)> {
+    let default = Path::new("configs/flowfilter.toml").to_path_buf();
+    let (base, origin) = base_config(args, Some(&default))?;
+    let streams = stream::load(args.quick)?;
+    let rows = each_method(args, &base, "bench-speed: streams", streams.pairs(), |config, pool| {
+        stream::throughput(&streams, config, pool)
+    })?;
+    Ok((format!("{}; pipeline configuration: {origin}", streams.description), rows))
+}
+
+/// The pipeline configuration: `--pipeline`, else `fallback` (a path from the repository root),
+/// else the defaults; and where it came from.
+fn base_config(
+    args: &SpeedArgs,
+    fallback: Option<&PathBuf>,
+) -> anyhow::Result<(flowfilter_pipeline::PipelineConfig, String)> {
+    Ok(match args.pipeline.as_ref().or(fallback) {
         Some(p) => (flowfilter_pipeline::PipelineConfig::from_file(&crate::in_repo(p))?, p.display().to_string()),
         None => (Default::default(), "the defaults".to_string()),
-    };
-    let pairs = pipeline::load(&protocol, &angles, args.quick)?;
+    })
+}
+
+/// `measure` with each of `--methods` (`base` with its method) under each of `--threads`.
+fn each_method(
+    args: &SpeedArgs,
+    base: &flowfilter_pipeline::PipelineConfig,
+    label: &str,
+    pairs: usize,
+    measure: impl Fn(
+        &flowfilter_pipeline::PipelineConfig,
+        &rayon::ThreadPool,
+    ) -> anyhow::Result<(pipeline::Throughput, Vec<stream::StreamRate>)>,
+) -> anyhow::Result<Vec<PipelineRow>> {
     let mut rows = vec![];
-    let bar = progress((args.methods.len() * args.threads.len()) as u64, "bench-speed: pipeline");
+    let bar = progress((args.methods.len() * args.threads.len()) as u64, label);
     for method in &args.methods {
         let config = flowfilter_pipeline::PipelineConfig { method: method.clone(), ..base.clone() };
         for &threads in &args.threads {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build()?;
-            let t = pipeline::throughput(&pairs, &config, &pool)?;
-            rows.push(PipelineRow { method: method.clone(), threads, pairs: pairs.pairs.len(), throughput: t });
+            let (throughput, streams) = measure(&config, &pool)?;
+            rows.push(PipelineRow { method: method.clone(), threads, pairs, throughput, streams });
             bar.inc(1);
         }
     }
     bar.finish();
-    Ok((format!("{}; pipeline configuration: {origin}", pairs.description), rows))
+    Ok(rows)
 }
 
 #[cfg(test)]
@@ -360,6 +402,34 @@ mod tests {
 
     /// `--pipeline` replaces the protocol's configuration: with the judge and the alignment
     /// off, neither stage takes any time, and the report names the file.
+    #[test]
+    fn the_stream_section_chains_consecutive_frames_with_any_thread_count() {
+        let tmp = tempfile::tempdir().unwrap();
+        let out = tmp.path().join("out");
+        let a = SpeedArgs { sections: vec!["stream".into()], no_peers: true, ..args(&out) };
+        run(&a).unwrap();
+        let dir = std::fs::read_dir(&out).unwrap().next().unwrap().unwrap().path();
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("speed.json")).unwrap()).unwrap();
+        let rows = v["stream"].as_array().unwrap();
+        assert_eq!(rows.len(), 2, "one row per thread count: {rows:?}");
+        for r in rows {
+            // Box, can and bottle: 4 frames each, 3 pairs 3 degrees apart.
+            assert_eq!(r["pairs"], 9, "{r}");
+            assert!(r["pairs_per_second"].as_f64().unwrap() > 0.0, "{r}");
+            assert!(r["mean_rotation_deg"].as_f64().unwrap() < 0.5, "{r}");
+            assert!(r["stage_ms"][0].as_f64().unwrap() > 0.0, "each frame's preparation timed: {r}");
+            let objects: Vec<&str> =
+                r["streams"].as_array().unwrap().iter().map(|s| s["object"].as_str().unwrap()).collect();
+            assert_eq!(objects, ["procedural_box", "procedural_can", "procedural_bottle"], "{r}");
+        }
+        // The same poses whatever the pool's size.
+        assert_eq!(rows[0]["mean_rotation_deg"], rows[1]["mean_rotation_deg"], "{rows:?}");
+        let md = std::fs::read_to_string(dir.join("speed.md")).unwrap();
+        assert!(md.contains("## stream (consecutive frames, each prepared once)"), "{md}");
+        assert!(md.contains("3 deg between frames") && md.contains("| slowest stream (pairs/s) |"), "{md}");
+    }
+
     #[test]
     fn the_pipeline_section_runs_the_given_configuration() {
         let tmp = tempfile::tempdir().unwrap();

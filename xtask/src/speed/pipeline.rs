@@ -75,8 +75,9 @@ pub struct Throughput {
     pub mean_rotation_deg: f64,
     /// Fraction of pairs within the success thresholds.
     pub success: f64,
-    /// Mean stage times per pair (ms): depth (both frames), flow, correspondences,
-    /// registration, the photometric judge, the direct alignment.
+    /// Mean stage times (ms): depth (both frames of a pair; on a stream, one frame's
+    /// preparation), then per pair flow, correspondences, registration, the photometric judge,
+    /// the direct alignment.
     pub stage_ms: [f64; 6],
 }
 

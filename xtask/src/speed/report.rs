@@ -112,6 +112,9 @@ pub struct PipelineRow {
     /// What was measured.
     #[serde(flatten)]
     pub throughput: Throughput,
+    /// Each stream's own rate (the stream section; empty in the pipeline section).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub streams: Vec<super::stream::StreamRate>,
 }
 
 /// Everything `bench-speed` measured.
@@ -130,6 +133,10 @@ pub struct SpeedReport {
     pub pipeline_pairs: String,
     /// Pipeline rows.
     pub pipeline: Vec<PipelineRow>,
+    /// The streams' frames.
+    pub stream_frames: String,
+    /// Rows of the pipeline on the streams' consecutive frames.
+    pub stream: Vec<PipelineRow>,
     /// What was skipped and why.
     pub notes: Vec<String>,
 }
@@ -144,6 +151,8 @@ impl SpeedReport {
             rows: vec![],
             pipeline_pairs: String::new(),
             pipeline: vec![],
+            stream_frames: String::new(),
+            stream: vec![],
             notes: if args.no_peers { vec!["peers: not run (--no-peers)".into()] } else { vec![] },
         }
     }
@@ -198,30 +207,18 @@ impl SpeedReport {
             );
         }
         if !self.pipeline.is_empty() {
-            let _ = writeln!(
-                s,
-                "## pipeline (two frames in, pose out)\n\n{}\n\n| method | threads | pairs/s | mean rotation error (deg) | success | depth, both frames (ms) | flow (ms) | correspondences (ms) | registration (ms) | judge (ms) | align (ms) |\n| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
-                self.pipeline_pairs
-            );
-            for r in &self.pipeline {
-                let t = &r.throughput;
-                let _ = writeln!(
-                    s,
-                    "| {} | {} | {:.2} | {:.3} | {:.0}% | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} |",
-                    r.method,
-                    r.threads,
-                    t.pairs_per_second,
-                    t.mean_rotation_deg,
-                    100.0 * t.success,
-                    t.stage_ms[0],
-                    t.stage_ms[1],
-                    t.stage_ms[2],
-                    t.stage_ms[3],
-                    t.stage_ms[4],
-                    t.stage_ms[5]
-                );
-            }
+            let _ = writeln!(s, "## pipeline (two frames in, pose out)\n\n{}\n", self.pipeline_pairs);
+            pipeline_table(&mut s, &self.pipeline, "depth, both frames (ms)");
             s.push_str("\nStage times are per pair, with pairs side by side on the pool's threads.\n\n");
+        }
+        if !self.stream.is_empty() {
+            let _ = writeln!(s, "## stream (consecutive frames, each prepared once)\n\n{}\n", self.stream_frames);
+            pipeline_table(&mut s, &self.stream, "preparation, one frame (ms)");
+            s.push_str(
+                "\nPairs per second: the streams' wall time, every frame's preparation included. Stage times \
+                 after the first are per pair, frames and pairs side by side on the pool's threads.\n\n",
+            );
+            stream_rates(&mut s, &self.stream);
         }
         for n in &self.notes {
             let _ = writeln!(s, "- {n}");
@@ -231,7 +228,7 @@ impl SpeedReport {
 
     /// Every timing of ours finite and positive, every registration within 1 degree.
     pub fn check(&self) -> anyhow::Result<()> {
-        if self.rows.is_empty() && self.pipeline.is_empty() {
+        if self.rows.is_empty() && self.pipeline.is_empty() && self.stream.is_empty() {
             anyhow::bail!("check: nothing was timed");
         }
         for r in &self.rows {
@@ -255,7 +252,7 @@ impl SpeedReport {
                 );
             }
         }
-        for r in &self.pipeline {
+        for r in self.pipeline.iter().chain(&self.stream) {
             let t = &r.throughput;
             if !(t.pairs_per_second.is_finite() && t.pairs_per_second > 0.0 && t.mean_rotation_deg.is_finite()) {
                 anyhow::bail!("check: pipeline {} {} threads: {t:?}", r.method, r.threads);
@@ -263,4 +260,52 @@ impl SpeedReport {
         }
         Ok(())
     }
+}
+
+/// The rows of a pipeline table (header included); `first_stage` names the first stage column.
+fn pipeline_table(s: &mut String, rows: &[PipelineRow], first_stage: &str) {
+    let _ = writeln!(
+        s,
+        "| method | threads | pairs/s | mean rotation error (deg) | success | {first_stage} | flow (ms) | correspondences (ms) | registration (ms) | judge (ms) | align (ms) |\n| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"
+    );
+    for r in rows {
+        let t = &r.throughput;
+        let _ = writeln!(
+            s,
+            "| {} | {} | {:.2} | {:.3} | {:.0}% | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} |",
+            r.method,
+            r.threads,
+            t.pairs_per_second,
+            t.mean_rotation_deg,
+            100.0 * t.success,
+            t.stage_ms[0],
+            t.stage_ms[1],
+            t.stage_ms[2],
+            t.stage_ms[3],
+            t.stage_ms[4],
+            t.stage_ms[5]
+        );
+    }
+}
+
+/// Each row's slowest and fastest stream (pairs per second).
+fn stream_rates(s: &mut String, rows: &[PipelineRow]) {
+    let _ = writeln!(
+        s,
+        "| method | threads | slowest stream (pairs/s) | fastest stream (pairs/s) |\n| --- | --- | --- | --- |"
+    );
+    for r in rows {
+        let by_rate = |a: &&super::stream::StreamRate, b: &&super::stream::StreamRate| {
+            a.pairs_per_second.total_cmp(&b.pairs_per_second)
+        };
+        let (Some(slow), Some(fast)) = (r.streams.iter().min_by(by_rate), r.streams.iter().max_by(by_rate)) else {
+            continue;
+        };
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} {:.2} | {} {:.2} |",
+            r.method, r.threads, slow.object, slow.pairs_per_second, fast.object, fast.pairs_per_second
+        );
+    }
+    s.push('\n');
 }
