@@ -17,7 +17,11 @@ every pair of frames `gap` apart (`--gaps`, default 1,2) is registered whole (no
     (`pip install .` from the repository root); without it these rows are left out;
   - `flowfilter estimate`, a fresh process per pair: the `stage_ms.total` the CLI reports (file
     reading not included). A fresh process also pays for the first touch of every page it
-    allocates (about 130 MB on a whole-frame pair).
+    allocates (about 130 MB on a whole-frame pair);
+  - Flow Filter also from the very input Open3D gets ("registered depth" rows): the colour image
+    and the depth Open3D reads (registered onto the colour grid by the same function, untimed),
+    as `flowfilter.Frame` arrays with the colour camera alone, so that neither side's time holds
+    the registration of depth onto colour.
 
 The two sides alternate pair by pair, under one thread count at a time (`--threads`, default
 1,2: `RAYON_NUM_THREADS` for ours, `OMP_NUM_THREADS` for Open3D, set before it is imported).
@@ -99,6 +103,24 @@ def library_pair(flowfilter, folder, a, b, method, camera):
     return np.asarray(e.transform, dtype=float), time.perf_counter() - start
 
 
+def registered_pair(o3d, flowfilter, folder, a, b, method, camera):
+    """`flowfilter.estimate` from the colour image and the registered depth Open3D reads:
+    (T, seconds around the call)."""
+    from open3d_odometry import register_depth
+
+    colour_camera = flowfilter.Camera(camera["K"], width=camera["width"], height=camera["height"])
+
+    def frame(n):
+        color = np.ascontiguousarray(np.asarray(o3d.io.read_image(str(folder / f"frame-{n:06d}.color.png")))[:, :, :3])
+        depth = np.asarray(o3d.io.read_image(str(folder / f"frame-{n:06d}.depth.png")))
+        return flowfilter.Frame(color, register_depth(depth, camera), name=f"{n}")
+
+    model, target = frame(a), frame(b)
+    start = time.perf_counter()
+    e = flowfilter.estimate(model, target, colour_camera, method=method or "flowfilter")
+    return np.asarray(e.transform, dtype=float), time.perf_counter() - start
+
+
 def errors(t, truth):
     from open3d_odometry import rotation_deg
 
@@ -108,7 +130,8 @@ def errors(t, truth):
 
 METHODS = [("Open3D coloured ICP", None, None), ("Flow Filter", "", "library"),
            ("FilterReg point-to-plane", "filterreg-pt2pl", "library"),
-           ("Flow Filter (CLI)", "", "cli"), ("FilterReg point-to-plane (CLI)", "filterreg-pt2pl", "cli")]
+           ("Flow Filter (CLI)", "", "cli"), ("FilterReg point-to-plane (CLI)", "filterreg-pt2pl", "cli"),
+           ("Flow Filter, registered depth", "", "registered")]
 
 
 def worker(args):
@@ -137,6 +160,10 @@ def worker(args):
                         if flowfilter is None:
                             continue
                         t, secs = library_pair(flowfilter, folder, a, b, method, ff_camera)
+                    elif way == "registered":
+                        if flowfilter is None:
+                            continue
+                        t, secs = registered_pair(o3d, flowfilter, folder, a, b, method, camera)
                     else:
                         t, secs, _ = ours_pair(args.flowfilter, folder, a, b, method)
                     rot, trans = errors(t, truth)
