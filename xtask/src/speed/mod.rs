@@ -400,8 +400,8 @@ mod tests {
         assert_eq!(calls, 3);
     }
 
-    /// `--pipeline` replaces the protocol's configuration: with the judge and the alignment
-    /// off, neither stage takes any time, and the report names the file.
+    /// The stream section: every quick stream's consecutive pairs, near the truth, the same
+    /// poses with one thread and two.
     #[test]
     fn the_stream_section_chains_consecutive_frames_with_any_thread_count() {
         let tmp = tempfile::tempdir().unwrap();
@@ -430,6 +430,8 @@ mod tests {
         assert!(md.contains("3 deg between frames") && md.contains("| slowest stream (pairs/s) |"), "{md}");
     }
 
+    /// `--pipeline` replaces the protocol's configuration: with the judge and the alignment
+    /// off, neither stage takes any time, and the report names the file.
     #[test]
     fn the_pipeline_section_runs_the_given_configuration() {
         let tmp = tempfile::tempdir().unwrap();

@@ -21,8 +21,10 @@ const CAMERA: &str = "NP3";
 pub const STEP_DEG: u32 = 3;
 
 /// Where the streams' frames are synthesised and cached (apart from the default dataset's cache,
-/// which holds other angles).
+/// which holds other angles; the quick streams apart from the full ones, so that neither run
+/// synthesises the other's again).
 const ROOT: &str = "target/bench-stream";
+const QUICK_ROOT: &str = "target/bench-stream-quick";
 
 /// One object's frames in order, and the true motion of each consecutive pair.
 pub struct Stream {
@@ -59,7 +61,7 @@ pub fn load(quick: bool) -> anyhow::Result<Streams> {
     let frames_per_stream: u32 = if quick { 4 } else { 11 };
     let angles: Vec<u32> = (0..frames_per_stream).map(|k| k * STEP_DEG).collect();
     let objects = embedded_objects(quick, None);
-    let root = crate::in_repo(Path::new(ROOT));
+    let root = crate::in_repo(Path::new(if quick { QUICK_ROOT } else { ROOT }));
     let mut streams = vec![];
     for o in &objects {
         let dir = ensure_object(&root, o, &[camera], &angles, DEFAULT_DATASET_SEED)?;
