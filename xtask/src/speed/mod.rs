@@ -302,16 +302,21 @@ mod tests {
         }
     }
 
+    /// Run `a` into its empty `--out`: the run's directory and its `speed.json`.
+    fn run_and_read(a: &SpeedArgs) -> (PathBuf, serde_json::Value) {
+        run(a).unwrap();
+        let dir = std::fs::read_dir(&a.out).unwrap().next().unwrap().unwrap().path();
+        let v = serde_json::from_str(&std::fs::read_to_string(dir.join("speed.json")).unwrap()).unwrap();
+        (dir, v)
+    }
+
     /// Every method with every thread count is timed and checked; an interpreter that does not
     /// exist is reported as skipped peers, not a failure.
     #[test]
     fn registration_rows_for_every_method_and_thread_count() {
         let tmp = tempfile::tempdir().unwrap();
         let a = SpeedArgs { python: "/nonexistent/python3".into(), ..args(tmp.path()) };
-        run(&a).unwrap();
-        let dir = std::fs::read_dir(tmp.path()).unwrap().next().unwrap().unwrap().path();
-        let v: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(dir.join("speed.json")).unwrap()).unwrap();
+        let (dir, v) = run_and_read(&a);
         let rows = v["rows"].as_array().unwrap();
         assert_eq!(rows.len(), ours::REGISTRATION_METHODS.len() * 2);
         for r in rows {
@@ -407,10 +412,7 @@ mod tests {
         let tmp = tempfile::tempdir().unwrap();
         let out = tmp.path().join("out");
         let a = SpeedArgs { sections: vec!["stream".into()], no_peers: true, ..args(&out) };
-        run(&a).unwrap();
-        let dir = std::fs::read_dir(&out).unwrap().next().unwrap().unwrap().path();
-        let v: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(dir.join("speed.json")).unwrap()).unwrap();
+        let (dir, v) = run_and_read(&a);
         let rows = v["stream"].as_array().unwrap();
         assert_eq!(rows.len(), 2, "one row per thread count: {rows:?}");
         for r in rows {
@@ -445,10 +447,7 @@ mod tests {
             pipeline: Some(config.clone()),
             ..args(&out)
         };
-        run(&a).unwrap();
-        let dir = std::fs::read_dir(&out).unwrap().next().unwrap().unwrap().path();
-        let v: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(dir.join("speed.json")).unwrap()).unwrap();
+        let (_, v) = run_and_read(&a);
         let rows = v["pipeline"].as_array().unwrap();
         assert_eq!(rows.len(), 1, "{rows:?}");
         let stage_ms = rows[0]["stage_ms"].as_array().unwrap();
