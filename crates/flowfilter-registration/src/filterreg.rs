@@ -125,10 +125,12 @@ pub struct FilterRegConfig {
     /// whose E-step has switched between the lattice and the exact sums this many times stops
     /// there, not converged ([`crate::RegistrationWarning::KernelCycling`]): its kernel cycles
     /// (the lattice's sums narrow it, the exact ones widen it again) and it would run to
-    /// `max_iterations` without settling. On the 141 whole RealSense frames, every
-    /// point-to-plane registration that converged switched at most 11 times, every one that
-    /// cycled 19-46 times. Point-to-point registrations switch often on their way to a pose
-    /// and are not stopped (stopping them lost 4 of the 282 real region pairs). 0 = no limit.
+    /// `max_iterations` without settling. On the 141 whole RealSense frames every
+    /// point-to-plane registration that converged switched at most 7 times, every one that
+    /// cycled switched on to the limit (with none, 19-46 times); the default stops at 9. Flow
+    /// Filter's own FilterReg keeps 12 ([`crate::FlowFilterConfig`]). Point-to-point
+    /// registrations switch often on their way to a pose and are not stopped (stopping them
+    /// lost 4 of the 282 real region pairs). 0 = no limit.
     pub max_e_step_switches: usize,
 }
 
@@ -147,7 +149,7 @@ impl Default for FilterRegConfig {
             evaluation_distance: 0.01,
             anderson_depth: 5,
             merge_fraction: 0.5,
-            max_e_step_switches: 12,
+            max_e_step_switches: 9,
             surface_sigma: true,
             settling_points: 1000,
         }

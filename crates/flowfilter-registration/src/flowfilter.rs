@@ -124,7 +124,10 @@ pub struct FlowFilterConfig {
     /// an object's patch takes for a turn. Larger lets the shear trade against a turn about the
     /// long axis of tall, narrow objects; smaller leaves more of a real shear in the pose.
     pub reprojection_row_shear_sd: f64,
-    /// The FilterReg part.
+    /// The FilterReg part. Its point-to-plane runs stop after 12 E-step switches
+    /// ([`FilterRegConfig::max_e_step_switches`], 9 for FilterReg alone): a scene's geometry-first
+    /// try that converged after 11 switches (shelf-G 7 -> 9) was seen here, and stopping the
+    /// tries at 9 lost a real whole frame (shelf-G 1 -> 3, 0.6 -> 60 deg off).
     pub filterreg: FilterRegConfig,
     /// A model cloud with more points than this is a scene (a whole frame, a large object), not
     /// a small object: every FilterReg run (the joint one, the fallback and the geometric checks)
@@ -164,7 +167,7 @@ impl Default for FlowFilterConfig {
             reprojection_refine: true,
             reprojection_max_change_deg: 3.0,
             reprojection_row_shear_sd: 0.002,
-            filterreg: FilterRegConfig::default(),
+            filterreg: FilterRegConfig { max_e_step_switches: 12, ..FilterRegConfig::default() },
             scene_points: 8000,
         }
     }

@@ -296,9 +296,9 @@ fn filterreg_on_whole_real_frames_converges_where_its_steps_wander() {
 
 /// Point-to-plane FilterReg that lost a whole scene (shelf-G 1 -> 3, 25 deg apart: it lands
 /// 96 deg off) cycles: its E-step switches between the lattice's sums, which narrow the kernel,
-/// and the exact sums, which widen it again. It stops after 12 switches, not converged, saying
-/// so (and that the clouds do not support the result); without the limit it runs to its 300
-/// iterations.
+/// and the exact sums, which widen it again. It stops after 9 switches (FilterReg's default),
+/// not converged, saying so (and that the clouds do not support the result); without the limit
+/// it runs to its 300 iterations.
 #[test]
 fn filterreg_stops_where_its_kernel_cycles() {
     let Some(dir) = shared_data("realsense-shelf/shelf-G") else { return };
