@@ -37,6 +37,20 @@ fn flowfilter_toml_documents_the_defaults() {
     assert_eq!(c, PipelineConfig::default());
 }
 
+/// A section that sets some of FilterReg's keys leaves the others at FilterReg's defaults: the
+/// limit of E-step switches stays unset, for Flow Filter to take its own (12) and FilterReg alone
+/// its own (9), not one of them the other's.
+#[test]
+fn a_partial_filterreg_section_leaves_each_runner_its_switch_limit() {
+    let text = "[registration.flowfilter.filterreg]\nw = 0.1\n[registration.filterreg]\nw = 0.2\n";
+    let c = PipelineConfig::from_toml_str(text, Path::new("partial.toml")).unwrap();
+    assert_eq!(c.registration.flowfilter.filterreg.max_e_step_switches, None);
+    assert_eq!(c.registration.filterreg.max_e_step_switches, None);
+    let set = "[registration.flowfilter.filterreg]\nmax_e_step_switches = 0\n";
+    let c = PipelineConfig::from_toml_str(set, Path::new("set.toml")).unwrap();
+    assert_eq!(c.registration.flowfilter.filterreg.max_e_step_switches, Some(0));
+}
+
 #[test]
 fn unknown_keys_are_named_with_the_file() {
     let dir = tempfile::tempdir().unwrap();

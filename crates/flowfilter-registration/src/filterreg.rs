@@ -125,14 +125,18 @@ pub struct FilterRegConfig {
     /// whose E-step has switched between the lattice and the exact sums this many times stops
     /// there, not converged ([`crate::RegistrationWarning::KernelCycling`]): its kernel cycles
     /// (the lattice's sums narrow it, the exact ones widen it again) and it would run to
-    /// `max_iterations` without settling. On the 141 whole RealSense frames every
-    /// point-to-plane registration that converged switched at most 7 times, every one that
-    /// cycled switched on to the limit (with none, 19-46 times); the default stops at 9. Flow
-    /// Filter's own FilterReg keeps 12 ([`crate::FlowFilterConfig`]). Point-to-point
-    /// registrations switch often on their way to a pose and are not stopped (stopping them
-    /// lost 4 of the 282 real region pairs). 0 = no limit.
-    pub max_e_step_switches: usize,
+    /// `max_iterations` without settling. `None`: the runner's own limit, FilterReg alone
+    /// [`DEFAULT_MAX_E_STEP_SWITCHES`], Flow Filter's runs
+    /// [`crate::SCENE_MAX_E_STEP_SWITCHES`]. Point-to-point registrations switch
+    /// often on their way to a pose and are not stopped (stopping them lost 4 of the 282 real
+    /// region pairs). 0 = no limit.
+    pub max_e_step_switches: Option<usize>,
 }
+
+/// FilterReg's own limit of E-step switches ([`FilterRegConfig::max_e_step_switches`]): on the
+/// 141 whole RealSense frames every point-to-plane registration that converged switched at most
+/// 7 times, every one that cycled switched on to the limit (with none, 19-46 times).
+pub const DEFAULT_MAX_E_STEP_SWITCHES: usize = 9;
 
 impl Default for FilterRegConfig {
     fn default() -> Self {
@@ -149,7 +153,7 @@ impl Default for FilterRegConfig {
             evaluation_distance: 0.01,
             anderson_depth: 5,
             merge_fraction: 0.5,
-            max_e_step_switches: 9,
+            max_e_step_switches: None,
             surface_sigma: true,
             settling_points: 1000,
         }

@@ -124,10 +124,8 @@ pub struct FlowFilterConfig {
     /// an object's patch takes for a turn. Larger lets the shear trade against a turn about the
     /// long axis of tall, narrow objects; smaller leaves more of a real shear in the pose.
     pub reprojection_row_shear_sd: f64,
-    /// The FilterReg part. Its point-to-plane runs stop after 12 E-step switches
-    /// ([`FilterRegConfig::max_e_step_switches`], 9 for FilterReg alone): a scene's geometry-first
-    /// try that converged after 11 switches (shelf-G 7 -> 9) was seen here, and stopping the
-    /// tries at 9 lost a real whole frame (shelf-G 1 -> 3, 0.6 -> 60 deg off).
+    /// The FilterReg part (its runs stop a cycling kernel after
+    /// [`SCENE_MAX_E_STEP_SWITCHES`] unless `max_e_step_switches` is set).
     pub filterreg: FilterRegConfig,
     /// A model cloud with more points than this is a scene (a whole frame, a large object), not
     /// a small object: every FilterReg run (the joint one, the fallback and the geometric checks)
@@ -167,7 +165,7 @@ impl Default for FlowFilterConfig {
             reprojection_refine: true,
             reprojection_max_change_deg: 3.0,
             reprojection_row_shear_sd: 0.002,
-            filterreg: FilterRegConfig { max_e_step_switches: 12, ..FilterRegConfig::default() },
+            filterreg: FilterRegConfig::default(),
             scene_points: 8000,
         }
     }
@@ -407,6 +405,7 @@ impl FlowFilter {
     /// ([`FlowFilterConfig::scene_points`]), else as configured.
     fn filterreg_config(&self, p: &RegistrationProblem) -> FilterRegConfig {
         let mut cfg = self.config.filterreg.clone();
+        cfg.max_e_step_switches.get_or_insert(SCENE_MAX_E_STEP_SWITCHES);
         if self.config.is_scene(p) && p.target.normals.is_some() {
             cfg.variant = FilterRegVariant::PointToPlane;
         }
@@ -696,6 +695,12 @@ impl FlowFilter {
 /// The kernel width FilterReg starts with from the flow pose (metres): the pose is already close.
 const LOCAL_START_SIGMA_M: f64 = 0.01;
 
+/// Flow Filter's limit of FilterReg's E-step switches where its configuration sets none
+/// ([`FilterRegConfig::max_e_step_switches`]; FilterReg alone stops at 9): a scene's
+/// geometry-first try that converged after 11 switches (shelf-G 7 -> 9) was seen here, and
+/// stopping the tries at 9 lost a real whole frame (shelf-G 1 -> 3, 0.6 -> 60 deg off).
+pub const SCENE_MAX_E_STEP_SWITCHES: usize = 12;
+
 /// The flow-free registrations the checks weigh the flow result against.
 struct FlowFree {
     /// The clouds alone from the initial pose.
@@ -761,6 +766,26 @@ mod tests {
         let diag = Vector3::repeat(trans * trans).push(rot * rot).push(rot * rot).push(rot * rot);
         let covariance = Matrix6::from_diagonal(&nalgebra::Vector6::from_iterator(diag.iter().copied()));
         Refinement { pose, covariance, blocks: 0, row_shear: Vector2::zeros() }
+    }
+
+    /// Flow Filter's FilterReg runs stop a cycling kernel after [`SCENE_MAX_E_STEP_SWITCHES`]
+    /// where the configuration sets no limit (FilterReg alone: 9), and after the configured
+    /// number where it does.
+    #[test]
+    fn flow_filters_filterreg_runs_take_its_own_switch_limit_unless_one_is_set() {
+        let cloud = flowfilter_geometry::PointCloud::from_points(
+            (0..10).map(|i| Point3::new(f64::from(i) * 0.01, 0.0, 1.0)).collect(),
+        );
+        let p = RegistrationProblem::new(cloud.clone(), cloud);
+        let limit = |set: Option<usize>| {
+            let mut cfg = FlowFilterConfig::default();
+            cfg.filterreg.max_e_step_switches = set;
+            FlowFilter { config: cfg }.filterreg_config(&p).max_e_step_switches
+        };
+        assert_eq!(FilterRegConfig::default().max_e_step_switches, None);
+        assert_eq!(limit(None), Some(SCENE_MAX_E_STEP_SWITCHES));
+        assert_eq!(limit(Some(9)), Some(9));
+        assert_eq!(limit(Some(0)), Some(0));
     }
 
     /// The geometric check is skipped only where the plain flow's many pairs agree on a small

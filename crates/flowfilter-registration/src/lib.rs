@@ -26,8 +26,10 @@ mod warning;
 pub use cpd::{Cpd, CpdConfig, CpdEStep, MIN_LATTICE_NEIGHBOURS};
 pub use error::RegistrationError;
 pub use evaluate::{RobustKernel, correspondence_set, evaluate, visible_residual};
-pub use filterreg::{FilterReg, FilterRegConfig, FilterRegEStep, FilterRegVariant, SigmaSchedule};
-pub use flowfilter::{FlowFilter, FlowFilterConfig, FlowFilterMode, ransac_kabsch};
+pub use filterreg::{
+    DEFAULT_MAX_E_STEP_SWITCHES, FilterReg, FilterRegConfig, FilterRegEStep, FilterRegVariant, SigmaSchedule,
+};
+pub use flowfilter::{FlowFilter, FlowFilterConfig, FlowFilterMode, SCENE_MAX_E_STEP_SWITCHES, ransac_kabsch};
 pub use gmm::mean_pair_distance2;
 pub use icp::{Icp, IcpConfig, IcpVariant};
 pub use plausibility::{Plausibility, assess, assess_with};

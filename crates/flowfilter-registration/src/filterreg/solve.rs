@@ -251,9 +251,8 @@ impl EmState {
     /// Whether a point-to-plane registration's E-step has switched `max_e_step_switches` times
     /// (its kernel cycles between the two E-steps' sums).
     fn cycling(&self, cfg: &FilterRegConfig) -> bool {
-        cfg.variant == FilterRegVariant::PointToPlane
-            && cfg.max_e_step_switches > 0
-            && self.switches >= cfg.max_e_step_switches
+        let limit = cfg.max_e_step_switches.unwrap_or(super::DEFAULT_MAX_E_STEP_SWITCHES);
+        cfg.variant == FilterRegVariant::PointToPlane && limit > 0 && self.switches >= limit
     }
 
     /// After the plain step to `(g, new_sigma2)` (the update `delta`, moving the source by
