@@ -129,20 +129,7 @@ pub fn throughput(
         prepare_s.extend(prepared.iter().map(|p| p.seconds));
         estimates.extend(pairs);
     }
-    let n = estimates.len().max(1) as f64;
-    let mean = |f: &dyn Fn(&(Estimate, PoseErrors)) -> f64| estimates.iter().map(f).sum::<f64>() / n;
-    let throughput = Throughput {
-        pairs_per_second: estimates.len() as f64 / wall,
-        mean_rotation_deg: mean(&|(_, e)| e.angle_error_deg),
-        success: mean(&|(_, e)| f64::from(u8::from(e.success))),
-        stage_ms: [
-            1e3 * prepare_s.iter().sum::<f64>() / prepare_s.len().max(1) as f64,
-            mean(&|(e, _)| e.stage_ms.flow),
-            mean(&|(e, _)| e.stage_ms.correspondences),
-            mean(&|(e, _)| e.stage_ms.registration),
-            mean(&|(e, _)| e.stage_ms.judge),
-            mean(&|(e, _)| e.stage_ms.align),
-        ],
-    };
+    let prepare_ms = 1e3 * prepare_s.iter().sum::<f64>() / prepare_s.len().max(1) as f64;
+    let throughput = Throughput::of(&estimates, wall, prepare_ms);
     Ok((throughput, rates))
 }
