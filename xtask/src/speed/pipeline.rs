@@ -23,7 +23,7 @@ pub struct PipelinePairs {
 }
 
 /// The camera whose pairs are timed (the middle one of the rig).
-const CAMERA: &str = "NP3";
+pub(super) const CAMERA: &str = "NP3";
 
 /// Load the pairs of `CAMERA` under `protocol` (its base angles and steps) from the embedded
 /// dataset, synthesised and cached exactly as `bench-bigbird` does (same cameras and

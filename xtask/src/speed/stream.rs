@@ -4,7 +4,7 @@
 //! estimated from the prepared frames, pairs side by side on the pool's threads: what a camera
 //! at frame rate hands a chain of pairwise estimates.
 
-use super::pipeline::Throughput;
+use super::pipeline::{CAMERA, Throughput};
 use crate::dataset::{DEFAULT_DATASET_SEED, embedded_objects, ensure_object};
 use anyhow::Context;
 use flowfilter_pipeline::bigbird::{BigBirdObject, FrameId, SensorId};
@@ -13,9 +13,6 @@ use flowfilter_pipeline::{Estimate, Pipeline, PipelineConfig, Pose, RgbdFrame, l
 use rayon::prelude::*;
 use std::path::Path;
 use std::time::Instant;
-
-/// The camera whose streams are timed (the middle one of the rig, as the pipeline section's).
-const CAMERA: &str = "NP3";
 
 /// Degrees the turntable turns between consecutive frames.
 pub const STEP_DEG: u32 = 3;
@@ -74,13 +71,13 @@ pub fn load(quick: bool) -> anyhow::Result<Streams> {
             angles.windows(2).map(|w| object.relative_motion(camera, w[0], w[1])).collect::<Result<Vec<_>, _>>()?;
         streams.push(Stream { name: o.name.clone(), frames, truths });
     }
-    let description = format!(
-        "{} streams of {frames_per_stream} frames ({} pairs): {} objects, camera {CAMERA}, {STEP_DEG} deg between frames (1280x1024 colour, 640x480 depth)",
-        streams.len(),
-        streams.iter().map(|s| s.truths.len()).sum::<usize>(),
-        objects.len(),
+    let mut streams = Streams { streams, description: String::new() };
+    streams.description = format!(
+        "{} streams, one per object, of {frames_per_stream} frames ({} pairs): camera {CAMERA}, {STEP_DEG} deg between frames (1280x1024 colour, 640x480 depth)",
+        streams.streams.len(),
+        streams.pairs(),
     );
-    Ok(Streams { streams, description })
+    Ok(streams)
 }
 
 /// One stream's pairs per second (its frames' preparation included).
