@@ -172,6 +172,13 @@ impl Estimate {
     fn aligned_only(&self) -> Option<bool> {
         self.track.as_ref().map(|t| t.aligned_only)
     }
+    /// For `Tracker.update`'s estimates: the part of the image the frame was prepared on,
+    /// `(x, y, width, height)` in pixels (the object's predicted region); `None` for the whole
+    /// image (and for pair estimates).
+    #[getter]
+    fn prepared_region(&self) -> Option<(usize, usize, usize, usize)> {
+        self.track.as_ref().and_then(|t| t.prepared_region)
+    }
     /// For `Tracker.update`'s estimates: the frame's index in the stream (0: the first).
     #[getter]
     fn frame_index(&self) -> Option<usize> {

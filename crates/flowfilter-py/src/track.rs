@@ -21,6 +21,7 @@ pub struct TrackInfo {
     pub keyframe: bool,
     pub mask_px: usize,
     pub aligned_only: bool,
+    pub prepared_region: Option<(usize, usize, usize, usize)>,
 }
 
 fn state_name(s: TrackState) -> &'static str {
@@ -145,6 +146,7 @@ fn estimate_of(t: &TrackedFrame, first: &str, method: &str) -> Estimate {
             keyframe: t.keyframe,
             mask_px: t.mask_px,
             aligned_only: t.aligned_only,
+            prepared_region: t.prepared_region,
         }),
     }
 }

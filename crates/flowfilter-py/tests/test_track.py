@@ -38,6 +38,9 @@ def test_an_object_is_tracked_from_its_first_mask(bop_scene):
         assert e.frame_index == im and e.reference is not None and e.model == "im0"
         # The first motion has nothing to be predicted from: the full estimate.
         assert im > 1 or e.aligned_only is False
+        # Prepared on the object's predicted region, or whole: inside the image either way.
+        region = e.prepared_region
+        assert region is None or (region[0] + region[2] <= camera.width and region[1] + region[3] <= camera.height)
         truth = flowfilter.bop_motion(bop_scene, 0, im, 1)
         assert rotation_deg(e.transform, truth) < 1.0, im
         assert e.to_dict()["track"]["state"] == "tracking"

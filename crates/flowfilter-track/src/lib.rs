@@ -21,6 +21,7 @@ pub mod boxed;
 pub mod carry;
 pub mod depth_calibration;
 mod folder;
+mod region;
 mod tracker;
 pub mod tum;
 

@@ -2,6 +2,7 @@
 //! measured against keyframes so that drift stays bounded.
 
 use crate::carry::{area, carry_mask};
+use crate::region::Region;
 use flowfilter_geometry::Pose;
 use flowfilter_pipeline::{
     Estimate, PairTrace, Pipeline, PipelineError, PipelineWarning, PreparedFrame, RegistrationSummary,
@@ -65,6 +66,18 @@ pub struct TrackerConfig {
     pub motion_gate_deg: f64,
     /// See [`TrackerConfig::motion_gate_deg`] (metres).
     pub motion_gate_m: f64,
+    /// Prepare each frame of an object's stream on the region where the object is predicted
+    /// (the previous frame's object moved on by the constant-velocity motion, the path it sweeps
+    /// and a margin: [`TrackerConfig::region_margin`]) instead of the whole image: the depth
+    /// stage's cost follows the object's size, not the image's. A frame whose object is found
+    /// too near the region's edge, or that must be searched without a mask, is prepared whole
+    /// then. The region of frame `k` is predicted from the track up to frame `k - 2`, so that
+    /// frame `k` can be prepared while frame `k - 1` is estimated ([`Tracker::update_stream`]),
+    /// and [`Tracker::update`] prepares it the same way.
+    pub prepare_region: bool,
+    /// The region's margin on each side: this fraction of the object's larger side in pixels,
+    /// plus the pixels one frame's motion moves it.
+    pub region_margin: f64,
     /// Keep what each kept estimate weighed ([`TrackedFrame::traced`]: the frames and the
     /// pipeline's trace), for recordings.
     pub trace: bool,
@@ -87,6 +100,8 @@ impl Default for TrackerConfig {
             recovery_tries: 3,
             motion_gate_deg: 2.0,
             motion_gate_m: 0.01,
+            prepare_region: true,
+            region_margin: 0.25,
             trace: false,
         }
     }
@@ -169,6 +184,9 @@ pub struct TrackedFrame {
     /// With [`TrackerConfig::trace`]: the reference and this frame as prepared, and what the
     /// pipeline weighed between them.
     pub traced: Option<Box<TracedPair>>,
+    /// The part of the image the frame was prepared on, `(x, y, width, height)` in pixels
+    /// ([`TrackerConfig::prepare_region`]); `None`: the whole image.
+    pub prepared_region: Option<(usize, usize, usize, usize)>,
 }
 
 /// A kept estimate's inputs and trace.
@@ -307,6 +325,9 @@ pub struct Tracker {
     uncertain_run: usize,
     /// The keyframe the aligned path last failed against ([`TrackerConfig::aligned_path`]).
     unconfirmed: Option<usize>,
+    /// The regions the next frame and the one after it are prepared on
+    /// ([`TrackerConfig::prepare_region`]; `None`: whole).
+    regions: [Option<Region>; 2],
 }
 
 /// Prepares a stream's frames for its [`Tracker`] ([`Tracker::preparer`]); cheap to clone,
@@ -315,6 +336,8 @@ pub struct Tracker {
 pub struct StreamPreparer {
     pipeline: Arc<Pipeline>,
     size: (usize, usize),
+    /// The region frames are prepared on ([`TrackerConfig::prepare_region`]; `None`: whole).
+    region: Option<Region>,
 }
 
 /// A frame prepared by a [`StreamPreparer`], or why it could not be (its file could not be read,
@@ -322,19 +345,72 @@ pub struct StreamPreparer {
 pub struct ReadyFrame {
     label: Option<String>,
     prepared: Result<PreparedFrame, String>,
+    /// Where only a region of the frame was prepared: the region, and the frame itself (to
+    /// prepare it whole when the object lies beyond the region or the frame is searched unmasked).
+    region: Option<(Region, RgbdFrame)>,
 }
 
 impl StreamPreparer {
     /// The frame prepared as [`Tracker::update`] prepares it (never fails: a frame that cannot
-    /// be used carries the reason, and the tracker reports it `lost`).
+    /// be used carries the reason, and the tracker reports it `lost`): on the preparer's region
+    /// when the frame comes without a mask of its own and the region holds depth, else whole.
     pub fn prepare(&self, frame: Result<RgbdFrame, String>) -> ReadyFrame {
         let label = frame.as_ref().ok().map(|f| f.label.clone());
-        ReadyFrame { label, prepared: frame.and_then(|f| self.prepare_frame(&f)) }
+        let frame = match frame.and_then(|f| self.of_size(f)) {
+            Ok(frame) => frame,
+            Err(reason) => return ReadyFrame { label, prepared: Err(reason), region: None },
+        };
+        match self.region.filter(|_| flowfilter_pipeline::frame_checks::is_unmasked(&frame)) {
+            Some(region) => self.prepare_on(region, frame, label),
+            None => {
+                ReadyFrame { label, prepared: self.pipeline.prepare(&frame).map_err(|e| e.to_string()), region: None }
+            }
+        }
     }
 
-    fn prepare_frame(&self, frame: &RgbdFrame) -> Result<PreparedFrame, String> {
-        of_stream_size((frame.color.width() as usize, frame.color.height() as usize), self.size)?;
-        self.pipeline.prepare(frame).map_err(|e| e.to_string())
+    /// The frame prepared on `region` (whole when the region holds no usable depth).
+    fn prepare_on(&self, region: Region, mut frame: RgbdFrame, label: Option<String>) -> ReadyFrame {
+        let on = region.mask(&frame.mask);
+        let own = std::mem::replace(&mut frame.mask, on);
+        let on_region = self.pipeline.prepare(&frame);
+        frame.mask = own;
+        match on_region {
+            Ok(prepared) => ReadyFrame { label, prepared: Ok(prepared), region: Some((region, frame)) },
+            Err(_) => {
+                ReadyFrame { label, prepared: self.pipeline.prepare(&frame).map_err(|e| e.to_string()), region: None }
+            }
+        }
+    }
+
+    fn of_size(&self, frame: RgbdFrame) -> Result<RgbdFrame, String> {
+        of_stream_size((frame.color.width() as usize, frame.color.height() as usize), self.size).map(|()| frame)
+    }
+}
+
+/// A frame to track: as prepared, and, where only a region of it was, the region and the frame.
+struct Target {
+    prepared: PreparedFrame,
+    region: Option<(Region, RgbdFrame)>,
+}
+
+impl Target {
+    /// A frame prepared whole.
+    fn whole(prepared: PreparedFrame) -> Self {
+        Self { prepared, region: None }
+    }
+
+    /// The frame prepared whole: as it is when it was, else prepared now (the region's
+    /// preparation when that fails).
+    fn into_whole(self, pipeline: &Pipeline) -> PreparedFrame {
+        match self.region {
+            None => self.prepared,
+            Some((_, frame)) => pipeline.prepare(&frame).unwrap_or(self.prepared),
+        }
+    }
+
+    /// Whether `mask` lies within the prepared part of the frame.
+    fn holds(&self, mask: &flowfilter_geometry::Mask) -> bool {
+        self.region.as_ref().is_none_or(|(region, _)| region.holds(mask))
     }
 }
 
@@ -380,7 +456,7 @@ impl Tracker {
         let object = !frame.unmasked;
         let size = frame.gray.dims();
         let previous = Previous { index: 0, frame: frame.clone(), pose: Pose::identity(), doubtful: false };
-        Ok(Self {
+        let mut tracker = Self {
             pipeline: Arc::new(pipeline),
             config,
             keyframes: vec![Keyframe { index: 0, frame, pose: Pose::identity(), doubtful: false }],
@@ -394,7 +470,10 @@ impl Tracker {
             lost: false,
             uncertain_run: 0,
             unconfirmed: None,
-        })
+            regions: [None, None],
+        };
+        tracker.regions = [tracker.region_ahead(1), tracker.region_ahead(2)];
+        Ok(tracker)
     }
 
     /// The first frame's result (identity, tracking, a keyframe).
@@ -412,6 +491,7 @@ impl Tracker {
             mask_px: if self.object { area(&k.frame.mask) } else { 0 },
             aligned_only: false,
             traced: None,
+            prepared_region: None,
         }
     }
 
@@ -435,24 +515,43 @@ impl Tracker {
         frames: impl Iterator<Item = (T, Result<RgbdFrame, String>)> + Send,
         mut each: impl FnMut(T, TrackedFrame) -> Result<(), E>,
     ) -> Result<(), E> {
-        let preparer = self.preparer();
         let mut frames = frames;
-        let mut read = move || frames.next().map(|(kept, frame)| (kept, preparer.prepare(frame)));
-        let mut next = read();
+        let first = self.preparer();
+        let mut next = frames.next().map(|(kept, frame)| (kept, first.prepare(frame)));
         while let Some((kept, ready)) = next.take() {
-            let (tracked, upcoming) = rayon::join(|| self.update_prepared(ready), &mut read);
+            let ahead = self.preparer_ahead();
+            let read = || frames.next().map(|(kept, frame)| (kept, ahead.prepare(frame)));
+            let (tracked, upcoming) = rayon::join(|| self.update_prepared(ready), read);
             next = upcoming;
             each(kept, tracked)?;
         }
         Ok(())
     }
 
-    /// A handle that prepares frames as [`Tracker::update`] does, apart from the tracker: a
-    /// stream's next frame can be read and prepared on another thread while the tracker
-    /// estimates the one before ([`Tracker::update_prepared`]; [`Tracker::update_stream`] runs so).
-    /// The results are the same as `update`'s.
+    /// A handle that prepares the next frame as [`Tracker::update`] does, apart from the
+    /// tracker ([`Tracker::update_prepared`] then takes it). The results are the same as
+    /// `update`'s.
     pub fn preparer(&self) -> StreamPreparer {
-        StreamPreparer { pipeline: Arc::clone(&self.pipeline), size: self.size }
+        StreamPreparer { pipeline: Arc::clone(&self.pipeline), size: self.size, region: self.regions[0] }
+    }
+
+    /// A handle that prepares the frame after the next one as [`Tracker::update`] will: it can
+    /// be read and prepared on another thread while the tracker estimates the next one
+    /// ([`Tracker::update_stream`] runs so; the region a frame is prepared on is predicted from
+    /// the track up to two frames before it, [`TrackerConfig::prepare_region`]).
+    pub fn preparer_ahead(&self) -> StreamPreparer {
+        StreamPreparer { pipeline: Arc::clone(&self.pipeline), size: self.size, region: self.regions[1] }
+    }
+
+    /// The region the frame `steps` frames after the previous one is prepared on: the previous
+    /// frame's object moved on by the constant velocity. `None` (whole) for whole frames, after
+    /// a loss, or when [`TrackerConfig::prepare_region`] is off.
+    fn region_ahead(&self, steps: u32) -> Option<Region> {
+        if !self.config.prepare_region || !self.object || self.lost {
+            return None;
+        }
+        let previous = self.previous.as_ref()?;
+        Region::predicted(&previous.frame, &self.velocity, steps, self.config.region_margin)
     }
 
     /// [`Tracker::update`] for a frame its [`Tracker::preparer`] prepared (a frame prepared for
@@ -463,9 +562,12 @@ impl Tracker {
         let label = ready.label.unwrap_or_else(|| format!("#{index}"));
         let prepared = ready.prepared.and_then(|p| of_stream_size(p.gray.dims(), self.size).map(|()| p));
         let result = match prepared {
-            Ok(target) => self.track(index, target),
+            Ok(prepared) => self.track(index, Target { prepared, region: ready.region }),
             Err(reason) => self.lose(index, reason),
         };
+        // The frame after the next is prepared while the next one is estimated: its region
+        // comes from the track as it is now.
+        self.regions = [self.regions[1], self.region_ahead(2)];
         TrackedFrame { label, ..result }
     }
 
@@ -481,10 +583,20 @@ impl Tracker {
 
     /// The frame estimated against its candidates, its state decided, the keyframes updated:
     /// first with the predicted mask, then (without a converged estimate there) unmasked.
-    fn track(&mut self, index: usize, target: PreparedFrame) -> TrackedFrame {
-        // The predicted mask, made once for both paths.
-        let predicted = self.predicted_target(&target);
-        if let Some((reference, e, reference_pose)) = self.aligned_estimate(index, &target, predicted.as_ref()) {
+    fn track(&mut self, index: usize, target: Target) -> TrackedFrame {
+        // The predicted mask, made once for both paths; the frame prepared whole when that mask
+        // leaves the region it was prepared on.
+        let mut predicted = self.predicted_target(&target.prepared);
+        let target = match &predicted {
+            Some(p) if !target.holds(&p.mask) => {
+                let whole = target.into_whole(&self.pipeline);
+                predicted = self.predicted_target(&whole);
+                Target::whole(whole)
+            }
+            _ => target,
+        };
+        if let Some((reference, e, reference_pose)) = self.aligned_estimate(index, &target.prepared, predicted.as_ref())
+        {
             let mut tracked = self.accept(index, target, reference, e, reference_pose);
             tracked.aligned_only = tracked.state == TrackState::Tracking;
             return tracked;
@@ -500,7 +612,7 @@ impl Tracker {
             }
             fallback = Some(Doubtful { reference, estimate: e, reference_pose, traced: pair });
         }
-        self.track_unmasked(index, target, fallback)
+        self.track_unmasked(index, target.into_whole(&self.pipeline), fallback)
     }
 
     /// The aligned path ([`TrackerConfig::aligned_path`]): the frame estimated against the
@@ -605,7 +717,7 @@ impl Tracker {
         for (reference, model, reference_pose) in self.candidates() {
             match self.estimated(model, &target) {
                 Ok((e, pair)) if e.registration.converged || self.settled_by_motion(&e, &reference_pose) => {
-                    let mut r = self.accept(index, target, reference, e, reference_pose);
+                    let mut r = self.accept(index, Target::whole(target), reference, e, reference_pose);
                     r.traced = pair;
                     return r;
                 }
@@ -623,7 +735,7 @@ impl Tracker {
                 self.uncertain_run += 1;
                 let pose = e.pose * reference_pose;
                 let reason = warning_codes(&e);
-                let (frame, mask_px) = self.carried(reference, &e.pose, target);
+                let (frame, mask_px, _) = self.carried(reference, &e.pose, Target::whole(target));
                 // Not a keyframe, but the next frame's nearest view: it is estimated against this
                 // one (a short motion) when no keyframe converges, as chaining would.
                 self.velocity = self.velocity_to(index, &pose);
@@ -641,6 +753,7 @@ impl Tracker {
                     aligned_only: false,
                     estimate: Some(e),
                     traced,
+                    prepared_region: None,
                 }
             }
             None => {
@@ -720,13 +833,13 @@ impl Tracker {
     fn accept(
         &mut self,
         index: usize,
-        target: PreparedFrame,
+        target: Target,
         reference: usize,
         e: Estimate,
         reference_pose: Pose,
     ) -> TrackedFrame {
         let pose = e.pose * reference_pose;
-        let (frame, mask_px) = self.carried(reference, &e.pose, target);
+        let (frame, mask_px, region) = self.carried(reference, &e.pose, target);
         if self.object && mask_px < self.config.min_mask_px {
             return self
                 .lose(index, format!("the object's mask emptied ({mask_px} pixels): it left the view or is hidden"));
@@ -771,6 +884,7 @@ impl Tracker {
             aligned_only: false,
             estimate: Some(e),
             traced: None,
+            prepared_region: region.map(|r| r.rectangle()),
         }
     }
 
@@ -782,15 +896,25 @@ impl Tracker {
     }
 
     /// `target` with the object's mask carried from `reference` by `motion`, and the mask's
-    /// area; a whole frame as it is (area 0).
-    fn carried(&self, reference: usize, motion: &Pose, target: PreparedFrame) -> (PreparedFrame, usize) {
+    /// area; a whole frame as it is (area 0). A frame prepared on a region that does not hold
+    /// the carried mask is prepared whole first. The region the frame stays prepared on, if any.
+    fn carried(&self, reference: usize, motion: &Pose, target: Target) -> (PreparedFrame, usize, Option<Region>) {
         if !self.object {
-            return (target, 0);
+            return (target.prepared, 0, None);
         }
         let (splat, tolerance) = (self.config.splat_px, self.config.depth_tolerance_m);
-        let mask = carry_mask(self.reference_frame(reference), motion, &target, splat, tolerance);
+        let carry =
+            |frame: &PreparedFrame| carry_mask(self.reference_frame(reference), motion, frame, splat, tolerance);
+        let mut mask = carry(&target.prepared);
+        let (frame, region) = if target.holds(&mask) {
+            (target.prepared, target.region.map(|(r, _)| r))
+        } else {
+            let whole = target.into_whole(&self.pipeline);
+            mask = carry(&whole);
+            (whole, None)
+        };
         let px = area(&mask);
-        (target.with_mask(mask), px)
+        (frame.with_mask(mask), px, region)
     }
 
     /// The motion from the previous frame to frame `index` at `pose`, when the previous frame
@@ -828,6 +952,7 @@ impl Tracker {
             mask_px: 0,
             aligned_only: false,
             traced: None,
+            prepared_region: None,
         }
     }
 }

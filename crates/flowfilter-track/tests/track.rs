@@ -242,3 +242,36 @@ fn small_frame() -> RgbdFrame {
         sensor: flowfilter_pipeline::RgbdSensor::registered(camera, 1e-3).unwrap(),
     }
 }
+
+/// An object's frames are prepared on the region where the object is predicted, not the whole
+/// 1280 x 1024 image, and give the poses whole frames give; a region without a margin, which
+/// cannot hold the object's carried mask, is given up for the whole frame, and the frame is
+/// tracked all the same.
+#[test]
+fn frames_are_prepared_on_the_objects_predicted_region() {
+    let stream = Stream::new();
+    let angles: Vec<u32> = (3..=15).step_by(3).collect();
+    let run = |settings: TrackerConfig| {
+        let pipeline = Pipeline::from_config(PipelineConfig::default()).unwrap();
+        let mut t = Tracker::new(pipeline, settings, &stream.frame(0, true)).unwrap();
+        angles.iter().map(|&a| t.update(Ok(stream.frame(a, false)))).collect::<Vec<_>>()
+    };
+    let regional = run(TrackerConfig::default());
+    let whole = run(TrackerConfig { prepare_region: false, ..TrackerConfig::default() });
+    let tight = run(TrackerConfig { region_margin: 0.0, ..TrackerConfig::default() });
+    let truth_deg = |f: &flowfilter_track::TrackedFrame, angle: u32| {
+        (f.pose * stream.truth(angle).inverse()).rotation.angle().to_degrees()
+    };
+    for (k, &angle) in angles.iter().enumerate() {
+        for f in [&regional[k], &whole[k], &tight[k]] {
+            assert_eq!(f.state, TrackState::Tracking, "{angle} deg: {:?}", f.reason);
+            assert!(truth_deg(f, angle) < 0.2, "{angle} deg: {} deg off", truth_deg(f, angle));
+        }
+        let apart = (regional[k].pose * whole[k].pose.inverse()).rotation.angle().to_degrees();
+        assert!(apart < 1e-3, "{angle} deg: {apart} deg from the whole frame's pose");
+        // A quarter of the image or less, around the object.
+        let (x, y, w, h) = regional[k].prepared_region.expect("prepared on a region");
+        assert!(w * h < 1280 * 1024 / 4 && x + w <= 1280 && y + h <= 1024, "{:?}", regional[k].prepared_region);
+        assert_eq!((whole[k].prepared_region, tight[k].prepared_region), (None, None));
+    }
+}

@@ -59,7 +59,9 @@ pub struct TrackArgs {
     #[arg(long)]
     pub tracker: Option<PathBuf>,
     /// Write one JSON line per frame (`frame`, `state`, `reason`, `reference`, `keyframe`,
-    /// `aligned_only`, `pose_from_first`, the errors with --gt, and `estimate`: the `estimate --json` fields).
+    /// `aligned_only`, `prepared_region` (`[x, y, width, height]` of the image the frame was
+    /// prepared on, null: whole), `pose_from_first`, the errors with --gt, and `estimate`: the
+    /// `estimate --json` fields).
     #[arg(long)]
     pub json: Option<PathBuf>,
     /// Write the trajectory in the TUM format (`timestamp tx ty tz qx qy qz qw`: the object's
@@ -281,6 +283,7 @@ fn json_row(t: &TrackedFrame, f: &FrameEntry, truth: Option<&BTreeMap<u64, Pose>
         "keyframe": t.keyframe,
         "mask_px": t.mask_px,
         "aligned_only": t.aligned_only,
+        "prepared_region": t.prepared_region.map(|(x, y, w, h)| [x, y, w, h]),
         "pose_from_first": matrix_rows(&t.pose),
         "estimate": t.estimate,
     });

@@ -220,6 +220,11 @@ class Estimate:
         """For `Tracker.update`'s estimates: whether the pose came from direct alignment alone
         from the motion's prediction, confirmed on the images (no flow, registration or judge)."""
     @property
+    def prepared_region(self) -> Optional[Tuple[int, int, int, int]]:
+        """For `Tracker.update`'s estimates: the part of the image the frame was prepared on,
+        `(x, y, width, height)` in pixels (the object's predicted region); None for the whole
+        image (and for pair estimates)."""
+    @property
     def frame_index(self) -> Optional[int]:
         """For `Tracker.update`'s estimates: the frame's index in the stream (0: the first)."""
     def log_to_rerun(
