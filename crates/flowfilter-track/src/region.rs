@@ -16,7 +16,7 @@ pub(crate) struct Region {
 
 /// A predicted region larger than this fraction of the image is not worth preparing apart: the
 /// frame is prepared whole.
-const MAX_IMAGE_FRACTION: f64 = 0.6;
+const MAX_IMAGE_FRACTION: f64 = 0.4;
 
 /// The carried mask must keep this many pixels from the region's edges for the region's
 /// preparation to stand (the depth stage's filters and hole filling read a few pixels around each
