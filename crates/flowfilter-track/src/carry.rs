@@ -1,6 +1,6 @@
 //! The object's mask carried into a new frame by a pose and refined on that frame's depth.
 
-use flowfilter_geometry::{Mask, Pose};
+use flowfilter_geometry::{Mask, Pose, mask_bbox};
 use flowfilter_pipeline::PreparedFrame;
 use nalgebra::Point2;
 
@@ -18,10 +18,50 @@ pub fn carry_mask(
     tolerance_m: f64,
 ) -> Mask {
     let (w, h) = target.depth.dims();
-    let mut depth_at: Vec<f32> = vec![f32::INFINITY; w * h];
-    let (kw, kh) = keyframe.mask.dims();
-    for y in 0..kh {
-        for x in 0..kw {
+    let splats = moved_pixels(keyframe, pose, target);
+    let r = splat_px as i64;
+    // The pixels the splats cover, clamped to the image: the expected depth is kept on that box
+    // only.
+    let covered = splats.iter().fold(None, |b: Option<(i64, i64, i64, i64)>, &(cx, cy, _)| {
+        let (x0, y0, x1, y1) =
+            ((cx - r).max(0), (cy - r).max(0), (cx + r).min(w as i64 - 1), (cy + r).min(h as i64 - 1));
+        if x0 > x1 || y0 > y1 {
+            return b;
+        }
+        Some(b.map_or((x0, y0, x1, y1), |b| (b.0.min(x0), b.1.min(y0), b.2.max(x1), b.3.max(y1))))
+    });
+    let Some((bx0, by0, bx1, by1)) = covered else { return Mask::from_fn(w, h, |_, _| false) };
+    let bw = (bx1 - bx0 + 1) as usize;
+    let mut depth_at: Vec<f32> = vec![f32::INFINITY; bw * (by1 - by0 + 1) as usize];
+    for &(cx, cy, z) in &splats {
+        for v in (cy - r).max(by0)..=(cy + r).min(by1) {
+            for u in (cx - r).max(bx0)..=(cx + r).min(bx1) {
+                let i = (v - by0) as usize * bw + (u - bx0) as usize;
+                depth_at[i] = depth_at[i].min(z);
+            }
+        }
+    }
+    Mask::from_fn(w, h, |x, y| {
+        let (x, y) = (x as i64, y as i64);
+        if x < bx0 || x > bx1 || y < by0 || y > by1 {
+            return false;
+        }
+        let expected = depth_at[(y - by0) as usize * bw + (x - bx0) as usize];
+        if !expected.is_finite() {
+            return false;
+        }
+        let seen = target.depth.get(x as usize, y as usize).copied().unwrap_or(0.0);
+        !(seen.is_finite() && seen > 0.0) || f64::from((seen - expected).abs()) <= tolerance_m
+    })
+}
+
+/// `keyframe`'s object pixels that have depth, moved by `pose` and projected into `target`:
+/// each one's rounded pixel and depth.
+fn moved_pixels(keyframe: &PreparedFrame, pose: &Pose, target: &PreparedFrame) -> Vec<(i64, i64, f32)> {
+    let Some((x0, y0, x1, y1)) = mask_bbox(&keyframe.mask) else { return vec![] };
+    let mut out = vec![];
+    for y in y0..=y1 {
+        for x in x0..=x1 {
             if !keyframe.mask.get(x, y).copied().unwrap_or(false) {
                 continue;
             }
@@ -33,25 +73,12 @@ pub fn carry_mask(
                 continue;
             };
             let q = pose * p;
-            let Some(px) = target.sensor.color.project(&q) else { continue };
-            let (cx, cy) = (px.x.round() as i64, px.y.round() as i64);
-            let r = splat_px as i64;
-            for v in (cy - r).max(0)..=(cy + r).min(h as i64 - 1) {
-                for u in (cx - r).max(0)..=(cx + r).min(w as i64 - 1) {
-                    let i = v as usize * w + u as usize;
-                    depth_at[i] = depth_at[i].min(q.z as f32);
-                }
+            if let Some(px) = target.sensor.color.project(&q) {
+                out.push((px.x.round() as i64, px.y.round() as i64, q.z as f32));
             }
         }
     }
-    Mask::from_fn(w, h, |x, y| {
-        let expected = depth_at[y * w + x];
-        if !expected.is_finite() {
-            return false;
-        }
-        let seen = target.depth.get(x, y).copied().unwrap_or(0.0);
-        !(seen.is_finite() && seen > 0.0) || f64::from((seen - expected).abs()) <= tolerance_m
-    })
+    out
 }
 
 /// Pixels of a mask.
