@@ -257,6 +257,15 @@ fn frames_are_prepared_on_the_objects_predicted_region() {
         angles.iter().map(|&a| t.update(Ok(stream.frame(a, false)))).collect::<Vec<_>>()
     };
     let regional = run(TrackerConfig::default());
+    // Prepared ahead (each frame's region predicted two frames back), the same track.
+    let pipeline = Pipeline::from_config(PipelineConfig::default()).unwrap();
+    let mut ahead = Tracker::new(pipeline, TrackerConfig::default(), &stream.frame(0, true)).unwrap();
+    let mut streamed = vec![];
+    let frames = angles.iter().map(|&a| ((), Ok(stream.frame(a, false))));
+    ahead.update_stream(frames, |(), r| Ok::<(), ()>(streamed.push(r))).unwrap();
+    for (a, b) in streamed.iter().zip(&regional) {
+        assert_eq!((a.pose, a.state, &a.reason, a.prepared_region), (b.pose, b.state, &b.reason, b.prepared_region));
+    }
     let whole = run(TrackerConfig { prepare_region: false, ..TrackerConfig::default() });
     let tight = run(TrackerConfig { region_margin: 0.0, ..TrackerConfig::default() });
     let truth_deg = |f: &flowfilter_track::TrackedFrame, angle: u32| {
