@@ -262,7 +262,11 @@ fn frames_are_prepared_on_the_objects_predicted_region() {
     let mut ahead = Tracker::new(pipeline, TrackerConfig::default(), &stream.frame(0, true)).unwrap();
     let mut streamed = vec![];
     let frames = angles.iter().map(|&a| ((), Ok(stream.frame(a, false))));
-    ahead.update_stream(frames, |(), r| Ok::<(), ()>(streamed.push(r))).unwrap();
+    let done: Result<(), ()> = ahead.update_stream(frames, |(), r| {
+        streamed.push(r);
+        Ok(())
+    });
+    assert_eq!((done, streamed.len()), (Ok(()), angles.len()));
     for (a, b) in streamed.iter().zip(&regional) {
         assert_eq!((a.pose, a.state, &a.reason, a.prepared_region), (b.pose, b.state, &b.reason, b.prepared_region));
     }
