@@ -59,12 +59,9 @@ impl Region {
         (area > 0 && (area as f64) <= MAX_IMAGE_FRACTION * (w * h) as f64).then_some(region)
     }
 
-    /// The region as a mask of a `w` x `h` image, cut by `within` (the frame's own mask).
-    pub(crate) fn mask(&self, within: &Mask) -> Mask {
-        let (w, h) = within.dims();
-        Mask::from_fn(w, h, |x, y| {
-            (self.x0..self.x1).contains(&x) && (self.y0..self.y1).contains(&y) && within.get(x, y) == Some(&true)
-        })
+    /// The region as the mask of a `w` x `h` image.
+    pub(crate) fn mask(&self, (w, h): (usize, usize)) -> Mask {
+        Mask::from_fn(w, h, |x, y| (self.x0..self.x1).contains(&x) && (self.y0..self.y1).contains(&y))
     }
 
     /// The region as `(x, y, width, height)`.
@@ -119,11 +116,12 @@ mod tests {
     }
 
     #[test]
-    fn the_region_mask_is_cut_by_the_frames_own() {
-        let r = Region { x0: 2, y0: 1, x1: 5, y1: 3 };
-        let m = r.mask(&mask_with(8, 4, |x, _| x != 3));
+    fn the_region_mask_is_its_rectangle() {
+        let r = Region { x0: 2, y0: 1, x1: 4, y1: 3 };
+        let m = r.mask((6, 4));
         let on: Vec<(usize, usize)> =
-            (0..4).flat_map(|y| (0..8).map(move |x| (x, y))).filter(|&(x, y)| m.get(x, y) == Some(&true)).collect();
-        assert_eq!(on, vec![(2, 1), (4, 1), (2, 2), (4, 2)]);
+            (0..4).flat_map(|y| (0..6).map(move |x| (x, y))).filter(|&(x, y)| m.get(x, y) == Some(&true)).collect();
+        assert_eq!(on, vec![(2, 1), (3, 1), (2, 2), (3, 2)]);
+        assert_eq!(r.rectangle(), (2, 1, 2, 2));
     }
 }

@@ -370,7 +370,9 @@ impl StreamPreparer {
 
     /// The frame prepared on `region` (whole when the region holds no usable depth).
     fn prepare_on(&self, region: Region, mut frame: RgbdFrame, label: Option<String>) -> ReadyFrame {
-        let on = region.mask(&frame.mask);
+        // The frame came without a mask (the whole image, or, from a registered sensor, every
+        // pixel with depth): the region's every pixel, so that the depth stage fills its holes.
+        let on = region.mask(frame.mask.dims());
         let own = std::mem::replace(&mut frame.mask, on);
         let on_region = self.pipeline.prepare(&frame);
         frame.mask = own;
