@@ -146,7 +146,7 @@ fn estimate_of(t: &TrackedFrame, first: &str, method: &str) -> Estimate {
             keyframe: t.keyframe,
             mask_px: t.mask_px,
             aligned_only: t.aligned_only,
-            prepared_region: t.prepared_region,
+            prepared_region: t.prepared_region.map(|r| (r.x, r.y, r.width, r.height)),
         }),
     }
 }

@@ -20,6 +20,18 @@ pub struct PixelBox {
     pub height: usize,
 }
 
+impl PixelBox {
+    /// Whether pixel `(x, y)` lies inside the box.
+    pub fn contains(&self, x: usize, y: usize) -> bool {
+        (self.x..self.x + self.width).contains(&x) && (self.y..self.y + self.height).contains(&y)
+    }
+
+    /// The box's pixels as the mask of a `w` x `h` image.
+    pub fn mask(&self, (w, h): (usize, usize)) -> Mask {
+        Mask::from_fn(w, h, |x, y| self.contains(x, y))
+    }
+}
+
 /// The object inside `rect` of a frame's depth on the colour grid (a frame prepared without a
 /// mask: `PreparedFrame::depth`, metres): the box's pixels whose depth
 /// lies within `band_m` of the median depth of the box's central half (what a box drawn around
@@ -57,9 +69,7 @@ pub fn object_in_box(depth_map: &DepthMap, rect: PixelBox, band_m: f64) -> Optio
     let (_, median, _) = central.select_nth_unstable_by(mid, f32::total_cmp);
     let median = f64::from(*median);
     Some(Mask::from_fn(w, h, |x, y| {
-        (rect.x..x1).contains(&x)
-            && (rect.y..y1).contains(&y)
-            && depth(x, y).is_none_or(|z| (f64::from(z) - median).abs() <= band_m)
+        rect.contains(x, y) && depth(x, y).is_none_or(|z| (f64::from(z) - median).abs() <= band_m)
     }))
 }
 

@@ -1,8 +1,9 @@
 //! [`Tracker`]: frames pushed one at a time, the object's pose in each relative to the first,
 //! measured against keyframes so that drift stays bounded.
 
+use crate::boxed::PixelBox;
 use crate::carry::{area, carry_mask};
-use crate::region::Region;
+use crate::region;
 use flowfilter_geometry::Pose;
 use flowfilter_pipeline::{
     Estimate, PairTrace, Pipeline, PipelineError, PipelineWarning, PreparedFrame, RegistrationSummary,
@@ -184,9 +185,9 @@ pub struct TrackedFrame {
     /// With [`TrackerConfig::trace`]: the reference and this frame as prepared, and what the
     /// pipeline weighed between them.
     pub traced: Option<Box<TracedPair>>,
-    /// The part of the image the frame was prepared on, `(x, y, width, height)` in pixels
+    /// The part of the image the frame was prepared on
     /// ([`TrackerConfig::prepare_region`]); `None`: the whole image.
-    pub prepared_region: Option<(usize, usize, usize, usize)>,
+    pub prepared_region: Option<PixelBox>,
 }
 
 /// A kept estimate's inputs and trace.
@@ -327,7 +328,7 @@ pub struct Tracker {
     unconfirmed: Option<usize>,
     /// The regions the next frame and the one after it are prepared on
     /// ([`TrackerConfig::prepare_region`]; `None`: whole).
-    regions: [Option<Region>; 2],
+    regions: [Option<PixelBox>; 2],
 }
 
 /// Prepares a stream's frames for its [`Tracker`] ([`Tracker::preparer`]); cheap to clone,
@@ -337,7 +338,7 @@ pub struct StreamPreparer {
     pipeline: Arc<Pipeline>,
     size: (usize, usize),
     /// The region frames are prepared on ([`TrackerConfig::prepare_region`]; `None`: whole).
-    region: Option<Region>,
+    region: Option<PixelBox>,
 }
 
 /// A frame prepared by a [`StreamPreparer`], or why it could not be (its file could not be read,
@@ -347,7 +348,7 @@ pub struct ReadyFrame {
     prepared: Result<PreparedFrame, String>,
     /// Where only a region of the frame was prepared: the region, and the frame itself (to
     /// prepare it whole when the object lies beyond the region or the frame is searched unmasked).
-    region: Option<(Region, RgbdFrame)>,
+    region: Option<(PixelBox, RgbdFrame)>,
 }
 
 impl StreamPreparer {
@@ -362,14 +363,16 @@ impl StreamPreparer {
         };
         match self.region.filter(|_| flowfilter_pipeline::frame_checks::is_unmasked(&frame)) {
             Some(region) => self.prepare_on(region, frame, label),
-            None => {
-                ReadyFrame { label, prepared: self.pipeline.prepare(&frame).map_err(|e| e.to_string()), region: None }
-            }
+            None => self.prepare_whole(&frame, label),
         }
     }
 
+    fn prepare_whole(&self, frame: &RgbdFrame, label: Option<String>) -> ReadyFrame {
+        ReadyFrame { label, prepared: self.pipeline.prepare(frame).map_err(|e| e.to_string()), region: None }
+    }
+
     /// The frame prepared on `region` (whole when the region holds no usable depth).
-    fn prepare_on(&self, region: Region, mut frame: RgbdFrame, label: Option<String>) -> ReadyFrame {
+    fn prepare_on(&self, region: PixelBox, mut frame: RgbdFrame, label: Option<String>) -> ReadyFrame {
         // The frame came without a mask (the whole image, or, from a registered sensor, every
         // pixel with depth): the region's every pixel, so that the depth stage fills its holes.
         let on = region.mask(frame.mask.dims());
@@ -378,9 +381,7 @@ impl StreamPreparer {
         frame.mask = own;
         match on_region {
             Ok(prepared) => ReadyFrame { label, prepared: Ok(prepared), region: Some((region, frame)) },
-            Err(_) => {
-                ReadyFrame { label, prepared: self.pipeline.prepare(&frame).map_err(|e| e.to_string()), region: None }
-            }
+            Err(_) => self.prepare_whole(&frame, label),
         }
     }
 
@@ -392,7 +393,7 @@ impl StreamPreparer {
 /// A frame to track: as prepared, and, where only a region of it was, the region and the frame.
 struct Target {
     prepared: PreparedFrame,
-    region: Option<(Region, RgbdFrame)>,
+    region: Option<(PixelBox, RgbdFrame)>,
 }
 
 impl Target {
@@ -412,7 +413,7 @@ impl Target {
 
     /// Whether `mask` lies within the prepared part of the frame.
     fn holds(&self, mask: &flowfilter_geometry::Mask) -> bool {
-        self.region.as_ref().is_none_or(|(region, _)| region.holds(mask))
+        self.region.as_ref().is_none_or(|(r, _)| region::holds(r, mask))
     }
 }
 
@@ -548,12 +549,12 @@ impl Tracker {
     /// The region the frame `steps` frames after the previous one is prepared on: the previous
     /// frame's object moved on by the constant velocity. `None` (whole) for whole frames, after
     /// a loss, or when [`TrackerConfig::prepare_region`] is off.
-    fn region_ahead(&self, steps: u32) -> Option<Region> {
+    fn region_ahead(&self, steps: u32) -> Option<PixelBox> {
         if !self.config.prepare_region || !self.object || self.lost {
             return None;
         }
         let previous = self.previous.as_ref()?;
-        Region::predicted(&previous.frame, &self.velocity, steps, self.config.region_margin)
+        region::predicted(&previous.frame, &self.velocity, steps, self.config.region_margin)
     }
 
     /// [`Tracker::update`] for a frame its [`Tracker::preparer`] prepared (a frame prepared for
@@ -886,7 +887,7 @@ impl Tracker {
             aligned_only: false,
             estimate: Some(e),
             traced: None,
-            prepared_region: region.map(|r| r.rectangle()),
+            prepared_region: region,
         }
     }
 
@@ -900,7 +901,7 @@ impl Tracker {
     /// `target` with the object's mask carried from `reference` by `motion`, and the mask's
     /// area; a whole frame as it is (area 0). A frame prepared on a region that does not hold
     /// the carried mask is prepared whole first. The region the frame stays prepared on, if any.
-    fn carried(&self, reference: usize, motion: &Pose, target: Target) -> (PreparedFrame, usize, Option<Region>) {
+    fn carried(&self, reference: usize, motion: &Pose, target: Target) -> (PreparedFrame, usize, Option<PixelBox>) {
         if !self.object {
             return (target.prepared, 0, None);
         }

@@ -283,7 +283,8 @@ fn frames_are_prepared_on_the_objects_predicted_region() {
         let apart = (regional[k].pose * whole[k].pose.inverse()).rotation.angle().to_degrees();
         assert!(apart < 1e-3, "{angle} deg: {apart} deg from the whole frame's pose");
         // A quarter of the image or less, around the object.
-        let (x, y, w, h) = regional[k].prepared_region.expect("prepared on a region");
+        let flowfilter_track::boxed::PixelBox { x, y, width: w, height: h } =
+            regional[k].prepared_region.expect("prepared on a region");
         assert!(w * h < 1280 * 1024 / 4 && x + w <= 1280 && y + h <= 1024, "{:?}", regional[k].prepared_region);
         assert_eq!((whole[k].prepared_region, tight[k].prepared_region), (None, None));
     }

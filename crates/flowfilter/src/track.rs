@@ -283,7 +283,7 @@ fn json_row(t: &TrackedFrame, f: &FrameEntry, truth: Option<&BTreeMap<u64, Pose>
         "keyframe": t.keyframe,
         "mask_px": t.mask_px,
         "aligned_only": t.aligned_only,
-        "prepared_region": t.prepared_region.map(|(x, y, w, h)| [x, y, w, h]),
+        "prepared_region": t.prepared_region.map(|r| [r.x, r.y, r.width, r.height]),
         "pose_from_first": matrix_rows(&t.pose),
         "estimate": t.estimate,
     });
