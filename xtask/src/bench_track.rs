@@ -123,6 +123,36 @@ struct FrameRow {
     /// The frame the pose was measured against (the tracker's keyframe or previous frame; the
     /// frame before for chained estimates); none for the first frame and lost ones.
     reference: Option<usize>,
+    /// The tracker's carried mask of the object (pixels; 0 for whole frames and lost ones, none
+    /// for chained estimates).
+    mask_px: Option<usize>,
+    /// The part of the image the tracker prepared the frame on (`[x, y, width, height]`; none:
+    /// the whole image).
+    prepared_region: Option<[usize; 4]>,
+}
+
+/// What a method gave for one frame, before it is scored against the truth.
+struct Step {
+    pose: Pose,
+    state: TrackState,
+    reason: String,
+    reference: Option<usize>,
+    mask_px: Option<usize>,
+    prepared_region: Option<[usize; 4]>,
+}
+
+impl Step {
+    /// The first frame: the identity, tracking.
+    fn first(mask_px: Option<usize>) -> Self {
+        Self {
+            pose: Pose::identity(),
+            state: TrackState::Tracking,
+            reason: String::new(),
+            reference: None,
+            mask_px,
+            prepared_region: None,
+        }
+    }
 }
 
 /// A stream: frames (the first with the object's mask, or whole), and each frame's true motion
@@ -146,7 +176,9 @@ pub fn run(args: &TrackBenchArgs) -> anyhow::Result<()> {
         None => TrackerConfig::default(),
     };
     let started = Instant::now();
-    let mut streams: Vec<Stream> = vec![];
+    // Synthetic loops are rendered when their turn comes and dropped after it (15 loops of
+    // 121 frames at 1280 x 1024 would hold some 20 GB at once).
+    let mut streams: Vec<Pending> = vec![];
     let objects: Vec<String> = match (args.real_only, args.quick) {
         (true, _) => vec![],
         (false, true) => vec!["box".into()],
@@ -157,24 +189,22 @@ pub fn run(args: &TrackBenchArgs) -> anyhow::Result<()> {
             let camera = camera.trim().parse::<SensorId>().map_err(|e| anyhow::anyhow!("--cameras: {e}"))?;
             for &step in &args.steps {
                 let span = if args.quick { 30 } else { 360 };
-                streams.push(match args.sensor_profile {
-                    SensorProfile::Carmine => turntable(object, camera, step, span)?,
-                    SensorProfile::Sr300Shelf => turntable_sr300(object, camera, step, span)?,
-                });
+                streams.push(Pending::Loop { object: object.clone(), camera, step, span, sensor: args.sensor_profile });
             }
         }
     }
     let (real, truth) = real_streams(args)?;
-    streams.extend(real);
+    streams.extend(real.into_iter().map(Pending::Ready));
     if !args.quick {
-        streams.extend(ycb_video_streams(&args.ycb_video)?);
+        streams.extend(ycb_video_streams(&args.ycb_video)?.into_iter().map(Pending::Ready));
     }
     let dir = args.out.join(crate::report::timestamp());
     std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
     // Each stream's rows as they finish (a long run stopped early keeps what it measured).
     let mut partial = std::fs::File::create(dir.join("streams.jsonl"))?;
     let mut results = vec![];
-    for s in &streams {
+    for pending in streams {
+        let s = &pending.load()?;
         println!("{} ({} frames)", s.name, s.frames.len());
         for r in [track(Pipeline::from_config(config.clone())?, &tracker_config, s), chain(&pipeline, s)] {
             use std::io::Write as _;
@@ -191,6 +221,27 @@ pub fn run(args: &TrackBenchArgs) -> anyhow::Result<()> {
         check(&results)?;
     }
     Ok(())
+}
+
+/// A stream to run: loaded already, or a synthetic loop rendered when its turn comes.
+enum Pending {
+    Ready(Stream),
+    Loop { object: String, camera: SensorId, step: u32, span: u32, sensor: SensorProfile },
+}
+
+impl Pending {
+    /// The stream's frames.
+    fn load(self) -> anyhow::Result<Stream> {
+        match self {
+            Self::Ready(s) => Ok(s),
+            Self::Loop { object, camera, step, span, sensor: SensorProfile::Carmine } => {
+                turntable(&object, camera, step, span)
+            }
+            Self::Loop { object, camera, step, span, sensor: SensorProfile::Sr300Shelf } => {
+                turntable_sr300(&object, camera, step, span)
+            }
+        }
+    }
 }
 
 /// A synthetic loop: the object on the turntable seen by `sensor`, from 0 to `span` degrees at
@@ -391,99 +442,90 @@ fn region_stream(
 /// The tracker over the stream.
 fn track(pipeline: Pipeline, config: &TrackerConfig, s: &Stream) -> StreamResult {
     let t0 = Instant::now();
-    let mut poses = vec![Pose::identity()];
-    let mut states = vec![TrackState::Tracking];
-    let mut reasons = vec![String::new()];
-    let mut references = vec![None];
+    let mut steps = vec![];
     match Tracker::new(pipeline, config.clone(), &s.frames[0]) {
         Ok(mut tracker) => {
+            steps.push(Step::first(Some(tracker.first().mask_px)));
             // Frame k + 1 is prepared while frame k is estimated, as `flowfilter track` does.
             let frames = s.frames[1..].iter().map(|f| ((), Ok(f.clone())));
             let streamed: Result<(), std::convert::Infallible> = tracker.update_stream(frames, |(), r| {
-                poses.push(r.pose);
-                states.push(r.state);
-                reasons.push(r.reason.unwrap_or_default());
-                references.push(r.reference);
+                steps.push(Step {
+                    pose: r.pose,
+                    state: r.state,
+                    reason: r.reason.unwrap_or_default(),
+                    reference: r.reference,
+                    mask_px: Some(r.mask_px),
+                    prepared_region: r.prepared_region.map(|b| [b.x, b.y, b.width, b.height]),
+                });
                 Ok(())
             });
             let Ok(()) = streamed;
         }
         Err(e) => {
             tracing::warn!(stream = %s.name, error = %e, "the tracker could not start");
-            poses.resize(s.frames.len(), Pose::identity());
-            states.resize(s.frames.len(), TrackState::Lost);
-            reasons.resize(s.frames.len(), format!("the tracker could not start: {e}"));
-            references.resize(s.frames.len(), None);
+            steps.push(Step::first(None));
+            steps.extend((1..s.frames.len()).map(|_| Step {
+                state: TrackState::Lost,
+                reason: format!("the tracker could not start: {e}"),
+                ..Step::first(None)
+            }));
         }
     }
-    result(s, "tracker", &poses, (&states, &reasons, &references), t0.elapsed().as_secs_f64())
+    result(s, "tracker", &steps, t0.elapsed().as_secs_f64())
 }
 
 /// Pairwise estimates of consecutive frames (each with its mask), composed.
 fn chain(pipeline: &Pipeline, s: &Stream) -> StreamResult {
     let t0 = Instant::now();
-    let mut poses = vec![Pose::identity()];
-    let mut states = vec![TrackState::Tracking];
-    let mut reasons = vec![String::new()];
+    let mut steps = vec![Step::first(None)];
     let prepared: Vec<_> = s.masked.iter().map(|f| pipeline.prepare(f)).collect();
     for k in 1..s.masked.len() {
-        let last = poses[k - 1];
-        match (&prepared[k - 1], &prepared[k]) {
+        let last = steps[k - 1].pose;
+        let lost = |reason: String| Step { pose: last, state: TrackState::Lost, reason, ..Step::first(None) };
+        steps.push(match (&prepared[k - 1], &prepared[k]) {
             (Ok(a), Ok(b)) => match pipeline.estimate_prepared(a, b) {
-                Ok(e) => {
-                    poses.push(e.pose * last);
-                    states.push(if e.registration.converged { TrackState::Tracking } else { TrackState::Uncertain });
-                    reasons.push(e.warnings.iter().map(|w| w.code()).collect::<Vec<_>>().join(","));
-                }
-                Err(e) => {
-                    poses.push(last);
-                    states.push(TrackState::Lost);
-                    reasons.push(e.to_string());
-                }
+                Ok(e) => Step {
+                    pose: e.pose * last,
+                    state: if e.registration.converged { TrackState::Tracking } else { TrackState::Uncertain },
+                    reason: e.warnings.iter().map(|w| w.code()).collect::<Vec<_>>().join(","),
+                    reference: Some(k - 1),
+                    ..Step::first(None)
+                },
+                Err(e) => lost(e.to_string()),
             },
-            (Err(e), _) | (_, Err(e)) => {
-                poses.push(last);
-                states.push(TrackState::Lost);
-                reasons.push(e.to_string());
-            }
-        }
+            (Err(e), _) | (_, Err(e)) => lost(e.to_string()),
+        });
     }
-    let references: Vec<Option<usize>> =
-        (0..poses.len()).map(|k| k.checked_sub(1).filter(|_| states[k] != TrackState::Lost)).collect();
-    result(s, "chained estimates", &poses, (&states, &reasons, &references), t0.elapsed().as_secs_f64())
+    result(s, "chained estimates", &steps, t0.elapsed().as_secs_f64())
 }
 
-/// A stream's result from each frame's pose, state and reason.
-fn result(
-    s: &Stream,
-    method: &'static str,
-    poses: &[Pose],
-    (states, reasons, references): (&[TrackState], &[String], &[Option<usize>]),
-    seconds: f64,
-) -> StreamResult {
-    let count = |x: TrackState| states.iter().filter(|s| **s == x).count();
+/// A stream's result from each frame's step.
+fn result(s: &Stream, method: &'static str, steps: &[Step], seconds: f64) -> StreamResult {
+    let count = |x: TrackState| steps.iter().filter(|s| s.state == x).count();
+    let poses: Vec<Pose> = steps.iter().map(|s| s.pose).collect();
     StreamResult {
         stream: s.name.clone(),
         kind: s.kind,
         method,
-        frames: poses.len(),
+        frames: steps.len(),
         tracking: count(TrackState::Tracking),
         uncertain: count(TrackState::Uncertain),
         lost: count(TrackState::Lost),
         recovered: count(TrackState::Recovered),
         seconds,
-        frames_per_second: poses.len() as f64 / seconds.max(1e-9),
-        errors: trajectory_errors(poses, &s.truth),
-        per_frame: poses
+        frames_per_second: steps.len() as f64 / seconds.max(1e-9),
+        errors: trajectory_errors(&poses, &s.truth),
+        per_frame: steps
             .iter()
             .zip(&s.truth)
-            .zip(states.iter().zip(reasons).zip(references))
-            .map(|((pose, truth), ((&state, reason), &reference))| FrameRow {
-                state,
-                rotation_error_deg: geodesic_error_deg(pose, truth),
-                translation_error_m: translation_error_m(pose, truth),
-                reason: reason.clone(),
-                reference,
+            .map(|(step, truth)| FrameRow {
+                state: step.state,
+                rotation_error_deg: geodesic_error_deg(&step.pose, truth),
+                translation_error_m: translation_error_m(&step.pose, truth),
+                reason: step.reason.clone(),
+                reference: step.reference,
+                mask_px: step.mask_px,
+                prepared_region: step.prepared_region,
             })
             .collect(),
     }
