@@ -44,7 +44,15 @@ def test_an_object_is_tracked_from_its_first_mask(bop_scene):
         truth = flowfilter.bop_motion(bop_scene, 0, im, 1)
         assert rotation_deg(e.transform, truth) < 1.0, im
         assert e.to_dict()["track"]["state"] == "tracking"
+        # The carried mask: the frame's size, its pixels the reported count, mostly the object's.
+        carried = tracker.object_mask()
+        assert carried.shape == (camera.height, camera.width) and carried.dtype == np.bool_
+        assert int(carried.sum()) == e.to_dict()["track"]["mask_px"]
+        true_mask = np.asarray(frames[im].mask)
+        assert (carried & true_mask).sum() > 0.8 * carried.sum()
     assert tracker.keyframes()[0] == 0
+    # The whole scene has no object mask.
+    assert flowfilter.Tracker(camera, plain[0]).object_mask() is None
     # A pairwise estimate has no track.
     assert flowfilter.estimate(frames[0], frames[1]).state is None
 

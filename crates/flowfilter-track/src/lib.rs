@@ -22,6 +22,7 @@ pub mod carry;
 pub mod depth_calibration;
 mod folder;
 mod region;
+mod reveal;
 mod tracker;
 pub mod tum;
 

@@ -4,6 +4,7 @@
 use crate::boxed::PixelBox;
 use crate::carry::{area, carry_mask};
 use crate::region;
+use crate::reveal::{self, RevealParams};
 use flowfilter_geometry::Pose;
 use flowfilter_pipeline::{
     Estimate, PairTrace, Pipeline, PipelineError, PipelineWarning, PreparedFrame, RegistrationSummary,
@@ -79,6 +80,12 @@ pub struct TrackerConfig {
     /// The region's margin on each side: this fraction of the object's larger side in pixels,
     /// plus the pixels one frame's motion moves it.
     pub region_margin: f64,
+    /// Grow the carried mask onto the object's surface that turns into view: pixels next to it
+    /// whose depth continues it and whose surface the reference frame saw edge-on and that has
+    /// turned towards the camera since (a convex object's side). Without it the mask keeps only
+    /// what the first frame saw. Off by default: it brings a box seen level with its turntable
+    /// round a full turn, but moved the real shelves' regions slightly off (`docs/tracking.md`).
+    pub reveal: bool,
     /// Keep what each kept estimate weighed ([`TrackedFrame::traced`]: the frames and the
     /// pipeline's trace), for recordings.
     pub trace: bool,
@@ -103,6 +110,7 @@ impl Default for TrackerConfig {
             motion_gate_m: 0.01,
             prepare_region: true,
             region_margin: 0.25,
+            reveal: false,
             trace: false,
         }
     }
@@ -579,6 +587,14 @@ impl Tracker {
         &self.keyframes[0].frame
     }
 
+    /// The object's mask in the last frame, as the tracker carried it there from its reference
+    /// (and grew it onto the surface turning into view, [`TrackerConfig::reveal`]): the pixels
+    /// the next frame's mask is predicted from. `None` for whole frames, and after a frame that
+    /// was lost.
+    pub fn object_mask(&self) -> Option<&flowfilter_geometry::Mask> {
+        self.previous.as_ref().filter(|p| self.object && p.index + 1 == self.next).map(|p| &p.frame.mask)
+    }
+
     /// Keyframes held now (stream indices).
     pub fn keyframes(&self) -> Vec<usize> {
         self.keyframes.iter().map(|k| k.index).collect()
@@ -906,8 +922,14 @@ impl Tracker {
             return (target.prepared, 0, None);
         }
         let (splat, tolerance) = (self.config.splat_px, self.config.depth_tolerance_m);
-        let carry =
-            |frame: &PreparedFrame| carry_mask(self.reference_frame(reference), motion, frame, splat, tolerance);
+        let from = self.reference_frame(reference);
+        let carry = |frame: &PreparedFrame| {
+            let mut mask = carry_mask(from, motion, frame, splat, tolerance);
+            if self.config.reveal {
+                reveal::grow_revealed(from, motion, frame, &mut mask, &RevealParams::default());
+            }
+            mask
+        };
         let mut mask = carry(&target.prepared);
         let (frame, region) = if target.holds(&mask) {
             (target.prepared, target.region.map(|(r, _)| r))

@@ -256,6 +256,9 @@ class Tracker:
         that cannot be used is `lost` with the reason, not an exception."""
     def keyframes(self) -> List[int]:
         """Stream indices of the keyframes held now."""
+    def object_mask(self) -> Optional[npt.NDArray[np.bool_]]:
+        """The object's mask in the last frame as the tracker carried it there, (H, W) bool (grown
+        onto the faces turning into view); None for the whole scene or after a lost frame."""
 
 class Correspondences:
     """Flow correspondences: model points and where the flow puts them in the target frame."""
