@@ -124,8 +124,8 @@ impl Tracker {
     }
 
     /// The object's mask in the last frame as the tracker carried it there ((H, W) bool: what
-    /// the next frame's mask is predicted from, grown onto the faces turning into view); None
-    /// when tracking the whole scene or after a lost frame.
+    /// the next frame's mask is predicted from; with the `reveal` setting, grown onto the faces
+    /// turning into view); None when tracking the whole scene or after a lost frame.
     fn object_mask<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
         let inner = self.inner.lock().map_err(|_| crate::errors::input("the tracker failed in an earlier call"))?;
         Ok(inner.object_mask().map(|m| arrays::grid_array(py, m).into_any()))

@@ -257,8 +257,9 @@ class Tracker:
     def keyframes(self) -> List[int]:
         """Stream indices of the keyframes held now."""
     def object_mask(self) -> Optional[npt.NDArray[np.bool_]]:
-        """The object's mask in the last frame as the tracker carried it there, (H, W) bool (grown
-        onto the faces turning into view); None for the whole scene or after a lost frame."""
+        """The object's mask in the last frame as the tracker carried it there, (H, W) bool (with the
+        `reveal` setting, grown onto the faces turning into view); None for the whole scene or
+        after a lost frame."""
 
 class Correspondences:
     """Flow correspondences: model points and where the flow puts them in the target frame."""
