@@ -48,6 +48,11 @@ pub struct Tracker {
 }
 
 impl Tracker {
+    /// The tracker, or an error when an earlier call panicked while holding it.
+    fn locked(&self) -> PyResult<std::sync::MutexGuard<'_, flowfilter_track::Tracker>> {
+        self.inner.lock().map_err(|_| crate::errors::input("the tracker failed in an earlier call"))
+    }
+
     fn rgbd(&self, frame: &Bound<'_, PyAny>, name: &str) -> PyResult<RgbdFrame> {
         frame_arg(frame, name)?.rgbd(self.camera.as_ref())
     }
@@ -111,7 +116,7 @@ impl Tracker {
     /// is `lost` with the reason, not an exception.
     fn update(&self, py: Python<'_>, frame: &Bound<'_, PyAny>) -> PyResult<Estimate> {
         let rgbd = self.rgbd(frame, "frame").map_err(|e| e.to_string());
-        let mut inner = self.inner.lock().map_err(|_| crate::errors::input("the tracker failed in an earlier call"))?;
+        let mut inner = self.locked()?;
         let tracker: &mut flowfilter_track::Tracker = &mut inner;
         let tracked: TrackedFrame = threads::run(py, || tracker.update(rgbd))?;
         Ok(estimate_of(&tracked, &self.first, &self.method))
@@ -119,7 +124,7 @@ impl Tracker {
 
     /// Stream indices of the keyframes held now.
     fn keyframes(&self) -> PyResult<Vec<usize>> {
-        let inner = self.inner.lock().map_err(|_| crate::errors::input("the tracker failed in an earlier call"))?;
+        let inner = self.locked()?;
         Ok(inner.keyframes())
     }
 
@@ -127,7 +132,7 @@ impl Tracker {
     /// the next frame's mask is predicted from; with the `reveal` setting, grown onto the faces
     /// turning into view); None when tracking the whole scene or after a lost frame.
     fn object_mask<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
-        let inner = self.inner.lock().map_err(|_| crate::errors::input("the tracker failed in an earlier call"))?;
+        let inner = self.locked()?;
         Ok(inner.object_mask().map(|m| arrays::grid_array(py, m).into_any()))
     }
 

@@ -30,7 +30,7 @@ pub fn carry_mask(
         }
         Some(b.map_or((x0, y0, x1, y1), |b| (b.0.min(x0), b.1.min(y0), b.2.max(x1), b.3.max(y1))))
     });
-    let Some((bx0, by0, bx1, by1)) = covered else { return Mask::from_fn(w, h, |_, _| false) };
+    let Some((bx0, by0, bx1, by1)) = covered else { return Mask::filled(w, h, false) };
     let bw = (bx1 - bx0 + 1) as usize;
     let mut depth_at: Vec<f32> = vec![f32::INFINITY; bw * (by1 - by0 + 1) as usize];
     for &(cx, cy, z) in &splats {
