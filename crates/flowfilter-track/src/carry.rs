@@ -80,8 +80,3 @@ fn moved_pixels(keyframe: &PreparedFrame, pose: &Pose, target: &PreparedFrame) -
     }
     out
 }
-
-/// Pixels of a mask.
-pub fn area(mask: &Mask) -> usize {
-    mask.as_slice().iter().filter(|m| **m).count()
-}

@@ -2,7 +2,7 @@
 //! measured against keyframes so that drift stays bounded.
 
 use crate::boxed::PixelBox;
-use crate::carry::{area, carry_mask};
+use crate::carry::carry_mask;
 use crate::region;
 use crate::reveal::{self, RevealParams};
 use flowfilter_geometry::Pose;
@@ -499,7 +499,7 @@ impl Tracker {
             reference: None,
             keyframe: true,
             estimate: None,
-            mask_px: if self.object { area(&k.frame.mask) } else { 0 },
+            mask_px: if self.object { k.frame.mask.count() } else { 0 },
             aligned_only: false,
             traced: None,
             prepared_region: None,
@@ -698,7 +698,7 @@ impl Tracker {
         let splat = self.config.predicted_splat_px;
         let previous = self.previous.as_ref().filter(|_| self.object && !self.lost && splat > 0)?;
         let mask = carry_mask(&previous.frame, &self.velocity, target, splat, self.config.depth_tolerance_m);
-        (area(&mask) >= self.config.min_mask_px).then(|| target.with_mask(mask))
+        (mask.count() >= self.config.min_mask_px).then(|| target.with_mask(mask))
     }
 
     /// The estimate of `target` against the first candidate (the keyframe nearest to the
@@ -938,7 +938,7 @@ impl Tracker {
             mask = carry(&whole);
             (whole, None)
         };
-        let px = area(&mask);
+        let px = mask.count();
         (frame.with_mask(mask), px, region)
     }
 
