@@ -20,7 +20,9 @@ use std::sync::Arc;
 pub struct TrackerConfig {
     /// A frame tracked this many degrees away from its keyframe becomes a keyframe.
     pub keyframe_deg: f64,
-    /// ... or this many metres away.
+    /// ... or its motion's translation (that of the camera frame's origin, so an object turning
+    /// about an axis away from the camera counts its turn here too: the bench's turntable loops
+    /// get a keyframe every 6-9 deg at the defaults) reaches this many metres.
     pub keyframe_m: f64,
     /// Keyframes kept for recovery after a loss (the first frame always stays).
     pub max_keyframes: usize,
