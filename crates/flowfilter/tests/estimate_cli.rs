@@ -375,3 +375,26 @@ fn whole_frames_confirmed_on_the_images_are_registered_by_their_geometry_alone()
     assert!(full["geometry_first"].is_null() && full["stage_ms"]["flow"].as_f64().unwrap() > 0.0);
     assert!(full["ground_truth"]["errors"]["geodesic_error_deg"].as_f64().unwrap() < 1.0);
 }
+
+/// `configs/flowfilter-fast.toml` thins the clouds to 6 mm; its scene threshold follows
+/// (`scene_points = 3500`, the surface the default's 8000 points cover at 4 mm), so a whole
+/// frame stays a scene there too: registered on its geometry first, no flow where the images
+/// confirm it (shelf-A 3 -> 4). With the default's threshold at 6 mm the same frame counted as a
+/// small object and ran the flow and the judge.
+#[test]
+fn the_fast_preset_keeps_whole_frames_scenes() {
+    let Some(dir) = shared_data("realsense-shelf/shelf-A") else { return };
+    let preset = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/flowfilter-fast.toml");
+    let fast = whole_frames(&dir, 3, 4, &["--config", preset.to_str().unwrap()]);
+    assert_eq!(fast["geometry_first"]["confirmed"], true, "{}", fast["geometry_first"]);
+    assert_eq!(fast["stage_ms"]["flow"], 0.0, "no flow ran: {}", fast["stage_ms"]);
+    assert!(fast["ground_truth"]["errors"]["geodesic_error_deg"].as_f64().unwrap() < 1.0, "{}", fast["ground_truth"]);
+    let tmp = tempfile::tempdir().unwrap();
+    let object_threshold = tmp.path().join("fast-8000.toml");
+    let text = std::fs::read_to_string(&preset).unwrap().replace("scene_points = 3500", "scene_points = 8000");
+    assert!(text.contains("scene_points = 8000"), "the preset sets its scene threshold");
+    std::fs::write(&object_threshold, text).unwrap();
+    let as_object = whole_frames(&dir, 3, 4, &["--config", object_threshold.to_str().unwrap()]);
+    assert!(as_object["geometry_first"].is_null(), "{}", as_object["geometry_first"]);
+    assert!(as_object["stage_ms"]["flow"].as_f64().unwrap() > 0.0, "{}", as_object["stage_ms"]);
+}
