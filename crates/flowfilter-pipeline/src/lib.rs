@@ -56,6 +56,7 @@ pub use pipeline::Pipeline;
 pub use source::{FrameFiles, MaskSource};
 pub use stages::{
     CloudThinning, CorrespondenceFinder, DepthPreparer, FlowCorrespondenceFinder, FramePreparer, PreparedFrame,
+    SCENE_RULE_VOXEL_M,
 };
 pub use trace::{PairTrace, TracedCandidate, TracedSet};
 pub use warning::PipelineWarning;

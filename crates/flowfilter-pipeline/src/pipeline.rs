@@ -286,8 +286,9 @@ impl Pipeline {
         let (source, target_cloud) = crate::stages::registration_clouds(model, target);
         let mut problem = RegistrationProblem::new(source, target_cloud);
         // The model's own size before any thinning past the configured voxel (the budget's, or
-        // the other frame's density): what the scene rule reads.
-        problem.source_points = Some(model.thinning.finer.as_ref().map_or(model.cloud.len(), |f| f.len()));
+        // the other frame's density), as the points its surface holds at the scene rule's voxel.
+        let at_voxel = model.thinning.finer.as_ref().map_or(model.cloud.len(), |f| f.len());
+        problem.source_points = Some(model.thinning.scene_rule_points(at_voxel));
         let first = if propagate { None } else { self.geometry_first(model, target, &problem) };
         if let Some(f) = &first {
             times.registration += f.registration_ms;

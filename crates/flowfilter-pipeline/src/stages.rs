@@ -67,7 +67,22 @@ pub struct CloudThinning {
     pub finer: Option<Arc<PointCloud>>,
 }
 
+/// The voxel `[registration.flowfilter] scene_points` is counted at (the default `[cloud]
+/// voxel_m`, metres).
+pub const SCENE_RULE_VOXEL_M: f64 = 0.004;
+
 impl CloudThinning {
+    /// `points` of a cloud at the configured voxel counted as the points its surface holds at
+    /// [`SCENE_RULE_VOXEL_M`] (about one point per voxel face), what the scene rule reads: a
+    /// whole frame is a scene, and an object an object, whatever voxel the clouds are thinned
+    /// to. Without a voxel (every pixel's point) the points as they are.
+    pub fn scene_rule_points(&self, points: usize) -> usize {
+        match self.configured_voxel_m {
+            v if v > 0.0 => (points as f64 * (v / SCENE_RULE_VOXEL_M).powi(2)).round() as usize,
+            _ => points,
+        }
+    }
+
     /// `full` thinned with `cfg`'s voxel, then within its budget: the cloud and its record.
     pub fn thin(full: &PointCloud, cfg: &CloudPrepConfig) -> (PointCloud, Self) {
         let at_voxel = if cfg.voxel_m > 0.0 { voxel_downsample(full, cfg.voxel_m) } else { full.clone() };

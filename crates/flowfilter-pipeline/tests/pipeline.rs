@@ -189,3 +189,15 @@ fn the_budgets_bound_the_clouds_and_the_tracked_pixels_whatever_the_regions_area
         object.cloud.len()
     );
 }
+
+/// The scene rule's count: the points a cloud's surface holds at 4 mm, whatever its voxel (a
+/// cloud at 6 mm holds (4/6)^2 as many); without a voxel, the points as they are.
+#[test]
+fn the_scene_rule_counts_a_clouds_surface() {
+    use flowfilter_pipeline::{CloudThinning, SCENE_RULE_VOXEL_M};
+    let at = |voxel_m: f64| CloudThinning { voxel_m, configured_voxel_m: voxel_m, max_points: 0, finer: None };
+    assert_eq!(at(SCENE_RULE_VOXEL_M).scene_rule_points(8001), 8001);
+    assert_eq!(at(0.006).scene_rule_points(4000), 9000);
+    assert_eq!(at(0.008).scene_rule_points(2000), 8000);
+    assert_eq!(at(0.0).scene_rule_points(123_456), 123_456);
+}

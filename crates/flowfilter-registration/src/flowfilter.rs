@@ -135,7 +135,8 @@ pub struct FlowFilterConfig {
     /// s); on the small objects of the default protocol (at most about 2.6k points) point-to-point
     /// is the more accurate (0.25 deg against 0.37 with point-to-plane everywhere). The count is
     /// [`RegistrationProblem::source_size`]: a cloud thinned by the pipeline's budget counts as
-    /// the points it stands for. 0 = never.
+    /// the points it stands for, counted at a 4 mm voxel (the pipeline scales a cloud at another
+    /// voxel by the surface it covers). 0 = never.
     pub scene_points: usize,
 }
 

@@ -27,11 +27,11 @@ pub struct RegistrationProblem {
     /// handed back so that the backend does not compute it a second time. Only the backend
     /// that computed it may be given it.
     pub prior: Option<Registration>,
-    /// How many points the source cloud stands for, where a point budget thinned it (the
-    /// pipeline's `cloud.max_points`): its count at the configured voxel. `None`: the points it
-    /// holds. Rules that tell a scene from an object by its size
-    /// ([`crate::FlowFilterConfig::scene_points`]) read this, so that a whole frame thinned to a
-    /// budget is still a scene.
+    /// How many points the source cloud stands for: the pipeline gives its count at the
+    /// configured voxel, before a point budget (`cloud.max_points`) thinned it, as the points its
+    /// surface holds at a 4 mm voxel. `None`: the points it holds. Rules that tell a scene from
+    /// an object by its size ([`crate::FlowFilterConfig::scene_points`]) read this, so that a
+    /// whole frame thinned to a budget, or to a coarser voxel, is still a scene.
     pub source_points: Option<usize>,
 }
 
