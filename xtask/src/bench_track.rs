@@ -110,14 +110,24 @@ struct StreamResult {
     per_frame: Vec<FrameRow>,
 }
 
-/// One frame of a stream's result.
+/// One frame of a stream's result: what the method gave, and its errors against the truth.
 #[derive(Debug, Clone, Serialize)]
 struct FrameRow {
-    state: TrackState,
+    #[serde(flatten)]
+    step: Step,
     /// Geodesic rotation error of the pose from the first frame (degrees).
     rotation_error_deg: f64,
     /// Its translation error (metres).
     translation_error_m: f64,
+}
+
+/// What a method gave for one frame, before it is scored against the truth.
+#[derive(Debug, Clone, Serialize)]
+struct Step {
+    /// The pose from the first frame (scored, not written).
+    #[serde(skip)]
+    pose: Pose,
+    state: TrackState,
     /// Why the state is not `tracking`, or what the estimate warned of (empty: nothing).
     reason: String,
     /// The frame the pose was measured against (the tracker's keyframe or previous frame; the
@@ -128,16 +138,6 @@ struct FrameRow {
     mask_px: Option<usize>,
     /// The part of the image the tracker prepared the frame on (`[x, y, width, height]`; none:
     /// the whole image).
-    prepared_region: Option<[usize; 4]>,
-}
-
-/// What a method gave for one frame, before it is scored against the truth.
-struct Step {
-    pose: Pose,
-    state: TrackState,
-    reason: String,
-    reference: Option<usize>,
-    mask_px: Option<usize>,
     prepared_region: Option<[usize; 4]>,
 }
 
@@ -519,13 +519,9 @@ fn result(s: &Stream, method: &'static str, steps: &[Step], seconds: f64) -> Str
             .iter()
             .zip(&s.truth)
             .map(|(step, truth)| FrameRow {
-                state: step.state,
                 rotation_error_deg: geodesic_error_deg(&step.pose, truth),
                 translation_error_m: translation_error_m(&step.pose, truth),
-                reason: step.reason.clone(),
-                reference: step.reference,
-                mask_px: step.mask_px,
-                prepared_region: step.prepared_region,
+                step: step.clone(),
             })
             .collect(),
     }
