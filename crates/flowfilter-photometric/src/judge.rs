@@ -17,6 +17,7 @@ use crate::texture::{ObjectSample, Texture, object_samples};
 use crate::turns::{TurnCandidate, TurnHypotheses, TurnSweepConfig};
 use crate::view::ImageView;
 use flowfilter_geometry::{ParamError, Pose, params};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// The judge's parameters (`[judge]` in the pipeline configuration).
@@ -252,17 +253,23 @@ pub struct Sweep {
 /// best.
 pub fn sweep(hypotheses: &TurnHypotheses, images: &Textures<'_>, cfg: &JudgeConfig) -> Sweep {
     let score = |c: &TurnCandidate| photometric_score(images, &c.pose, cfg);
+    // Scored side by side, collected in order.
     let coarse: Vec<(TurnCandidate, Option<f64>)> =
-        hypotheses.coarse(&cfg.sweep).into_iter().map(|c| (c, score(&c))).collect();
+        hypotheses.coarse(&cfg.sweep).into_par_iter().map(|c| (c, score(&c))).collect();
     let mut best = coarse.iter().filter_map(|(c, s)| s.map(|s| (s, *c))).min_by(|a, b| a.0.total_cmp(&b.0));
     if let Some((_, around)) = best {
         let steps = (cfg.fine_reach_deg / cfg.fine_step_deg).round() as i32;
-        for s in (-steps..=steps).filter(|s| *s != 0) {
-            let deg = around.deg + f64::from(s) * cfg.fine_step_deg;
-            if let Some(c) = hypotheses.candidate(around.axis, deg)
-                && let Some(score) = score(&c)
-                && best.as_ref().is_none_or(|b| score < b.0)
-            {
+        // The fine steps fitted and scored side by side, then taken in order.
+        let fine: Vec<(f64, TurnCandidate)> = (-steps..=steps)
+            .into_par_iter()
+            .filter(|s| *s != 0)
+            .filter_map(|s| {
+                let c = hypotheses.candidate(around.axis, around.deg + f64::from(s) * cfg.fine_step_deg)?;
+                Some((score(&c)?, c))
+            })
+            .collect();
+        for (score, c) in fine {
+            if best.as_ref().is_none_or(|b| score < b.0) {
                 best = Some((score, c));
             }
         }

@@ -11,6 +11,7 @@
 use flowfilter_geometry::{KnnIndex, ParamError, Point3, Pose, Vector3, params};
 use flowfilter_registration::{RegistrationProblem, visible_residual};
 use nalgebra::{Matrix2, Matrix3, Translation3, UnitQuaternion, Vector2};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// The sweep's parameters.
@@ -122,12 +123,16 @@ impl TurnHypotheses {
         // The refinement can wander where little of the side is seen (a flat can): of the seed
         // and its refinement, keep the axis the model turns about with the better fit.
         let mut fits = [0.0; 3];
-        for (k, seed) in directions.iter().enumerate() {
-            let seed = TurnAxis {
-                pivot: revolution_pivot(&problem.source.points, normals, seed).unwrap_or(centroid),
-                direction: *seed,
-            };
-            let (a, b) = (h.turn_fit(&seed), h.turn_fit(&h.axes[k]));
+        let seeds: Vec<(TurnAxis, f64, f64)> = (0..3)
+            .into_par_iter()
+            .map(|k| {
+                let direction = directions[k];
+                let pivot = revolution_pivot(&problem.source.points, normals, &direction).unwrap_or(centroid);
+                let seed = TurnAxis { pivot, direction };
+                (seed, h.turn_fit(&seed), h.turn_fit(&h.axes[k]))
+            })
+            .collect();
+        for (k, (seed, a, b)) in seeds.into_iter().enumerate() {
             fits[k] = a.min(b);
             if a < b {
                 h.axes[k] = seed;
@@ -168,12 +173,15 @@ impl TurnHypotheses {
         for step_deg in [2.0f64, 1.0, 0.5] {
             let (u, v) = across(&axis.direction);
             loop {
-                let tries = [u, -u, v, -v].map(|w| {
-                    let direction = UnitQuaternion::from_scaled_axis(w * step_deg.to_radians()) * axis.direction;
-                    let pivot = revolution_pivot(points, normals, &direction).unwrap_or(centroid);
-                    let tried = TurnAxis { pivot, direction };
-                    (self.turn_fit(&tried), tried)
-                });
+                let tries: Vec<(f64, TurnAxis)> = [u, -u, v, -v]
+                    .into_par_iter()
+                    .map(|w| {
+                        let direction = UnitQuaternion::from_scaled_axis(w * step_deg.to_radians()) * axis.direction;
+                        let pivot = revolution_pivot(points, normals, &direction).unwrap_or(centroid);
+                        let tried = TurnAxis { pivot, direction };
+                        (self.turn_fit(&tried), tried)
+                    })
+                    .collect();
                 let Some((f, best)) = tries.into_iter().min_by(|a, b| a.0.total_cmp(&b.0)).filter(|(f, _)| *f < fit)
                 else {
                     break;
@@ -197,13 +205,13 @@ impl TurnHypotheses {
     pub fn coarse(&self, cfg: &TurnSweepConfig) -> Vec<TurnCandidate> {
         let mut turns = cfg.sweep_deg.clone();
         turns.sort_by(f64::total_cmp);
-        let mut out = vec![];
-        for axis in 0..3 {
-            for sign in [1.0, -1.0] {
-                out.extend(turns.iter().map_while(|&d| self.candidate(axis, sign * d)));
-            }
-        }
-        out
+        // The six ways side by side, concatenated in order.
+        let ways: Vec<(usize, f64)> = (0..3).flat_map(|axis| [(axis, 1.0), (axis, -1.0)]).collect();
+        let runs: Vec<Vec<TurnCandidate>> = ways
+            .into_par_iter()
+            .map(|(axis, sign)| turns.iter().map_while(|&d| self.candidate(axis, sign * d)).collect())
+            .collect();
+        runs.concat()
     }
 }
 

@@ -16,6 +16,7 @@ use flowfilter_photometric::gate::evidence_settled;
 use flowfilter_photometric::judge::{self, JudgeReport};
 use flowfilter_photometric::{TurnCandidate, TurnHypotheses};
 use flowfilter_registration::{Registrar, Registration, RegistrationProblem, RegistrationWarning, registrar_by_name};
+use rayon::prelude::*;
 use std::time::Instant;
 
 /// Two RGB-D frames in, a relative pose out.
@@ -679,8 +680,10 @@ impl Pipeline {
         // The distinct candidates aligned and scored: what aligned candidates are judged by, and
         // what the ambiguity is then read from.
         let aligned: Vec<(TurnCandidate, Option<f64>, Pose)> = match aligned_answer {
+            // Each candidate aligned on its own (a few hundred pixels: too few to split), side by
+            // side; collected in order, so the same answer with any thread count.
             Some(_) => distinct_candidates(&sweep, DISTINCT_TURN_DEG)
-                .into_iter()
+                .into_par_iter()
                 .map(|c| match aligned_score(&c.pose) {
                     Some((s, p)) => (c, Some(s), p),
                     None => (c, None, c.pose),

@@ -3,6 +3,10 @@
 use flowfilter_geometry::{Mask, Pose, mask_bbox};
 use flowfilter_pipeline::PreparedFrame;
 use nalgebra::Point2;
+use rayon::prelude::*;
+
+/// Rows of the carried mask's depth buffer filled per parallel task.
+const SPLAT_BAND_ROWS: usize = 32;
 
 /// The object's mask in `target`: `keyframe`'s object pixels that have depth, moved by `pose`
 /// (`target ~ pose * keyframe`) and projected, each covering `splat_px` pixels around it (the
@@ -32,15 +36,21 @@ pub fn carry_mask(
     });
     let Some((bx0, by0, bx1, by1)) = covered else { return Mask::filled(w, h, false) };
     let bw = (bx1 - bx0 + 1) as usize;
+    // The nearest splat's depth per covered pixel, by bands of rows side by side (each band
+    // takes the splats that reach it; a minimum, so the same in any order).
     let mut depth_at: Vec<f32> = vec![f32::INFINITY; bw * (by1 - by0 + 1) as usize];
-    for &(cx, cy, z) in &splats {
-        for v in (cy - r).max(by0)..=(cy + r).min(by1) {
-            for u in (cx - r).max(bx0)..=(cx + r).min(bx1) {
-                let i = (v - by0) as usize * bw + (u - bx0) as usize;
-                depth_at[i] = depth_at[i].min(z);
+    depth_at.par_chunks_mut(bw * SPLAT_BAND_ROWS).enumerate().for_each(|(band, rows)| {
+        let top = by0 + (band * SPLAT_BAND_ROWS) as i64;
+        let bottom = top + (rows.len() / bw) as i64 - 1;
+        for &(cx, cy, z) in splats.iter().filter(|s| s.1 + r >= top && s.1 - r <= bottom) {
+            for v in (cy - r).max(top)..=(cy + r).min(bottom) {
+                for u in (cx - r).max(bx0)..=(cx + r).min(bx1) {
+                    let i = (v - top) as usize * bw + (u - bx0) as usize;
+                    rows[i] = rows[i].min(z);
+                }
             }
         }
-    }
+    });
     Mask::from_fn(w, h, |x, y| {
         let (x, y) = (x as i64, y as i64);
         if x < bx0 || x > bx1 || y < by0 || y > by1 {
@@ -56,27 +66,22 @@ pub fn carry_mask(
 }
 
 /// `keyframe`'s object pixels that have depth, moved by `pose` and projected into `target`:
-/// each one's rounded pixel and depth.
+/// each one's rounded pixel and depth, in row order (rows side by side: the back-projection
+/// through the lens model is most of a frame's carrying).
 fn moved_pixels(keyframe: &PreparedFrame, pose: &Pose, target: &PreparedFrame) -> Vec<(i64, i64, f32)> {
     let Some((x0, y0, x1, y1)) = mask_bbox(&keyframe.mask) else { return vec![] };
-    let mut out = vec![];
-    for y in y0..=y1 {
-        for x in x0..=x1 {
-            if !keyframe.mask.get(x, y).copied().unwrap_or(false) {
-                continue;
-            }
-            let z = keyframe.depth.get(x, y).copied().unwrap_or(0.0);
-            if !(z.is_finite() && z > 0.0) {
-                continue;
-            }
-            let Some(p) = keyframe.sensor.color.backproject(&Point2::new(x as f64, y as f64), f64::from(z)) else {
-                continue;
-            };
-            let q = pose * p;
-            if let Some(px) = target.sensor.color.project(&q) {
-                out.push((px.x.round() as i64, px.y.round() as i64, q.z as f32));
-            }
+    let moved = |x: usize, y: usize| -> Option<(i64, i64, f32)> {
+        if !keyframe.mask.get(x, y).copied().unwrap_or(false) {
+            return None;
         }
-    }
-    out
+        let z = keyframe.depth.get(x, y).copied().unwrap_or(0.0);
+        if !(z.is_finite() && z > 0.0) {
+            return None;
+        }
+        let p = keyframe.sensor.color.backproject(&Point2::new(x as f64, y as f64), f64::from(z))?;
+        let q = pose * p;
+        let px = target.sensor.color.project(&q)?;
+        Some((px.x.round() as i64, px.y.round() as i64, q.z as f32))
+    };
+    (y0..=y1).into_par_iter().flat_map_iter(|y| (x0..=x1).filter_map(move |x| moved(x, y))).collect()
 }
