@@ -70,15 +70,16 @@ pub(crate) fn evaluate_by(
 }
 
 /// Mean over the moved source points of `min(distance to the nearest target point, tau)`: a
-/// robust geometric misfit (0 for a perfect overlap, `tau` where nothing overlaps). Sequential,
-/// so the same input always gives the same bits.
+/// robust geometric misfit (0 for a perfect overlap, `tau` where nothing overlaps). The
+/// searches run side by side; the sum is taken in the points' order, so the same input always
+/// gives the same bits.
 pub fn truncated_residual(source: &[Point3], target: &KnnIndex, transform: &Pose, tau: f64) -> f64 {
     if source.is_empty() {
         return tau;
     }
-    let sum: f64 =
-        source.iter().map(|p| target.nearest(&(transform * p)).map_or(tau, |n| n.dist2.sqrt().min(tau))).sum();
-    sum / source.len() as f64
+    let misfits: Vec<f64> =
+        source.par_iter().map(|p| target.nearest(&(transform * p)).map_or(tau, |n| n.dist2.sqrt().min(tau))).collect();
+    misfits.iter().sum::<f64>() / source.len() as f64
 }
 
 /// [`truncated_residual`] over the source points that the move leaves facing the camera (the
@@ -95,16 +96,21 @@ pub fn visible_residual(
     min_cos: f64,
 ) -> f64 {
     let Some(normals) = normals else { return truncated_residual(source, target, transform, tau) };
+    // The visible points' misfits searched side by side, summed in the points' order.
+    let misfits: Vec<Option<f64>> = source
+        .par_iter()
+        .zip(normals)
+        .map(|(p, nrm)| {
+            let q = transform * p;
+            let m = transform.rotation * nrm;
+            let to_camera = -q.coords / q.coords.norm().max(1e-12);
+            // Normals may point either way: the surface faces the camera if |cos| is large.
+            (m.dot(&to_camera).abs() >= min_cos).then(|| target.nearest(&q).map_or(tau, |nb| nb.dist2.sqrt().min(tau)))
+        })
+        .collect();
     let (mut sum, mut n) = (0.0, 0usize);
-    for (p, nrm) in source.iter().zip(normals) {
-        let q = transform * p;
-        let m = transform.rotation * nrm;
-        let to_camera = -q.coords / q.coords.norm().max(1e-12);
-        // Normals may point either way: the surface faces the camera if |cos| is large.
-        if m.dot(&to_camera).abs() < min_cos {
-            continue;
-        }
-        sum += target.nearest(&q).map_or(tau, |nb| nb.dist2.sqrt().min(tau));
+    for misfit in misfits.into_iter().flatten() {
+        sum += misfit;
         n += 1;
     }
     if n * 5 < source.len() { tau } else { sum / n as f64 }
