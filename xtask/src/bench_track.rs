@@ -46,6 +46,9 @@ pub struct TrackBenchArgs {
     /// Leave the synthetic loops out (the real sequences only).
     #[arg(long)]
     pub real_only: bool,
+    /// Leave the real sequences and the YCB-Video sample out (the synthetic loops only).
+    #[arg(long, conflicts_with = "real_only")]
+    pub synthetic_only: bool,
     /// Turntable steps of the synthetic loops, degrees.
     #[arg(long, value_delimiter = ',', default_value = "3")]
     pub steps: Vec<u32>,
@@ -176,28 +179,7 @@ pub fn run(args: &TrackBenchArgs) -> anyhow::Result<()> {
         None => TrackerConfig::default(),
     };
     let started = Instant::now();
-    // Synthetic loops are rendered when their turn comes and dropped after it (15 loops of
-    // 121 frames at 1280 x 1024 would hold some 20 GB at once).
-    let mut streams: Vec<Pending> = vec![];
-    let objects: Vec<String> = match (args.real_only, args.quick) {
-        (true, _) => vec![],
-        (false, true) => vec!["box".into()],
-        (false, false) => args.objects.clone(),
-    };
-    for object in &objects {
-        for camera in &args.cameras {
-            let camera = camera.trim().parse::<SensorId>().map_err(|e| anyhow::anyhow!("--cameras: {e}"))?;
-            for &step in &args.steps {
-                let span = if args.quick { 30 } else { 360 };
-                streams.push(Pending::Loop { object: object.clone(), camera, step, span, sensor: args.sensor_profile });
-            }
-        }
-    }
-    let (real, truth) = real_streams(args)?;
-    streams.extend(real.into_iter().map(Pending::Ready));
-    if !args.quick {
-        streams.extend(ycb_video_streams(&args.ycb_video)?.into_iter().map(Pending::Ready));
-    }
+    let (streams, truth) = pending_streams(args)?;
     let dir = args.out.join(crate::report::timestamp());
     std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
     // Each stream's rows as they finish (a long run stopped early keeps what it measured).
@@ -221,6 +203,37 @@ pub fn run(args: &TrackBenchArgs) -> anyhow::Result<()> {
         check(&results)?;
     }
     Ok(())
+}
+
+/// The streams the arguments ask for, in the order they run: the synthetic loops, the real
+/// sequences (with their truth), the YCB-Video sample's objects.
+fn pending_streams(args: &TrackBenchArgs) -> anyhow::Result<(Vec<Pending>, Option<Truth>)> {
+    // Synthetic loops are rendered when their turn comes and dropped after it (15 loops of
+    // 121 frames at 1280 x 1024 would hold some 20 GB at once).
+    let mut streams: Vec<Pending> = vec![];
+    let objects: Vec<String> = match (args.real_only, args.quick) {
+        (true, _) => vec![],
+        (false, true) => vec!["box".into()],
+        (false, false) => args.objects.clone(),
+    };
+    for object in &objects {
+        for camera in &args.cameras {
+            let camera = camera.trim().parse::<SensorId>().map_err(|e| anyhow::anyhow!("--cameras: {e}"))?;
+            for &step in &args.steps {
+                let span = if args.quick { 30 } else { 360 };
+                streams.push(Pending::Loop { object: object.clone(), camera, step, span, sensor: args.sensor_profile });
+            }
+        }
+    }
+    if args.synthetic_only {
+        return Ok((streams, None));
+    }
+    let (real, truth) = real_streams(args)?;
+    streams.extend(real.into_iter().map(Pending::Ready));
+    if !args.quick {
+        streams.extend(ycb_video_streams(&args.ycb_video)?.into_iter().map(Pending::Ready));
+    }
+    Ok((streams, truth))
 }
 
 /// A stream to run: loaded already, or a synthetic loop rendered when its turn comes.
@@ -574,6 +587,32 @@ fn check(results: &[StreamResult]) -> anyhow::Result<()> {
 mod tests {
     use super::*;
 
+    /// `--synthetic-only` leaves every real stream out (and cannot go with `--real-only`);
+    /// without it the shared sequences follow the loops.
+    #[test]
+    fn synthetic_only_runs_the_loops_alone() {
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            args: TrackBenchArgs,
+        }
+        use clap::Parser as _;
+        assert!(Cli::try_parse_from(["bench-track", "--synthetic-only", "--real-only"]).is_err());
+        let cli = Cli::try_parse_from(["bench-track", "--synthetic-only", "--quick"]).unwrap();
+        let (streams, truth) = pending_streams(&cli.args).unwrap();
+        assert!(truth.is_none());
+        assert!(matches!(streams.as_slice(), [Pending::Loop { span: 30, .. }]), "{} streams", streams.len());
+        let Some(data) = crate::shared_or_skip("data/realsense-shelf") else { return };
+        let mut both = Cli::try_parse_from(["bench-track", "--quick", "--sequences", "shelf-J"]).unwrap().args;
+        both.data = data;
+        let (streams, _) = pending_streams(&both).unwrap();
+        assert!(
+            matches!(streams.as_slice(), [Pending::Loop { .. }, Pending::Ready(_), ..]),
+            "{} streams",
+            streams.len()
+        );
+    }
+
     /// `--depth-bias self`: the quick real stream (shelf-J's first 4 frames) is read corrected by
     /// the field its own frames give; `none` reads the files as they are.
     #[test]
@@ -585,6 +624,7 @@ mod tests {
             ycb_video: PathBuf::from("absent"),
             objects: vec![],
             real_only: true,
+            synthetic_only: false,
             steps: vec![3],
             cameras: vec![],
             sensor_profile: SensorProfile::Carmine,
