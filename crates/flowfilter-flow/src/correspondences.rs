@@ -1,11 +1,13 @@
 //! Flow correspondences (stage 4 of the method): model pixels with depth, moved by the flow,
 //! target depth interpolated at the flowed position, both back-projected: 3-D/3-D pairs.
 
-use crate::estimator::{FlowError, FlowEstimator, forward_backward_sparse};
+use crate::estimator::{FlowError, FlowEstimator, WindowMatcher, forward_backward_sparse};
 use crate::lk::{Gray, IDENTITY_WARP, WindowWarp};
+use crate::pyramid::{ImagePyramid, PyramidCache, PyramidKey};
 use flowfilter_camera::{CameraModel, RayTable};
 use flowfilter_geometry::{Correspondences, DepthMap, Mask, Point3, Pose, mask_bbox};
 use serde::{Deserialize, Serialize};
+use std::sync::Arc;
 use std::time::Instant;
 
 /// One view as the correspondence search sees it: grey image, depth and object mask, all on
@@ -18,6 +20,9 @@ pub struct FlowView<'a> {
     pub depth: &'a DepthMap,
     /// Object mask.
     pub mask: &'a Mask,
+    /// Where the view's image pyramids are kept between passes (a prepared frame's); `None`:
+    /// built for each call.
+    pub pyramids: Option<&'a PyramidCache>,
 }
 
 /// Flow correspondences with what it took to find them.
@@ -245,52 +250,45 @@ pub fn flow_correspondences_guided(
             )));
         }
     }
-    let (model_gray, target_gray, model_depth, model_mask, target_mask) =
-        (model.gray, target.gray, model.depth, model.mask, target.mask);
+    let (model_depth, model_mask, target_mask) = (model.depth, model.mask, target.mask);
     let pixels = tracked_pixels(model_mask, model_depth, p.grid_step, p.max_pixels);
     let t0 = Instant::now();
     // Crop both views to the masks' region (flow vectors do not depend on the origin).
     let (x0, y0, x1, y1) = crop_box(model_mask, target_mask, p.crop_margin_px);
     let (cw, ch) = (x1 - x0, y1 - y0);
-    let (ga, gb) = (model_gray.crop(x0, y0, cw, ch), target_gray.crop(x0, y0, cw, ch));
+    let crop = PyramidKey { x0, y0, width: cw, height: ch, levels: 0 };
     let (ma, mb) = (model_mask.crop(x0, y0, cw, ch), target_mask.crop(x0, y0, cw, ch));
     let shift = [x0 as f32, y0 as f32];
     let local: Vec<[f32; 2]> = pixels.iter().map(|q| [q[0] - shift[0], q[1] - shift[1]]).collect();
-    let (forward, backward_guess) = match guide {
-        None => (estimator.sparse(&ga, &gb, &local, Some(&ma))?, None),
-        Some(g) => {
-            let guesses: Vec<[f32; 2]> = pixels
+    // The guide's start for each pixel and, when windows are warped, its window's linear map.
+    let guided: Option<GuidedStarts> = guide.map(|g| {
+        let guesses: Vec<[f32; 2]> = pixels
+            .iter()
+            .map(|q| {
+                let (x, y) = (q[0] as usize, q[1] as usize);
+                rays.backproject(x, y, f64::from(*model_depth.at(x, y)))
+                    .and_then(|a| g.camera.project(&(g.pose * a)))
+                    .map_or([0.0; 2], |t| [(t.x - f64::from(q[0])) as f32, (t.y - f64::from(q[1])) as f32])
+            })
+            .collect();
+        let warps: Option<Vec<WindowWarp>> = p.warp_windows.then(|| {
+            pixels
                 .iter()
-                .map(|q| {
-                    let (x, y) = (q[0] as usize, q[1] as usize);
-                    rays.backproject(x, y, f64::from(*model_depth.at(x, y)))
-                        .and_then(|a| g.camera.project(&(g.pose * a)))
-                        .map_or([0.0; 2], |t| [(t.x - f64::from(q[0])) as f32, (t.y - f64::from(q[1])) as f32])
-                })
-                .collect();
-            let warps: Option<Vec<WindowWarp>> = p.warp_windows.then(|| {
-                pixels
-                    .iter()
-                    .map(|q| predicted_warp(&g, rays, model_depth, model_mask, q[0] as usize, q[1] as usize))
-                    .collect()
-            });
-            let f = match (&warps, estimator.window_matcher()) {
-                (Some(w), Some(m)) => m.sparse_warped(&ga, &gb, &local, &guesses, w, Some(&ma))?,
-                _ => estimator.sparse_guided(&ga, &gb, &local, &guesses, Some(&ma))?,
-            };
-            // The backward track starts from the forward result reversed, through the inverse warps.
-            let back: Vec<[f32; 2]> =
-                f.iter().zip(&guesses).map(|(f, g)| f.map_or([-g[0], -g[1]], |f| [-f[0], -f[1]])).collect();
-            (f, Some((back, warps.map(|w| w.iter().map(inverse_warp).collect::<Vec<_>>()))))
-        }
-    };
+                .map(|q| predicted_warp(&g, rays, model_depth, model_mask, q[0] as usize, q[1] as usize))
+                .collect()
+        });
+        GuidedStarts { guesses, warps }
+    });
+    let tracker = CropTracker::new(estimator, (model, target), crop, (&ma, &mb));
+    let (guesses, warps) = guided.as_ref().map_or((None, None), |g| (Some(g.guesses.as_slice()), g.warps.as_deref()));
+    let forward = tracker.track(Direction::Forward, &local, guesses, warps)?;
+    // The backward track starts from the forward result reversed, through the inverse warps.
+    let back: Option<Vec<[f32; 2]>> =
+        guesses.map(|gs| forward.iter().zip(gs).map(|(f, g)| f.map_or([-g[0], -g[1]], |f| [-f[0], -f[1]])).collect());
+    let back_warps: Option<Vec<WindowWarp>> = warps.map(|w| w.iter().map(inverse_warp).collect());
     let moved_local: Vec<[f32; 2]> =
         local.iter().zip(&forward).map(|(q, f)| f.map_or(*q, |f| [q[0] + f[0], q[1] + f[1]])).collect();
-    let backward = match (&backward_guess, estimator.window_matcher()) {
-        (None, _) => estimator.sparse(&gb, &ga, &moved_local, Some(&mb))?,
-        (Some((b, Some(warps))), Some(m)) => m.sparse_warped(&gb, &ga, &moved_local, b, warps, Some(&mb))?,
-        (Some((b, _)), _) => estimator.sparse_guided(&gb, &ga, &moved_local, b, Some(&mb))?,
-    };
+    let backward = tracker.track(Direction::Backward, &moved_local, back.as_deref(), back_warps.as_deref())?;
     let moved: Vec<[f32; 2]> = moved_local.iter().map(|q| [q[0] + shift[0], q[1] + shift[1]]).collect();
     let flow_seconds = t0.elapsed().as_secs_f64();
     let consistent = forward_backward_sparse(&forward, &backward, p.fb_threshold);
@@ -298,6 +296,89 @@ pub fn flow_correspondences_guided(
     pairs.tracked = pixels.len();
     pairs.flow_seconds = flow_seconds;
     Ok(pairs)
+}
+
+/// Where a guide starts each tracked pixel, and its window's linear map when windows are warped.
+struct GuidedStarts {
+    guesses: Vec<[f32; 2]>,
+    warps: Option<Vec<WindowWarp>>,
+}
+
+/// Which way a track runs: the model's pixels into the target, or back.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Direction {
+    Forward,
+    Backward,
+}
+
+/// The two views cut to one crop, tracked either way: on pyramids built once for both
+/// directions (and kept in the views' caches, for the pair's other passes) when the estimator
+/// matches windows, else on the cropped images.
+struct CropTracker<'a> {
+    estimator: &'a dyn FlowEstimator,
+    images: CropImages<'a>,
+    masks: (&'a Mask, &'a Mask),
+}
+
+/// The crops' pyramids with the window matcher that reads them, or the crops themselves.
+enum CropImages<'a> {
+    Pyramids(&'a dyn WindowMatcher, Arc<ImagePyramid>, Arc<ImagePyramid>),
+    Crops(Gray, Gray),
+}
+
+impl<'a> CropTracker<'a> {
+    fn new(
+        estimator: &'a dyn FlowEstimator,
+        (model, target): (&FlowView<'_>, &FlowView<'_>),
+        crop: PyramidKey,
+        masks: (&'a Mask, &'a Mask),
+    ) -> Self {
+        let cut = |view: &FlowView<'_>| view.gray.crop(crop.x0, crop.y0, crop.width, crop.height);
+        let images = match estimator.window_matcher() {
+            Some(m) => {
+                let key = PyramidKey { levels: m.pyramid_levels(), ..crop };
+                let pyramid = |view: &FlowView<'_>| {
+                    let build = || ImagePyramid::new(cut(view), key.levels);
+                    match view.pyramids {
+                        Some(cache) => cache.pyramid(key, build),
+                        None => Arc::new(build()),
+                    }
+                };
+                let (a, b) = rayon::join(|| pyramid(model), || pyramid(target));
+                CropImages::Pyramids(m, a, b)
+            }
+            None => CropImages::Crops(cut(model), cut(target)),
+        };
+        Self { estimator, images, masks }
+    }
+
+    /// The tracks of `points` (crop coordinates) in `direction`, each from its guess when given
+    /// and with its window's warp when given (a window matcher; others take the guesses alone).
+    fn track(
+        &self,
+        direction: Direction,
+        points: &[[f32; 2]],
+        guesses: Option<&[[f32; 2]]>,
+        warps: Option<&[WindowWarp]>,
+    ) -> Result<Vec<Option<[f32; 2]>>, FlowError> {
+        let mask = match direction {
+            Direction::Forward => self.masks.0,
+            Direction::Backward => self.masks.1,
+        };
+        match &self.images {
+            CropImages::Pyramids(m, a, b) => {
+                let (from, to) = if direction == Direction::Forward { (a, b) } else { (b, a) };
+                m.sparse_in(from, to, points, guesses, warps, Some(mask))
+            }
+            CropImages::Crops(a, b) => {
+                let (from, to) = if direction == Direction::Forward { (a, b) } else { (b, a) };
+                match guesses {
+                    Some(g) => self.estimator.sparse_guided(from, to, points, g, Some(mask)),
+                    None => self.estimator.sparse(from, to, points, Some(mask)),
+                }
+            }
+        }
+    }
 }
 
 /// 3-D pairs from pixel matches: each kept model pixel (with depth) back-projected, its match

@@ -2,7 +2,8 @@
 //! with typed errors for inputs no estimator can use, and the forward-backward consistency check.
 
 use crate::FlowField;
-use crate::lk::{Gray, LkParams, WindowWarp, track_masked, track_warped};
+use crate::lk::{Gray, LkParams, WindowWarp, track_in, track_masked, track_warped};
+use crate::pyramid::ImagePyramid;
 use flowfilter_geometry::Mask;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
@@ -161,6 +162,28 @@ pub trait WindowMatcher: FlowEstimator {
         warps: &[WindowWarp],
         mask: Option<&Mask>,
     ) -> Result<Vec<Option<[f32; 2]>>, FlowError>;
+
+    /// Pyramid levels above the image that its tracking reads: the depth of the pyramids
+    /// [`WindowMatcher::sparse_in`] needs.
+    fn pyramid_levels(&self) -> usize;
+
+    /// [`FlowEstimator::sparse`] (no `guesses`), [`FlowEstimator::sparse_guided`] or
+    /// [`WindowMatcher::sparse_warped`] (with `warps`) on pyramids built beforehand
+    /// ([`ImagePyramid::new`] with [`WindowMatcher::pyramid_levels`] levels at least): the same
+    /// tracks, without building the pyramids again for each pass.
+    ///
+    /// # Errors
+    /// As [`WindowMatcher::sparse_warped`], and [`FlowError::Config`] for pyramids shallower
+    /// than [`WindowMatcher::pyramid_levels`].
+    fn sparse_in(
+        &self,
+        from: &ImagePyramid,
+        to: &ImagePyramid,
+        points: &[[f32; 2]],
+        guesses: Option<&[[f32; 2]]>,
+        warps: Option<&[WindowWarp]>,
+        mask: Option<&Mask>,
+    ) -> Result<Vec<Option<[f32; 2]>>, FlowError>;
 }
 
 /// Pixels whose forward flow, followed by the backward flow sampled at the arrival point,
@@ -259,6 +282,21 @@ impl LucasKanade {
         warps: Option<&[WindowWarp]>,
         mask: Option<&Mask>,
     ) -> Result<Vec<Option<[f32; 2]>>, FlowError> {
+        self.check_tracks(from, to, points, guesses, warps, mask)?;
+        Ok(track_warped(from, to, points, guesses, warps, &self.params(), mask))
+    }
+
+    /// The checks of every tracking call: parameters, the images' and mask's sizes, one guess
+    /// and one warp per point.
+    fn check_tracks(
+        &self,
+        from: &Gray,
+        to: &Gray,
+        points: &[[f32; 2]],
+        guesses: Option<&[[f32; 2]]>,
+        warps: Option<&[WindowWarp]>,
+        mask: Option<&Mask>,
+    ) -> Result<(), FlowError> {
         self.validate()?;
         check_pair(from, to, mask)?;
         for (what, n) in [("guesses", guesses.map(<[_]>::len)), ("warps", warps.map(<[_]>::len))] {
@@ -266,7 +304,7 @@ impl LucasKanade {
                 return Err(FlowError::Config(format!("{n} {what} for {} points", points.len())));
             }
         }
-        Ok(track_warped(from, to, points, guesses, warps, &self.params(), mask))
+        Ok(())
     }
 
     /// Check parameter ranges.
@@ -358,5 +396,25 @@ impl WindowMatcher for LucasKanade {
         mask: Option<&Mask>,
     ) -> Result<Vec<Option<[f32; 2]>>, FlowError> {
         self.track(from, to, points, Some(guesses), Some(warps), mask)
+    }
+
+    fn pyramid_levels(&self) -> usize {
+        self.levels
+    }
+
+    fn sparse_in(
+        &self,
+        from: &ImagePyramid,
+        to: &ImagePyramid,
+        points: &[[f32; 2]],
+        guesses: Option<&[[f32; 2]]>,
+        warps: Option<&[WindowWarp]>,
+        mask: Option<&Mask>,
+    ) -> Result<Vec<Option<[f32; 2]>>, FlowError> {
+        self.check_tracks(from.level(0), to.level(0), points, guesses, warps, mask)?;
+        if let Some(depth) = [from.depth(), to.depth()].into_iter().find(|d| *d < self.levels) {
+            return Err(FlowError::Config(format!("a pyramid of {depth} levels for lk.levels = {}", self.levels)));
+        }
+        Ok(track_in(from, to, points, guesses, warps, &self.params(), mask))
     }
 }

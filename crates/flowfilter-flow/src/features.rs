@@ -102,8 +102,8 @@ const TEST_SIGMA_PX: f64 = 6.6;
 /// let camera = CameraModel::new(Intrinsics::new(300.0, 300.0, 160.0, 120.0)?, Distortion::NONE, ImageSize::new(320, 240)?);
 /// let rays = RayTable::new(&camera);
 /// let pairs = feature_pairs(
-///     &FlowView { gray: &model, depth: &depth, mask: &mask },
-///     &FlowView { gray: &target, depth: &depth, mask: &everywhere },
+///     &FlowView { gray: &model, depth: &depth, mask: &mask, pyramids: None },
+///     &FlowView { gray: &target, depth: &depth, mask: &everywhere, pyramids: None },
 ///     &rays,
 ///     &FeatureParams::default(),
 ///     2.5,

@@ -6,6 +6,7 @@
 //! - [`metrics`]: end-point error (all valid pixels, under a mask, at query points).
 //! - [`viz`]: the Middlebury colour-wheel visualisation.
 //! - [`FlowEstimator`]: the estimator seam ([`LucasKanade`], [`dis::Dis`]), with typed [`FlowError`]s.
+//! - [`pyramid`]: image pyramids built once per frame and crop, shared by the tracking passes.
 //! - [`features`]: wide-baseline matches of FAST corners by BRIEF descriptors, beyond the
 //!   pyramid's reach.
 
@@ -25,6 +26,7 @@ pub mod metrics;
 pub mod net;
 #[cfg(feature = "onnx")]
 pub mod onnx;
+pub mod pyramid;
 mod registry;
 pub mod sintel;
 pub mod viz;

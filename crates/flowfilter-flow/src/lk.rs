@@ -3,6 +3,7 @@
 //! brightness constancy with bilinear sampling; points whose spatial gradient matrix is
 //! ill-conditioned (small minimum eigenvalue) are rejected.
 
+use crate::pyramid::ImagePyramid;
 use flowfilter_geometry::fastmath::floor_f32;
 use flowfilter_geometry::{Grid, Mask};
 use image::RgbImage;
@@ -278,7 +279,25 @@ pub fn track_warped(
     p: &LkParams,
     mask: Option<&Mask>,
 ) -> Vec<Option<[f32; 2]>> {
+    let (from, to) =
+        rayon::join(|| ImagePyramid::new(from.clone(), p.levels), || ImagePyramid::new(to.clone(), p.levels));
+    track_in(&from, &to, points, guesses, warps, p, mask)
+}
+
+/// [`track_warped`] on pyramids built beforehand (each at least `p.levels` deep, level 0 of
+/// both and `mask` of one size): a pair's passes share one pyramid per image
+/// ([`crate::pyramid::PyramidCache`]).
+pub fn track_in(
+    from: &ImagePyramid,
+    to: &ImagePyramid,
+    points: &[[f32; 2]],
+    guesses: Option<&[[f32; 2]]>,
+    warps: Option<&[WindowWarp]>,
+    p: &LkParams,
+    mask: Option<&Mask>,
+) -> Vec<Option<[f32; 2]>> {
     let pyramids = Pyramids::new(from, to, mask, p.levels);
+    let to = to.level(0);
     // A prediction is trusted to within a few pixels: refine it on the two finest levels only
     // (the coarse levels, where the silhouette dominates the object's texture, would pull it
     // back towards whatever does not move).
@@ -308,33 +327,28 @@ pub fn track_warped(
 /// The two images' pyramids (and the mask's), with central-difference gradients of the first
 /// image at every level: sampled with the value's bilinear weights, they equal central
 /// differences of bilinear samples (away from borders).
-struct Pyramids {
-    from: Vec<Gray>,
-    to: Vec<Gray>,
+struct Pyramids<'p> {
+    from: &'p [Gray],
+    to: &'p [Gray],
     mask: Vec<Mask>,
-    grads: Vec<(Gray, Gray)>,
+    grads: &'p [(Gray, Gray)],
 }
 
 /// One template pixel: its value and gradient (all zero outside the mask).
 type TemplatePixel = (f32, f32, f32);
 
-impl Pyramids {
-    fn new(from: &Gray, to: &Gray, mask: Option<&Mask>, levels: usize) -> Self {
-        let mut pa = vec![from.clone()];
-        let mut pb = vec![to.clone()];
+impl<'p> Pyramids<'p> {
+    /// `levels` levels of `from` and `to` (both at least that deep) and of `mask`.
+    fn new(from: &'p ImagePyramid, to: &'p ImagePyramid, mask: Option<&Mask>, levels: usize) -> Self {
         let mut pm: Vec<Mask> = mask.map(|m| vec![m.clone()]).unwrap_or_default();
         for _ in 0..levels {
-            let (a, b) =
-                rayon::join(|| downsample(pa.last().expect("non-empty")), || downsample(pb.last().expect("non-empty")));
-            pa.push(a);
-            pb.push(b);
             if let Some(last) = pm.last() {
                 let next = downsample_mask(last);
                 pm.push(next);
             }
         }
-        let grads: Vec<(Gray, Gray)> = pa.par_iter().map(central_gradients).collect();
-        Self { from: pa, to: pb, mask: pm, grads }
+        let (from_levels, to_levels) = (from.levels(), to.levels());
+        Self { from: &from_levels[..=levels], to: &to_levels[..=levels], mask: pm, grads: &from.gradients()[..=levels] }
     }
 
     /// The template around `(px, py)` of `level` (row-major, `window` x `window`) and its
@@ -648,6 +662,7 @@ mod tests {
         // 1 px (the coarser level's guess would have been 3 px off).
         let (a, b) = (texture(120, 100, (0.0, 0.0)), texture(120, 100, (3.0, 0.0)));
         let p = LkParams { window: 9, ..LkParams::default() };
+        let (a, b) = (ImagePyramid::new(a, 0), ImagePyramid::new(b, 0));
         let pyramids = Pyramids::new(&a, &b, None, 0);
         let d = pyramids.refine(0, [60.0, 50.0], [0.0, 0.0], None, f32::INFINITY, &p).expect("tracked");
         assert!((d[0] - 3.0).abs() < 0.05 && d[1].abs() < 0.05, "{d:?}");
@@ -658,6 +673,7 @@ mod tests {
     fn an_inside_template_is_the_clamped_one() {
         let a = texture(90, 70, (0.0, 0.0));
         let mask = Mask::from_fn(90, 70, |x, y| (x as f32 - 40.0).hypot(y as f32 - 30.0) < 20.0);
+        let a = ImagePyramid::new(a, 1);
         let pyramids = Pyramids::new(&a, &a, Some(&mask), 1);
         for (level, px, py) in [(0, 37.3f32, 28.5f32), (0, 52.5, 41.7), (1, 18.2, 14.9), (1, 25.5, 20.5)] {
             let win = Window::inside(&pyramids.from[level], px - 4.0, py - 4.0, 9).expect("inside");

@@ -46,7 +46,7 @@ impl BoxViews {
     }
 
     fn view(&self, k: usize) -> FlowView<'_> {
-        FlowView { gray: &self.grays[k], depth: &self.depths[k], mask: &self.masks[k] }
+        FlowView { gray: &self.grays[k], depth: &self.depths[k], mask: &self.masks[k], pyramids: None }
     }
 
     /// The motion from the first view to a view at turntable angle `to` (the colour frames).

@@ -12,6 +12,7 @@ use flowfilter_flow::correspondences::{
     CorrespondenceParams, FlowGuide, FlowPairs, FlowView, flow_correspondences, flow_correspondences_guided,
 };
 use flowfilter_flow::lk::{Gray, to_gray};
+use flowfilter_flow::pyramid::PyramidCache;
 use flowfilter_geometry::{DepthMap, Mask, PointCloud, Pose};
 use flowfilter_photometric::{ImageView, TextureCache};
 use std::sync::Arc;
@@ -50,6 +51,11 @@ pub struct PreparedFrame {
     /// mask's box: a frame given another mask or image needs an empty cache
     /// ([`PreparedFrame::with_mask`] starts one).
     pub textures: Arc<TextureCache>,
+    /// The grey image's pyramids for the window matcher, cut to the crops the pairs that read
+    /// the frame track on, built when first read and kept for the pair's other passes (shared
+    /// by clones, and by [`PreparedFrame::with_mask`]'s frame: the same image). A frame given
+    /// another image needs an empty cache.
+    pub pyramids: Arc<PyramidCache>,
 }
 
 /// How a frame's registration cloud was thinned: the voxel of the cloud, and, where the cloud
@@ -135,6 +141,7 @@ impl PreparedFrame {
             seconds: self.seconds,
             unmasked: false,
             textures: Arc::default(),
+            pyramids: self.pyramids.clone(),
         }
     }
 
@@ -152,7 +159,7 @@ impl PreparedFrame {
 
     /// The frame as the correspondence search sees it.
     pub fn view(&self) -> FlowView<'_> {
-        FlowView { gray: &self.gray, depth: &self.depth, mask: &self.mask }
+        FlowView { gray: &self.gray, depth: &self.depth, mask: &self.mask, pyramids: Some(&self.pyramids) }
     }
 }
 
@@ -208,6 +215,7 @@ impl FramePreparer for DepthPreparer {
             seconds: t0.elapsed().as_secs_f64(),
             unmasked: crate::frame_checks::is_unmasked(frame),
             textures: Arc::default(),
+            pyramids: Arc::default(),
         };
         crate::frame_checks::check_cloud(frame, &prepared)?;
         Ok(prepared)
