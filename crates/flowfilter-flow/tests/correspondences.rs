@@ -127,3 +127,31 @@ fn warped_windows_follow_a_turn_that_translated_windows_fall_short_of() {
     assert!(angle_warped < 0.5 * angle_plain, "turn error {angle_warped} vs {angle_plain} deg");
     assert!(angle_warped < 0.3, "turn error {angle_warped} deg");
 }
+
+/// The plain and the guided pass of a pair read the frames' kept pyramids (one per frame and
+/// crop, built by the first pass) and give the pairs that building them for each pass gives.
+#[test]
+fn kept_pyramids_give_the_same_pairs() {
+    use flowfilter_flow::pyramid::PyramidCache;
+    let views = BoxViews::render(3, [0, 9]);
+    let caches = [PyramidCache::default(), PyramidCache::default()];
+    let view = |k: usize, kept: bool| FlowView { pyramids: kept.then_some(&caches[k]), ..views.view(k) };
+    let rays = views.stage.rays(&views.sensor.rgbd.color);
+    let p = CorrespondenceParams::default();
+    let guess = views.motion_to(8.0);
+    let guide = || Some(FlowGuide { camera: &views.sensor.rgbd.color, pose: &guess });
+    let lk = LucasKanade::default();
+    let run = |kept: bool| {
+        let plain = flow_correspondences(&lk, &view(0, kept), &view(1, kept), &rays, &p).unwrap();
+        let guided = flow_correspondences_guided(&lk, &view(0, kept), &view(1, kept), &rays, &p, guide()).unwrap();
+        (plain.pairs, guided.pairs)
+    };
+    let built = run(false);
+    assert!(format!("{caches:?}").matches("PyramidKey").count() == 0, "nothing kept without a cache");
+    let kept = run(true);
+    assert_eq!(kept, built);
+    assert!(built.0.len() > 200 && built.1.len() > 200, "{} and {} pairs", built.0.len(), built.1.len());
+    for cache in &caches {
+        assert_eq!(format!("{cache:?}").matches("PyramidKey").count(), 1, "{cache:?}");
+    }
+}
