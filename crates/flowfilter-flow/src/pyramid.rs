@@ -120,6 +120,12 @@ impl PyramidCache {
         built
     }
 
+    /// Let every kept pyramid go (the passes that shared them are done; pyramids still in use
+    /// live on with their users).
+    pub fn clear(&self) {
+        self.lock().clear();
+    }
+
     fn find(&self, key: PyramidKey) -> Option<Arc<ImagePyramid>> {
         self.lock().iter().find(|(k, _)| *k == key).map(|(_, p)| p.clone())
     }
@@ -154,6 +160,9 @@ mod tests {
         // The oldest (x0 = 0) made way for the third crop.
         cache.pyramid(key(0), build);
         assert_eq!(builds.load(std::sync::atomic::Ordering::Relaxed), 4);
+        cache.clear();
+        cache.pyramid(key(0), build);
+        assert_eq!(builds.load(std::sync::atomic::Ordering::Relaxed), 5);
     }
 
     #[test]

@@ -257,8 +257,23 @@ impl Pipeline {
         Ok((estimate, trace))
     }
 
-    /// The pair through the stages, filling `trace` when given.
+    /// The pair through the stages, filling `trace` when given; the frames' image pyramids,
+    /// which the pair's tracking passes shared, are let go at the end (a frame a tracker keeps
+    /// as a keyframe would hold them for nothing: its next pair cuts another crop).
     fn estimate_inner(
+        &self,
+        model: &PreparedFrame,
+        target: &PreparedFrame,
+        trace: Option<&mut PairTrace>,
+    ) -> Result<Estimate, PipelineError> {
+        let estimate = self.estimate_pair(model, target, trace);
+        model.pyramids.clear();
+        target.pyramids.clear();
+        estimate
+    }
+
+    /// [`Pipeline::estimate_inner`]'s stages.
+    fn estimate_pair(
         &self,
         model: &PreparedFrame,
         target: &PreparedFrame,

@@ -51,10 +51,10 @@ pub struct PreparedFrame {
     /// mask's box: a frame given another mask or image needs an empty cache
     /// ([`PreparedFrame::with_mask`] starts one).
     pub textures: Arc<TextureCache>,
-    /// The grey image's pyramids for the window matcher, cut to the crops the pairs that read
-    /// the frame track on, built when first read and kept for the pair's other passes (shared
-    /// by clones, and by [`PreparedFrame::with_mask`]'s frame: the same image). A frame given
-    /// another image needs an empty cache.
+    /// The grey image's pyramids for the window matcher, cut to the crop a pair tracks on,
+    /// built when first read and kept for the pair's other passes (shared by clones, and by
+    /// [`PreparedFrame::with_mask`]'s frame: the same image); let go when the pair's estimate
+    /// ends. A frame given another image needs an empty cache.
     pub pyramids: Arc<PyramidCache>,
 }
 
