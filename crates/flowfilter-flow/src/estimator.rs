@@ -231,9 +231,8 @@ pub struct LucasKanade {
     /// Grid step (pixels) of the dense mode.
     pub dense_step: usize,
     /// Match each window's brightness to its template's on every pair
-    /// ([`LkParams::match_brightness`]; off by default, as in OpenCV: the correspondence stage
-    /// switches it on for the pairs whose brightness changed,
-    /// [`crate::correspondences::CorrespondenceParams::match_brightness_above`]).
+    /// ([`LkParams::match_brightness`]; off by default, as in OpenCV: the pipeline switches it on
+    /// for the tracks started from a wide-baseline guide, `[flow.wide] match_brightness`).
     pub match_brightness: bool,
 }
 

@@ -82,11 +82,12 @@ pub fn truncated_residual(source: &[Point3], target: &KnnIndex, transform: &Pose
     misfits.iter().sum::<f64>() / source.len() as f64
 }
 
-/// [`truncated_residual`] over the source points that the move leaves facing the camera (the
-/// clouds are in the camera frame, camera at the origin): the cosine between the moved normal
-/// and the direction to the camera must exceed `min_cos`. A correct pose on a partial view
-/// turns some points out of view, which then have no partner and must not count against it.
-/// Without normals every point counts.
+/// The truncated residual (`truncated_residual`: the mean of each moved point's distance to its
+/// nearest target point, at most `tau`) over the source points that the move leaves facing the
+/// camera (the clouds are in the camera frame, camera at the origin): the cosine between the
+/// moved normal and the direction to the camera must exceed `min_cos`. A correct pose on a
+/// partial view turns some points out of view, which then have no partner and must not count
+/// against it. Without normals every point counts.
 pub fn visible_residual(
     source: &[Point3],
     normals: Option<&[Vector3]>,

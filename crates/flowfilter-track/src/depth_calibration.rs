@@ -1,4 +1,4 @@
-//! Calibrating a depth sensor from its own stream: the [`DepthBias`] its readings are off by,
+//! Calibrating a depth sensor from its own stream: the [`DepthBias`](flowfilter_pipeline::camera::DepthBias) its readings are off by,
 //! fitted without any truth.
 //!
 //! 1. The whole scene is tracked ([`Tracker`] without a mask): each frame's camera motion.

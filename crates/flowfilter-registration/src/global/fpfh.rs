@@ -9,7 +9,7 @@ use rayon::prelude::*;
 
 /// Bins of each of the three angle histograms.
 const BINS: usize = 11;
-/// Length of a descriptor: three histograms of [`BINS`].
+/// Length of a descriptor: three histograms of `BINS` bins.
 pub const FPFH_LEN: usize = 3 * BINS;
 
 /// A point's FPFH descriptor (three histograms of 11 bins, each summing to about 200 where the
