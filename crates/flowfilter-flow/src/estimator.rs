@@ -2,7 +2,7 @@
 //! with typed errors for inputs no estimator can use, and the forward-backward consistency check.
 
 use crate::FlowField;
-use crate::lk::{Gray, LkParams, WindowWarp, track_in, track_masked, track_warped};
+use crate::lk::{Gray, LkParams, WindowWarp, track_in, track_masked};
 use crate::pyramid::ImagePyramid;
 use flowfilter_geometry::Mask;
 use serde::{Deserialize, Serialize};
@@ -271,7 +271,8 @@ impl LucasKanade {
         }
     }
 
-    /// Checked tracking, from zero or from per-point guesses.
+    /// Checked tracking, from zero or from per-point guesses: [`WindowMatcher::sparse_in`] on
+    /// the two images' pyramids, built here (once the images are known to be usable).
     fn track(
         &self,
         from: &Gray,
@@ -281,29 +282,10 @@ impl LucasKanade {
         warps: Option<&[WindowWarp]>,
         mask: Option<&Mask>,
     ) -> Result<Vec<Option<[f32; 2]>>, FlowError> {
-        self.check_tracks(from, to, points, guesses, warps, mask)?;
-        Ok(track_warped(from, to, points, guesses, warps, &self.params(), mask))
-    }
-
-    /// The checks of every tracking call: parameters, the images' and mask's sizes, one guess
-    /// and one warp per point.
-    fn check_tracks(
-        &self,
-        from: &Gray,
-        to: &Gray,
-        points: &[[f32; 2]],
-        guesses: Option<&[[f32; 2]]>,
-        warps: Option<&[WindowWarp]>,
-        mask: Option<&Mask>,
-    ) -> Result<(), FlowError> {
-        self.validate()?;
         check_pair(from, to, mask)?;
-        for (what, n) in [("guesses", guesses.map(<[_]>::len)), ("warps", warps.map(<[_]>::len))] {
-            if let Some(n) = n.filter(|n| *n != points.len()) {
-                return Err(FlowError::Config(format!("{n} {what} for {} points", points.len())));
-            }
-        }
-        Ok(())
+        let (from, to) =
+            rayon::join(|| ImagePyramid::new(from.clone(), self.levels), || ImagePyramid::new(to.clone(), self.levels));
+        self.sparse_in(&from, &to, points, guesses, warps, mask)
     }
 
     /// Check parameter ranges.
@@ -410,7 +392,13 @@ impl WindowMatcher for LucasKanade {
         warps: Option<&[WindowWarp]>,
         mask: Option<&Mask>,
     ) -> Result<Vec<Option<[f32; 2]>>, FlowError> {
-        self.check_tracks(from.level(0), to.level(0), points, guesses, warps, mask)?;
+        self.validate()?;
+        check_pair(from.level(0), to.level(0), mask)?;
+        for (what, n) in [("guesses", guesses.map(<[_]>::len)), ("warps", warps.map(<[_]>::len))] {
+            if let Some(n) = n.filter(|n| *n != points.len()) {
+                return Err(FlowError::Config(format!("{n} {what} for {} points", points.len())));
+            }
+        }
         if let Some(depth) = [from.depth(), to.depth()].into_iter().find(|d| *d < self.levels) {
             return Err(FlowError::Config(format!("a pyramid of {depth} levels for lk.levels = {}", self.levels)));
         }

@@ -98,8 +98,9 @@ impl std::fmt::Debug for PyramidCache {
 }
 
 impl PyramidCache {
-    /// Pyramids kept: a pair's frames are each cut to one crop, read by all its passes; a
-    /// second one serves a frame that two pairs read in turn.
+    /// Pyramids kept: a pair cuts each of its frames to one crop, read by all its passes; a
+    /// second one serves a frame that two pairs read at once (each pair lets its frames'
+    /// pyramids go when it ends).
     pub const KEPT: usize = 2;
 
     /// The pyramid of `key`: the kept one, or `build`'s (kept in place of the oldest). `build`
