@@ -173,6 +173,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         ),
         step_label: "rotation step (deg)",
         methods: &protocol.methods,
+        references: &[],
         appendix: paper,
         out: &args.run.out,
         check: args.run.check,

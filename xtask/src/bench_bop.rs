@@ -151,6 +151,7 @@ pub fn run(args: &BopBenchArgs) -> anyhow::Result<()> {
         ),
         step_label: "image gap",
         methods: &args.methods,
+        references: &[],
         appendix: String::new(),
         out: &args.run.out,
         check: args.run.check,

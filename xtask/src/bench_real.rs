@@ -180,6 +180,10 @@ pub fn run(args: &RealBenchArgs) -> anyhow::Result<()> {
     let twin_noise = NoiseProfile::resolve(&args.twin_noise).map_err(|e| anyhow::anyhow!("--twin-noise: {e}"))?;
     let twin_options = crate::real_twin::twin_options(args.seed, twin_noise);
     let depth_bias = DepthBiasSource::parse(&args.depth_bias)?;
+    // The other record of the camera's motion, scored against the truth beside the methods:
+    // what any estimate can show against this truth (not for twins, whose truth is exact).
+    let other = if args.twin { None } else { other_record(args.truth, &every) };
+    let references: Vec<String> = other.iter().map(|(name, _)| (*name).to_string()).collect();
     let mut results: Vec<PairResult> = vec![];
     let mut skipped: Vec<(String, String)> = vec![];
     for dir in &dirs {
@@ -234,6 +238,17 @@ pub fn run(args: &RealBenchArgs) -> anyhow::Result<()> {
         let load = |k: RealKey| plan.frame(k, &regions_of);
         let prepared = methods.prepare(&frames, &load, &format!("sequence {label}"));
         results.append(&mut methods.run(&jobs, &prepared, &load, &format!("sequence {label}"))?);
+        // The other record's rows, where it holds both frames' poses (it is no method: a
+        // frame it lacks leaves its pairs without a row rather than failing them).
+        if let Some((name, truth)) = &other
+            && let Ok(record) = PosedFrames::open_with_truth(dir, truth)
+        {
+            results.extend(jobs.iter().filter_map(|job| {
+                let answer = record.relative_motion(job.from, job.to).ok()?;
+                let model = prepared.get(&(0, job.model)).and_then(|f| f.as_ref().ok());
+                Some(PairResult::reference(job, name, Ok(answer), model.map(|f| f.cloud.points.as_slice())))
+            }));
+        }
     }
     if results.is_empty() && args.run.shard.is_none() {
         bail!("no pair to run: {}", skipped.iter().map(|(g, e)| format!("{g}: {e}")).collect::<Vec<_>>().join("; "));
@@ -283,7 +298,8 @@ pub fn run(args: &RealBenchArgs) -> anyhow::Result<()> {
         ),
         step_label: "frame gap",
         methods: &args.methods,
-        appendix: confidently_wrong(&results, &args.methods),
+        references: &references,
+        appendix: confidently_wrong(&results, &args.methods) + &records_line(other.as_ref().map(|(n, _)| *n)),
         out: &args.run.out,
         check: args.run.check,
         shard: args.run.shard.map(|shard| ShardRun { shard, group_field: "camera", all_groups: all.clone() }),
@@ -295,6 +311,40 @@ pub fn run(args: &RealBenchArgs) -> anyhow::Result<()> {
 
 /// Geodesic error beyond which an estimate is wrong, not imprecise (degrees).
 pub const WRONG_DEG: f64 = 5.0;
+
+/// The reference row of the arm's record (the fitted mount) when the truth is the calibrated
+/// poses.
+pub const ARM_RECORD: &str = "arm-record";
+/// The reference row of the calibrated poses when the truth is the arm's record.
+pub const CALIBRATED_RECORD: &str = "calibrated-record";
+
+/// The record of the camera's motion that is not `truth`, as a reference row's name and its
+/// truth; `None` (with a warning) where the arm's mount cannot be fitted (no arm poses).
+fn other_record(truth: TruthRecord, dirs: &[PathBuf]) -> Option<(&'static str, Truth)> {
+    match truth {
+        TruthRecord::Arm => Some((CALIBRATED_RECORD, Truth::Calibrated)),
+        TruthRecord::Calibrated => match TruthRecord::Arm.truth(dirs) {
+            Ok(arm) => Some((ARM_RECORD, arm)),
+            Err(e) => {
+                tracing::warn!(error = %e, "no arm record to score beside the methods");
+                None
+            }
+        },
+    }
+}
+
+/// What the other record's column says, for the summary.
+fn records_line(other: Option<&str>) -> String {
+    match other {
+        Some(name) => format!(
+            "\n`{name}`: the other record of the same camera motion (the calibrated poses, or the arm's own \
+             poses with the mount fitted to them), scored against the truth as if it were an estimate. The two \
+             records are independent measurements; where they differ by more than the success test allows, any \
+             single estimate fails against at least one of them.\n"
+        ),
+        None => String::new(),
+    }
+}
 
 /// Per method: the pairs over [`WRONG_DEG`] off, how many of them the method reported as
 /// converged, and how many carried no warning at all (the confidently wrong ones).
@@ -530,6 +580,40 @@ mod tests {
         }
         let masks = std::fs::read_dir(tmp.path().join("masks/shelf-G")).unwrap().count();
         assert_eq!(masks, 2 * of(REGION, "flowfilter").len());
+        // The arm's record of each pair's motion, scored against the calibrated poses beside
+        // the methods: a row per pair, errors and no times, within a few degrees of the truth.
+        let records = [of(WHOLE_FRAME, ARM_RECORD), of(REGION, ARM_RECORD)].concat();
+        assert_eq!(records.len(), of(WHOLE_FRAME, "flowfilter").len() + of(REGION, "flowfilter").len());
+        for p in records {
+            let e = p["errors"]["geodesic_error_deg"].as_f64().unwrap();
+            assert!(e < 3.0 && p["stage_ms"].is_null() && p["errors"]["add_s_m"].is_f64(), "{p}");
+        }
+        let summary = std::fs::read_to_string(run_dir.join("summary.md")).unwrap();
+        assert!(summary.contains(&format!("| object | flowfilter | {ARM_RECORD} | no-motion |")), "{summary}");
+    }
+
+    /// The calibrated poses are a chain of estimates (each frame registered to one neighbour
+    /// from the bin's pivot frame, the toolbox's own calibration): two frames whose chain has
+    /// more links between them disagree more with the arm's record of the same motion. On the
+    /// shelves at gap 1, frames 4 -> 5 and 9 -> 10 are five links apart, the others one.
+    #[test]
+    fn the_calibrated_poses_drift_from_the_arm_with_their_calibration_links() {
+        let dirs: Option<Vec<PathBuf>> = ["shelf-A", "shelf-D", "shelf-G", "shelf-J"].into_iter().map(shelf).collect();
+        let Some(dirs) = dirs else { return };
+        let arm_truth = Truth::Arm(fit_arm_mount(&dirs).unwrap());
+        let (mut one, mut five) = (vec![], vec![]);
+        for dir in &dirs {
+            let (calibrated, arm) =
+                (PosedFrames::open(dir).unwrap(), PosedFrames::open_with_truth(dir, &arm_truth).unwrap());
+            for a in 0..14u32 {
+                let (c, r) = (calibrated.relative_motion(a, a + 1).unwrap(), arm.relative_motion(a, a + 1).unwrap());
+                let apart = flowfilter_eval::geodesic_error_deg(&c, &r);
+                if a == 4 || a == 9 { five.push(apart) } else { one.push(apart) }
+            }
+        }
+        let median = |v: &[f64]| flowfilter_eval::mean_median(v).unwrap().1;
+        assert_eq!((one.len(), five.len()), (48, 8));
+        assert!(median(&one) < 0.8 && median(&five) > 1.0, "one link {one:?}, five {five:?}");
     }
 
     /// `--depth-bias self` fits the sequence's field from its own frames and reads every frame

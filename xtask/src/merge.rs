@@ -161,6 +161,7 @@ pub fn run(args: &MergeArgs) -> anyhow::Result<()> {
         protocol_line: first.protocol_line.clone(),
         step_label: &first.step_label,
         methods: &first.methods,
+        references: &first.references,
         appendix: first.appendix.clone(),
         out: &args.out,
         check: args.check,

@@ -6,8 +6,8 @@ use anyhow::Context;
 use flowfilter_eval::PoseErrors;
 use flowfilter_pipeline::geometry::rigid_from_matrix;
 use flowfilter_pipeline::{
-    AlignReport, JudgeReport, Pipeline, PipelineConfig, PipelineWarning, Pose, PreparedFrame, RgbdFrame, StageTimes,
-    Uncertainty,
+    AlignReport, JudgeReport, Pipeline, PipelineConfig, PipelineWarning, Point3, Pose, PreparedFrame, RgbdFrame,
+    StageTimes, Uncertainty,
 };
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
@@ -105,6 +105,57 @@ pub struct PairResult {
     /// The stage that failed and why.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub failure: Option<String>,
+}
+
+impl PairResult {
+    /// `job`'s row for `method`, before anything is scored.
+    fn unscored<K>(job: &PairJob<K>, method: String) -> Self {
+        PairResult {
+            object: job.object.clone(),
+            camera: job.camera.clone(),
+            from: job.from,
+            to: job.to,
+            step: job.step,
+            motion_deg: job.truth.as_ref().ok().map(|t| t.rotation.angle().to_degrees()),
+            method,
+            errors: None,
+            transform: None,
+            converged: None,
+            uncertainty: None,
+            seconds: None,
+            stage_ms: None,
+            warnings: vec![],
+            judge: None,
+            judge_other_error_deg: None,
+            judge_chosen_error_deg: None,
+            align: None,
+            failure: None,
+        }
+    }
+
+    /// The row of a reference answer that no method computed (another record of the same
+    /// motion, [`crate::report::ReportSpec::references`]): `answer` scored against `job`'s
+    /// truth, ADD-S over `model` (the model frame's cloud); a failure when either is missing.
+    pub fn reference<K>(
+        job: &PairJob<K>,
+        method: &str,
+        answer: Result<Pose, String>,
+        model: Option<&[Point3]>,
+    ) -> Self {
+        let mut row = Self::unscored(job, method.to_string());
+        let scored = || -> Result<PoseErrors, String> {
+            let truth = job.truth.as_ref().map_err(|e| format!("ground truth: {e}"))?;
+            let answer = answer.map_err(|e| format!("{method}: {e}"))?;
+            let model = model.ok_or("the model frame could not be prepared")?;
+            row.transform = Some(flowfilter_pipeline::matrix_rows(&answer));
+            Ok(PoseErrors::new(&answer, truth, Some(model)))
+        };
+        match scored() {
+            Ok(errors) => row.errors = Some(errors),
+            Err(e) => row.failure = Some(e),
+        }
+        row
+    }
 }
 
 /// A pipeline warning as its JSON object (`{code, message}`).
@@ -338,27 +389,7 @@ impl Methods<'_> {
     where
         K: Ord + Copy + Display,
     {
-        let mut row = PairResult {
-            object: job.object.clone(),
-            camera: job.camera.clone(),
-            from: job.from,
-            to: job.to,
-            step: job.step,
-            motion_deg: job.truth.as_ref().ok().map(|t| t.rotation.angle().to_degrees()),
-            method: m.map_or(NO_MOTION.to_string(), |m| self.names[m].clone()),
-            errors: None,
-            transform: None,
-            converged: None,
-            uncertainty: None,
-            seconds: None,
-            stage_ms: None,
-            warnings: vec![],
-            judge: None,
-            judge_other_error_deg: None,
-            judge_chosen_error_deg: None,
-            align: None,
-            failure: None,
-        };
+        let mut row = PairResult::unscored(job, m.map_or(NO_MOTION.to_string(), |m| self.names[m].clone()));
         let group = self.groups[m.unwrap_or(0)];
         let get = |key: K| match prepared.get(&(group, key)) {
             Some(Ok(c)) => Ok(c),
@@ -400,5 +431,48 @@ impl Methods<'_> {
         })();
         row.failure = outcome.err();
         row
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn job(truth: Result<Pose, String>) -> PairJob<u32> {
+        PairJob {
+            object: "region".into(),
+            camera: "shelf-A".into(),
+            from: 2,
+            to: 3,
+            step: 1,
+            model: 2,
+            target: 3,
+            truth,
+        }
+    }
+
+    /// A reference answer is scored like an estimate (its transform kept, ADD-S over the model
+    /// cloud) but carries no times; without a truth, an answer or a model cloud it is a failed
+    /// row that says which.
+    #[test]
+    fn a_reference_answer_is_scored_against_the_truth() {
+        let truth = Pose::new(nalgebra::Vector3::new(0.05, 0.0, 0.0), nalgebra::Vector3::new(0.0, 0.2, 0.0));
+        let answer = Pose::new(nalgebra::Vector3::new(0.05, 0.0, 0.0), nalgebra::Vector3::new(0.0, 0.21, 0.0));
+        let model = [Point3::new(0.0, 0.0, 0.5), Point3::new(0.1, 0.0, 0.5)];
+        let row = PairResult::reference(&job(Ok(truth)), "arm-record", Ok(answer), Some(&model));
+        let e = row.errors.as_ref().unwrap();
+        assert!((e.geodesic_error_deg - 0.01f64.to_degrees()).abs() < 1e-9, "{e:?}");
+        assert!(e.add_s_m.is_some() && row.stage_ms.is_none() && row.seconds.is_none() && row.failure.is_none());
+        assert_eq!((row.method.as_str(), row.transform.is_some()), ("arm-record", true));
+        let failed = |r: PairResult| r.failure.unwrap();
+        assert!(
+            failed(PairResult::reference(&job(Err("no pose".into())), "arm-record", Ok(answer), Some(&model)))
+                .contains("ground truth: no pose")
+        );
+        assert!(
+            failed(PairResult::reference(&job(Ok(truth)), "arm-record", Err("frame 3: no pose".into()), Some(&model)))
+                .contains("arm-record: frame 3")
+        );
+        assert!(failed(PairResult::reference(&job(Ok(truth)), "arm-record", Ok(answer), None)).contains("model frame"));
     }
 }

@@ -201,6 +201,10 @@ pub struct ReportSpec<'a> {
     pub step_label: &'a str,
     /// The methods, in the tables' order (the "no motion" row is added after them).
     pub methods: &'a [String],
+    /// Reference answers that no method computed, each a column after the methods' (bench-real:
+    /// the other record of the camera's motion, scored against the truth: how far the truth
+    /// itself can be trusted). Their rows carry errors but no times.
+    pub references: &'a [String],
     /// More Markdown for the end of `summary.md` (e.g. published numbers).
     pub appendix: String,
     /// Output root: a timestamped directory is created inside.
@@ -319,6 +323,7 @@ pub fn write_outputs(
     std::fs::write(dir.join("results.json"), serde_json::to_string_pretty(&json)? + "\n")?;
     std::fs::write(dir.join("pairs.csv"), pairs_csv(results))?;
     let mut columns = spec.methods.to_vec();
+    columns.extend(spec.references.iter().cloned());
     columns.push(NO_MOTION.into());
     let plots = crate::plots::write_all(&dir, results, &summary_for_plots(&summary), &columns)?;
     let [object_table, step_table, motion_table] = tables(&summary, &columns, spec.step_label);
@@ -353,7 +358,7 @@ pub fn write_outputs(
         );
     }
     if spec.check {
-        check(&dir.join("results.json"), spec.methods)?;
+        check(&dir.join("results.json"), spec.methods, spec.references)?;
         println!("check: results.json has every method and metric, and no pair failed");
     }
     if let Some(s) = &spec.shard {
@@ -390,6 +395,7 @@ fn write_manifest(
         protocol_line: spec.protocol_line.clone(),
         step_label: spec.step_label.into(),
         methods: spec.methods.to_vec(),
+        references: spec.references.to_vec(),
         appendix: spec.appendix.clone(),
         group_field: s.group_field.into(),
         all_groups: s.all_groups.clone(),
@@ -530,16 +536,16 @@ fn summary_for_plots(summary: &[Summary]) -> Vec<crate::plots::MethodObject> {
         .collect()
 }
 
-/// Re-read results.json and verify it (what `--check` and CI rely on): every method and the
-/// "no motion" row have pairs, no pair failed, every registration has its stage times, every
-/// row every metric.
-pub fn check(path: &Path, methods: &[String]) -> anyhow::Result<()> {
+/// Re-read results.json and verify it (what `--check` and CI rely on): every method, every
+/// reference and the "no motion" row have pairs, no pair failed, every registration has its
+/// stage times, every row every metric.
+pub fn check(path: &Path, methods: &[String], references: &[String]) -> anyhow::Result<()> {
     let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(path)?)?;
     let pairs = v["pairs"].as_array().context("results.json: no 'pairs' array")?;
     if pairs.is_empty() {
         bail!("results.json: no pairs");
     }
-    for m in methods.iter().map(String::as_str).chain([NO_MOTION]) {
+    for m in methods.iter().chain(references).map(String::as_str).chain([NO_MOTION]) {
         if !pairs.iter().any(|p| p["method"] == m) {
             bail!("results.json: method '{m}' has no pair");
         }
@@ -549,8 +555,8 @@ pub fn check(path: &Path, methods: &[String]) -> anyhow::Result<()> {
         if !p["failure"].is_null() {
             bail!("results.json: pair {name} failed: {}", p["failure"]);
         }
-        if p["method"] != NO_MOTION
-            && (p["stage_ms"]["registration"].as_f64().is_none() || p["stage_ms"]["total"].as_f64().is_none())
+        let estimated = p["method"] != NO_MOTION && !references.iter().any(|r| p["method"] == r.as_str());
+        if estimated && (p["stage_ms"]["registration"].as_f64().is_none() || p["stage_ms"]["total"].as_f64().is_none())
         {
             bail!("results.json: pair {name} lacks per-stage times");
         }
@@ -657,5 +663,28 @@ mod tests {
         assert!(objects.contains("| box | 0.55 (100% ok) | 0.25 (100% ok) |"), "{objects}");
         assert!(steps.contains("| 1 (0.25 deg) | 0.20 (100% ok) | 0.25 (100% ok) |"), "{steps}");
         assert!(motions.contains("| < 1 deg (2 pairs) |"), "{motions}");
+    }
+
+    /// `check` asks times of the methods' rows only: a reference answer's rows (another record
+    /// of the motion) carry errors and no times, and a reference the run names must have rows.
+    #[test]
+    fn check_takes_reference_rows_without_times() {
+        let tmp = tempfile::tempdir().unwrap();
+        let path = tmp.path().join("results.json");
+        let write = |rows: &[PairResult]| {
+            std::fs::write(&path, serde_json::json!({ "pairs": rows }).to_string()).unwrap();
+        };
+        let mut estimate = row("box", 1, 12.0, "flowfilter", 0.5);
+        estimate.stage_ms = Some(StageTimes { registration: 5.0, total: 20.0, ..StageTimes::default() });
+        let (record, still) = (row("box", 1, 12.0, "arm-record", 0.7), row("box", 1, 12.0, NO_MOTION, 12.0));
+        let (methods, references) = (["flowfilter".to_string()], ["arm-record".to_string()]);
+        write(&[estimate.clone(), record.clone(), still.clone()]);
+        check(&path, &methods, &references).unwrap();
+        // Without its rows, or as a method (which must carry times), it is refused.
+        write(&[estimate.clone(), still.clone()]);
+        assert!(check(&path, &methods, &references).unwrap_err().to_string().contains("'arm-record' has no pair"));
+        write(&[estimate, record, still]);
+        let as_method = ["flowfilter".to_string(), "arm-record".to_string()];
+        assert!(check(&path, &as_method, &[]).unwrap_err().to_string().contains("lacks per-stage times"));
     }
 }

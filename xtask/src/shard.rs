@@ -35,6 +35,9 @@ pub struct Manifest {
     pub step_label: String,
     /// The methods, in the tables' order.
     pub methods: Vec<String>,
+    /// The reference answers' columns (`ReportSpec::references`).
+    #[serde(default)]
+    pub references: Vec<String>,
     /// summary.md's appendix.
     pub appendix: String,
     /// Which field of a pair names its group (`object` or `camera`).
