@@ -13,7 +13,7 @@
 
 use crate::pairs::{Methods, PairJob, PairResult, RunArgs};
 use crate::realsense::{
-    DepthBiasSource, PosedFrames, Region, Truth, TruthRecord, network_mask, posed_folders, seed_of,
+    DepthBiasSource, PosedFrames, Region, Truth, TruthRecord, network_mask, other_record, posed_folders, seed_of,
 };
 use crate::report::{ReportSpec, ShardRun, write_outputs};
 use crate::shard::Shard;
@@ -312,35 +312,15 @@ pub fn run(args: &RealBenchArgs) -> anyhow::Result<()> {
 /// Geodesic error beyond which an estimate is wrong, not imprecise (degrees).
 pub const WRONG_DEG: f64 = 5.0;
 
-/// The reference row of the arm's record (the fitted mount) when the truth is the calibrated
-/// poses.
-pub const ARM_RECORD: &str = "arm-record";
-/// The reference row of the calibrated poses when the truth is the arm's record.
-pub const CALIBRATED_RECORD: &str = "calibrated-record";
-
-/// The record of the camera's motion that is not `truth`, as a reference row's name and its
-/// truth; `None` (with a warning) where the arm's mount cannot be fitted (no arm poses).
-fn other_record(truth: TruthRecord, dirs: &[PathBuf]) -> Option<(&'static str, Truth)> {
-    match truth {
-        TruthRecord::Arm => Some((CALIBRATED_RECORD, Truth::Calibrated)),
-        TruthRecord::Calibrated => match TruthRecord::Arm.truth(dirs) {
-            Ok(arm) => Some((ARM_RECORD, arm)),
-            Err(e) => {
-                tracing::warn!(error = %e, "no arm record to score beside the methods");
-                None
-            }
-        },
-    }
-}
-
 /// What the other record's column says, for the summary.
 fn records_line(other: Option<&str>) -> String {
     match other {
         Some(name) => format!(
             "\n`{name}`: the other record of the same camera motion (the calibrated poses, or the arm's own \
              poses with the mount fitted to them), scored against the truth as if it were an estimate. The two \
-             records are independent measurements; where they differ by more than the success test allows, any \
-             single estimate fails against at least one of them.\n"
+             records are independent measurements; where they differ by more than the success test allows, an \
+             estimate as good as either fails against the other, and beyond twice that every estimate fails \
+             against one of them.\n"
         ),
         None => String::new(),
     }
@@ -517,7 +497,7 @@ fn save_mask(mask: &flowfilter_pipeline::Mask, path: &Path) -> Result<(), String
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::realsense::{PosedFrames, fit_arm_mount};
+    use crate::realsense::{ARM_RECORD, PosedFrames, fit_arm_mount};
     use flowfilter_eval::hand_eye::MountFit;
     use flowfilter_pipeline::{PipelineConfig, Pose};
 

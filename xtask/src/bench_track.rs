@@ -10,7 +10,9 @@
 //! over one frame) and the last frame's rotation error (a loop's closure error).
 
 use crate::dataset::{BopSceneSpec, DefaultObject, ObjectSource, SceneSensor, SensorProfile, ensure_bop_scene};
-use crate::realsense::{DepthBiasSource, PosedFrames, Truth, TruthRecord, network_mask, posed_folders, seed_of};
+use crate::realsense::{
+    DepthBiasSource, PosedFrames, Truth, TruthRecord, network_mask, other_record, posed_folders, seed_of,
+};
 use crate::sequence::{Sequence, YcbVideoFrames};
 use anyhow::Context;
 use clap::Args;
@@ -168,6 +170,9 @@ struct Stream {
     /// Frames with a mask each (what chaining needs).
     masked: Vec<RgbdFrame>,
     truth: Vec<Pose>,
+    /// Another record of the same motions (a real sequence's arm poses when the truth is the
+    /// calibrated ones, and the reverse), scored as a row of its own: what the truth allows.
+    record: Option<(&'static str, Vec<Pose>)>,
 }
 
 /// Run the benchmark.
@@ -188,7 +193,8 @@ pub fn run(args: &TrackBenchArgs) -> anyhow::Result<()> {
     for pending in streams {
         let s = &pending.load()?;
         println!("{} ({} frames)", s.name, s.frames.len());
-        for r in [track(Pipeline::from_config(config.clone())?, &tracker_config, s), chain(&pipeline, s)] {
+        let runs = [track(Pipeline::from_config(config.clone())?, &tracker_config, s), chain(&pipeline, s)];
+        for r in runs.into_iter().chain(record_result(s)) {
             use std::io::Write as _;
             writeln!(partial, "{}", serde_json::to_string(&r)?)?;
             println!("  {}", summary_row(&r));
@@ -292,6 +298,7 @@ fn turntable(object: &str, sensor: SensorId, step: u32, span: u32) -> anyhow::Re
         frames,
         masked,
         truth,
+        record: None,
     })
 }
 
@@ -325,6 +332,7 @@ fn turntable_sr300(object: &str, sensor: SensorId, step: u32, span: u32) -> anyh
         frames,
         masked,
         truth,
+        record: None,
     })
 }
 
@@ -337,6 +345,7 @@ fn real_streams(args: &TrackBenchArgs) -> anyhow::Result<(Vec<Stream>, Option<Tr
     }
     let mut dirs = posed_folders(&args.data)?;
     let truth = args.truth.truth(&dirs).map_err(anyhow::Error::msg)?;
+    let other = other_record(args.truth, &dirs);
     if let Some(names) = &args.sequences {
         dirs.retain(|d| names.iter().any(|n| d.file_name().is_some_and(|f| f == n.as_str())));
     }
@@ -360,12 +369,19 @@ fn real_streams(args: &TrackBenchArgs) -> anyhow::Result<(Vec<Stream>, Option<Tr
             .map(|&i| seq.relative_motion(ids[0], i))
             .collect::<Result<_, _>>()
             .map_err(anyhow::Error::msg)?;
+        // The other record of the camera's motions, where it holds every frame's pose.
+        let record = other.as_ref().and_then(|(name, other)| {
+            let seq = PosedFrames::open_with_truth(&dir, other).ok()?;
+            let poses: Result<Vec<Pose>, String> = ids.iter().map(|&i| seq.relative_motion(ids[0], i)).collect();
+            Some((*name, poses.ok()?))
+        });
         out.push(Stream {
             name: format!("{label} whole frames"),
             kind: "real, whole frames",
             frames: frames.clone(),
             masked: frames.clone(),
             truth: truth.clone(),
+            record,
         });
         if args.quick || frames.len() < 2 {
             continue;
@@ -412,6 +428,7 @@ fn ycb_video_streams(dir: &std::path::Path) -> anyhow::Result<Vec<Stream>> {
             frames,
             masked,
             truth,
+            record: None,
         });
     }
     Ok(out)
@@ -449,6 +466,7 @@ fn region_stream(
         frames: tracked,
         masked,
         truth: truth.to_vec(),
+        record: None,
     })
 }
 
@@ -512,6 +530,17 @@ fn chain(pipeline: &Pipeline, s: &Stream) -> StreamResult {
     result(s, "chained estimates", &steps, t0.elapsed().as_secs_f64())
 }
 
+/// The other record of a real stream's motions as a row (every frame `tracking`, no time).
+fn record_result(s: &Stream) -> Option<StreamResult> {
+    let (name, poses) = s.record.as_ref()?;
+    let steps: Vec<Step> = poses
+        .iter()
+        .enumerate()
+        .map(|(k, pose)| Step { pose: *pose, reference: k.checked_sub(1), ..Step::first(None) })
+        .collect();
+    Some(StreamResult { frames_per_second: f64::NAN, ..result(s, name, &steps, 0.0) })
+}
+
 /// A stream's result from each frame's step.
 fn result(s: &Stream, method: &'static str, steps: &[Step], seconds: f64) -> StreamResult {
     let count = |x: TrackState| steps.iter().filter(|s| s.state == x).count();
@@ -568,9 +597,10 @@ fn summary_row(r: &StreamResult) -> String {
             e.final_translation_m * 1e3
         )
     });
+    let rate = if r.frames_per_second.is_finite() { format!("{:.2}", r.frames_per_second) } else { "-".into() };
     format!(
-        "| {} | {} | {} | {} / {} / {} / {} | {e} | {:.2} |",
-        r.stream, r.method, r.frames, r.tracking, r.uncertain, r.lost, r.recovered, r.frames_per_second
+        "| {} | {} | {} | {} / {} / {} / {} | {e} | {rate} |",
+        r.stream, r.method, r.frames, r.tracking, r.uncertain, r.lost, r.recovered
     )
 }
 
@@ -586,6 +616,31 @@ fn check(results: &[StreamResult]) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A real stream's other record is a row of its own: each frame scored against the truth,
+    /// every frame `tracking`, no rate (the summary shows "-"); streams without one have none.
+    #[test]
+    fn the_other_record_is_scored_as_a_row() {
+        let turn = |deg: f64| {
+            Pose::new(nalgebra::Vector3::new(0.01 * deg, 0.0, 0.0), nalgebra::Vector3::y() * deg.to_radians())
+        };
+        let truth: Vec<Pose> = (0..4).map(|k| turn(12.0 * f64::from(k))).collect();
+        let record: Vec<Pose> = (0..4).map(|k| turn(12.5 * f64::from(k))).collect();
+        let mut s = Stream {
+            name: "shelf".into(),
+            kind: "real, whole frames",
+            frames: vec![],
+            masked: vec![],
+            truth,
+            record: None,
+        };
+        assert!(record_result(&s).is_none());
+        s.record = Some(("arm record", record));
+        let r = record_result(&s).unwrap();
+        assert_eq!((r.method, r.frames, r.tracking), ("arm record", 4, 4));
+        assert!((r.per_frame[3].rotation_error_deg - 1.5).abs() < 1e-9, "{:?}", r.per_frame[3]);
+        assert!(summary_row(&r).ends_with("| - |"), "{}", summary_row(&r));
+    }
 
     /// `--synthetic-only` leaves every real stream out (and cannot go with `--real-only`);
     /// without it the shared sequences follow the loops.

@@ -87,6 +87,27 @@ impl TruthRecord {
     }
 }
 
+/// The reference row of the arm's record (the fitted mount) when the truth is the calibrated
+/// poses.
+pub const ARM_RECORD: &str = "arm-record";
+/// The reference row of the calibrated poses when the truth is the arm's record.
+pub const CALIBRATED_RECORD: &str = "calibrated-record";
+
+/// The record of the camera's motion that is not `truth`, as a reference row's name and its
+/// truth; `None` (with a warning) where the arm's mount cannot be fitted (no arm poses).
+pub fn other_record(truth: TruthRecord, dirs: &[PathBuf]) -> Option<(&'static str, Truth)> {
+    match truth {
+        TruthRecord::Arm => Some((CALIBRATED_RECORD, Truth::Calibrated)),
+        TruthRecord::Calibrated => match TruthRecord::Arm.truth(dirs) {
+            Ok(arm) => Some((ARM_RECORD, arm)),
+            Err(e) => {
+                tracing::warn!(error = %e, "no arm record to score beside the methods");
+                None
+            }
+        },
+    }
+}
+
 /// A folder of frames with calibrated camera poses.
 pub struct PosedFrames {
     dir: PathBuf,
