@@ -65,12 +65,11 @@ pub struct AlignConfig {
     /// ... and at least this many metres per degree the pose turns (0: off): one surface's
     /// depth, read from two views, differs more the further the view turned.
     pub depth_noise_per_deg_m: f64,
-    /// A depth that bends between views: where, at the aligned pose, a quadratic fitted to the
-    /// depth residuals over the target image bends by more than this share of them (the RMS of
-    /// what it adds to the plane a rigid motion could explain, against the robust scale of what
-    /// it leaves), the two frames' depths differ by a smooth field, not by noise or by the
-    /// pose (a structured-light sensor's view-dependent warp; the renders' noise and steps stay
-    /// under 0.15)...
+    /// A depth that bends between views: where, at the aligned pose, a quadratic over the
+    /// target image takes up more than this share of the depth residuals (the RMS of its
+    /// values against the robust scale of what it leaves), the two frames' depths differ by a
+    /// smooth field, not by noise (a structured-light sensor's view-dependent warp; the
+    /// renders' white noise and steps stay under 0.17)...
     pub bent_depth_share: f64,
     /// ... and the pair is aligned again from the same start with the depth residual's noise
     /// taken as at least this (metres; 0: off): a smooth field does not average out over the
@@ -319,8 +318,8 @@ impl<'a> Aligner<'a> {
     }
 
     /// The depth residuals at `pose` (pixels visible in both frames, within 1 cm) fitted by a
-    /// plane and by a quadratic over their place in the target image ([`DepthBend`]); `None`
-    /// with fewer than 100 such pixels.
+    /// quadratic over their place in the target image ([`DepthBend`]); `None` with fewer than
+    /// 100 such pixels.
     fn depth_bend(&self, pose: &Pose) -> Option<DepthBend> {
         let state = State::rigid(*pose);
         let seen: Vec<(f64, f64, f64)> = self
@@ -349,15 +348,9 @@ impl<'a> Aligner<'a> {
             b += f * p.2;
         }
         let c = a.cholesky()?.solve(&b);
-        // The plane a rigid motion of the surface would leave (offset and two slopes): what the
-        // pose itself can explain, left out of the bend.
-        let (a3, b3) = (a.fixed_view::<3, 3>(0, 0).into_owned(), b.fixed_rows::<3>(0).into_owned());
-        let plane = a3.cholesky()?.solve(&b3);
         let fitted: Vec<f64> = seen.iter().map(|p| basis(p.0, p.1).dot(&c)).collect();
-        let bend: Vec<f64> =
-            seen.iter().zip(&fitted).map(|(p, f)| f - basis(p.0, p.1).fixed_rows::<3>(0).dot(&plane)).collect();
-        let mean = bend.iter().sum::<f64>() / n;
-        let smooth_m = (bend.iter().map(|f| (f - mean).powi(2)).sum::<f64>() / n).sqrt();
+        let mean = fitted.iter().sum::<f64>() / n;
+        let smooth_m = (fitted.iter().map(|f| (f - mean).powi(2)).sum::<f64>() / n).sqrt();
         let rest_m = mad(seen.iter().zip(&fitted).map(|(p, f)| p.2 - f).collect());
         Some(DepthBend { smooth_m, rest_m })
     }
@@ -523,9 +516,8 @@ fn aligned_once(
 }
 
 /// How the target's depth differs from the model's moved by a pose, over the target image:
-/// the RMS of what a quadratic fitted to the depth residuals adds to the plane fitted to them
-/// (the bend no rigid motion explains; its mean left out) and the robust scale of what the
-/// quadratic leaves (metres).
+/// the RMS of a quadratic fitted to the depth residuals (its mean left out) and the robust
+/// scale of what it leaves (metres).
 #[derive(Debug, Clone, Copy)]
 struct DepthBend {
     smooth_m: f64,

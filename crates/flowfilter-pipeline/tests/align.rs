@@ -178,7 +178,7 @@ fn the_depth_noise_floor_grows_with_the_turn() {
 }
 
 /// A depth that bends between views (a coded-light sensor's warp: the target's depth scaled by
-/// a smooth field of +-0.4% in waves of 100 depth pixels, about 3 mm at the can) is told from
+/// a smooth field of +-0.4% in waves of 200 depth pixels, about 3 mm at the can) is told from
 /// noise at the aligned pose, and the pair is aligned again with the depth's noise raised
 /// (`bent_depth_noise_m`); the renders' own depth, noise and steps alone, is not. With the
 /// raise off the bend is measured and nothing more.
@@ -189,7 +189,7 @@ fn a_depth_that_bends_between_views_is_aligned_with_its_noise_raised() {
         for y in 0..h {
             for x in 0..w {
                 let wave =
-                    (x as f64 * std::f64::consts::TAU / 100.0).sin() * (y as f64 * std::f64::consts::TAU / 100.0).cos();
+                    (x as f64 * std::f64::consts::TAU / 200.0).sin() * (y as f64 * std::f64::consts::TAU / 200.0).cos();
                 let d = f.depth.at_mut(x, y);
                 if *d > 0 {
                     *d = (f64::from(*d) * (1.0 + 0.004 * wave)).round() as u16;
