@@ -424,10 +424,8 @@ impl<'a> Aligner<'a> {
 /// Align `start` (model to target, colour camera frame) by direct alignment, coarse to fine
 /// (the textures smoothed by each of `cfg.smoothing_px` in turn, then as they are); the
 /// aligned pose (or `start` when it is not kept: a higher cost at the finest level, with the
-/// scales of the start, or a move beyond `max_turn_deg` / `max_shift_m`) and the report. Where
-/// the depth bends between the views ([`AlignConfig::bent_depth_share`]) the pair is aligned
-/// again from `start` with the depth's noise raised ([`AlignConfig::bent_depth_noise_m`]); the
-/// report says so. `None` when too few pixels can be aligned or the texture is flat.
+/// scales of the start, or a move beyond `max_turn_deg` / `max_shift_m`) and the report. `None`
+/// when too few pixels can be aligned or the texture is flat.
 ///
 /// ```
 /// use flowfilter_camera::{CameraModel, Distortion, ImageSize, Intrinsics, RayTable};
