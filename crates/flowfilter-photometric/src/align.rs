@@ -65,16 +65,6 @@ pub struct AlignConfig {
     /// ... and at least this many metres per degree the pose turns (0: off): one surface's
     /// depth, read from two views, differs more the further the view turned.
     pub depth_noise_per_deg_m: f64,
-    /// A depth that bends between views: where, at the aligned pose, a quadratic over the
-    /// target image takes up more than this share of the depth residuals (the RMS of its
-    /// values against the robust scale of what it leaves), the two frames' depths differ by a
-    /// smooth field, not by noise (a structured-light sensor's view-dependent warp; the
-    /// renders' white noise and steps stay under 0.17)...
-    pub bent_depth_share: f64,
-    /// ... and the pair is aligned again from the same start with the depth residual's noise
-    /// taken as at least this (metres; 0: off): a smooth field does not average out over the
-    /// pixels, and at 1 mm it pulls a region's tilt by as much as it bends.
-    pub bent_depth_noise_m: f64,
     /// The aligned pose may turn at most this far from the pose it started from (degrees): the
     /// judge's candidates are 6 degrees apart, and aligned, the one nearest the true turn must
     /// reach it (3 degrees, half the spacing, left real regions at 25-30 degrees and turntable
@@ -107,8 +97,6 @@ impl Default for AlignConfig {
             min_depth_noise_m: 0.001,
             depth_step_at_1m_m: 0.0029,
             depth_noise_per_deg_m: 0.0,
-            bent_depth_share: 0.2,
-            bent_depth_noise_m: 0.004,
             max_turn_deg: 6.0,
             max_shift_m: 0.02,
             row_shear_sd: 0.01,
@@ -131,8 +119,6 @@ impl AlignConfig {
         params::positive("min_depth_noise_m", self.min_depth_noise_m)?;
         params::non_negative("depth_step_at_1m_m", self.depth_step_at_1m_m)?;
         params::non_negative("depth_noise_per_deg_m", self.depth_noise_per_deg_m)?;
-        params::positive("bent_depth_share", self.bent_depth_share)?;
-        params::non_negative("bent_depth_noise_m", self.bent_depth_noise_m)?;
         params::positive("max_turn_deg", self.max_turn_deg)?;
         params::positive("max_shift_m", self.max_shift_m)?;
         params::non_negative("row_shear_sd", self.row_shear_sd)
@@ -159,14 +145,6 @@ pub struct AlignReport {
     pub row_shear_px_per_row: [f64; 2],
     /// Whether the aligned pose replaced the start.
     pub accepted: bool,
-    /// The share of the depth residuals a smooth field over the image takes up at the pose
-    /// first aligned ([`AlignConfig::bent_depth_share`]); none where too few pixels have depth.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub depth_bend: Option<f64>,
-    /// Whether the depth bent between the views and the pair was aligned again with its noise
-    /// raised ([`AlignConfig::bent_depth_noise_m`]): this report is that alignment's.
-    #[serde(default)]
-    pub bent_depth: bool,
 }
 
 /// The target as the residuals read it.
@@ -317,44 +295,6 @@ impl<'a> Aligner<'a> {
         })
     }
 
-    /// The depth residuals at `pose` (pixels visible in both frames, within 1 cm) fitted by a
-    /// quadratic over their place in the target image ([`DepthBend`]); `None` with fewer than
-    /// 100 such pixels.
-    fn depth_bend(&self, pose: &Pose) -> Option<DepthBend> {
-        let state = State::rigid(*pose);
-        let seen: Vec<(f64, f64, f64)> = self
-            .samples
-            .iter()
-            .filter_map(|s| {
-                let px = self.view.frame.camera.project(&(pose * s.point))?;
-                let (_, depth, _) = self.view.values(s, &state, 1.0)?;
-                depth.filter(|d| d.abs() < 0.01).map(|d| (px.x, px.y, d))
-            })
-            .collect();
-        if seen.len() < 100 {
-            return None;
-        }
-        let n = seen.len() as f64;
-        let (mx, my) = (seen.iter().map(|p| p.0).sum::<f64>() / n, seen.iter().map(|p| p.1).sum::<f64>() / n);
-        let spread = (seen.iter().map(|p| (p.0 - mx).powi(2) + (p.1 - my).powi(2)).sum::<f64>() / n).sqrt().max(1e-9);
-        let basis = |x: f64, y: f64| {
-            let (u, v) = ((x - mx) / spread, (y - my) / spread);
-            SVector::<f64, 6>::from([1.0, u, v, u * u, u * v, v * v])
-        };
-        let (mut a, mut b) = (SMatrix::<f64, 6, 6>::zeros(), SVector::<f64, 6>::zeros());
-        for p in &seen {
-            let f = basis(p.0, p.1);
-            a += f * f.transpose();
-            b += f * p.2;
-        }
-        let c = a.cholesky()?.solve(&b);
-        let fitted: Vec<f64> = seen.iter().map(|p| basis(p.0, p.1).dot(&c)).collect();
-        let mean = fitted.iter().sum::<f64>() / n;
-        let smooth_m = (fitted.iter().map(|f| (f - mean).powi(2)).sum::<f64>() / n).sqrt();
-        let rest_m = mad(seen.iter().zip(&fitted).map(|(p, f)| p.2 - f).collect());
-        Some(DepthBend { smooth_m, rest_m })
-    }
-
     /// The residuals' noise scales at `pose`; `None` when too few pixels are visible in both
     /// frames or the texture is flat there.
     pub fn scales(&self, pose: &Pose) -> Option<Scales> {
@@ -453,32 +393,8 @@ pub fn align(
     start: &Pose,
     cfg: &AlignConfig,
 ) -> Option<(Pose, AlignReport)> {
-    let (pose, report, bend) = aligned_once(model, target, start, cfg)?;
-    let depth_bend = bend.map(DepthBend::share);
-    let raised = AlignConfig { min_depth_noise_m: cfg.bent_depth_noise_m, ..cfg.clone() };
-    let bent =
-        depth_bend.is_some_and(|share| share > cfg.bent_depth_share) && cfg.bent_depth_noise_m > cfg.min_depth_noise_m;
-    if bent && let Some((pose, report, _)) = aligned_once(model, target, start, &raised) {
-        return Some((pose, AlignReport { depth_bend, bent_depth: true, ..report }));
-    }
-    Some((pose, AlignReport { depth_bend, ..report }))
-}
-
-/// [`align`] with `cfg` as it is, and how the depth bends at the pose it gives (the forward
-/// way's finest level).
-fn aligned_once(
-    model: &ImageView<'_>,
-    target: &ImageView<'_>,
-    start: &Pose,
-    cfg: &AlignConfig,
-) -> Option<(Pose, AlignReport, Option<DepthBend>)> {
-    let with_bend = |alignment: &Alignment<'_>, (pose, report): (Pose, AlignReport)| {
-        let bend = alignment.fine.depth_bend(&pose);
-        (pose, report, bend)
-    };
     if !cfg.symmetric {
-        let forward = Alignment::new(model, target, cfg)?;
-        return forward.run(start).map(|r| with_bend(&forward, r));
+        return Alignment::new(model, target, cfg)?.run(start);
     }
     // Each frame's textures serve both ways (from its cache, or one made for this call),
     // computed side by side first; the two ways run side by side (each step of either is the
@@ -489,11 +405,11 @@ fn aligned_once(
     let (forward, backward) = rayon::join(|| Alignment::new(model, target, cfg), || Alignment::new(target, model, cfg));
     let forward = forward?;
     let Some(backward) = backward else {
-        return forward.run(start).map(|r| with_bend(&forward, r));
+        return forward.run(start);
     };
     let back_start = start.inverse();
     let (Some(fwd_scales), Some(bwd_scales)) = (forward.fine.scales(start), backward.fine.scales(&back_start)) else {
-        return forward.run(start).map(|r| with_bend(&forward, r));
+        return forward.run(start);
     };
     // The shear is kept both ways or neither, on the evidence of both.
     let (fd, bd) = rayon::join(|| forward.descents(start, fwd_scales), || backward.descents(&back_start, bwd_scales));
@@ -510,23 +426,7 @@ fn aligned_once(
     };
     let shear = Vector2::from(report.row_shear_px_per_row);
     let cost_after = forward.fine.state_cost(&State { pose, shear, free_shear: shear != Vector2::zeros() }, fwd_scales);
-    Some(with_bend(&forward, (pose, summarised(report, start, &pose, cost_after))))
-}
-
-/// How the target's depth differs from the model's moved by a pose, over the target image:
-/// the RMS of a quadratic fitted to the depth residuals (its mean left out) and the robust
-/// scale of what it leaves (metres).
-#[derive(Debug, Clone, Copy)]
-struct DepthBend {
-    smooth_m: f64,
-    rest_m: f64,
-}
-
-impl DepthBend {
-    /// The smooth field's share: its RMS over the robust scale of the rest.
-    fn share(self) -> f64 {
-        self.smooth_m / self.rest_m.max(1e-9)
-    }
+    Some((pose, summarised(report, start, &pose, cost_after)))
 }
 
 /// The geodesic midpoint of two poses.
@@ -634,8 +534,6 @@ impl<'a> Alignment<'a> {
             shift_m: (pose.translation.vector - start.translation.vector).norm(),
             row_shear_px_per_row: if accepted { [state.shear.x, state.shear.y] } else { [0.0; 2] },
             accepted,
-            depth_bend: None,
-            bent_depth: false,
         };
         (pose, report)
     }

@@ -17,7 +17,6 @@ use flowfilter_photometric::judge::{self, JudgeReport};
 use flowfilter_photometric::{TurnCandidate, TurnHypotheses};
 use flowfilter_registration::{Registrar, Registration, RegistrationProblem, RegistrationWarning, registrar_by_name};
 use rayon::prelude::*;
-use std::borrow::Cow;
 use std::time::Instant;
 
 /// Two RGB-D frames in, a relative pose out.
@@ -302,7 +301,10 @@ impl Pipeline {
         warnings.extend([model, target].into_iter().filter_map(crate::frame_checks::mask_coverage));
         let (source, target_cloud) = crate::stages::registration_clouds(model, target);
         let mut problem = RegistrationProblem::new(source, target_cloud);
-        problem.source_points = Some(scene_rule_points(model));
+        // The model's own size before any thinning past the configured voxel (the budget's, or
+        // the other frame's density), as the points its surface holds at the scene rule's voxel.
+        let at_voxel = model.thinning.finer.as_ref().map_or(model.cloud.len(), |f| f.len());
+        problem.source_points = Some(model.thinning.scene_rule_points(at_voxel));
         let first = if propagate { None } else { self.geometry_first(model, target, &problem) };
         if let Some(f) = &first {
             times.registration += f.registration_ms;
@@ -503,8 +505,7 @@ impl Pipeline {
         predicted: &Pose,
     ) -> Option<(Estimate, judge::Agreement)> {
         let t0 = Instant::now();
-        let (pose, report) =
-            align::align(&model.image_view(), &target.image_view(), predicted, &self.align_config(model))?;
+        let (pose, report) = align::align(&model.image_view(), &target.image_view(), predicted, &self.config.align)?;
         let align_ms = t0.elapsed().as_secs_f64() * 1e3;
         let agreement = self.agreement_at(model, target, &pose);
         let mut reg = Registration::with_transform(pose);
@@ -816,31 +817,16 @@ impl Pipeline {
         target: &PreparedFrame,
         reg: Registration,
     ) -> (Registration, Option<AlignReport>) {
-        let cfg = self.align_config(model);
+        let cfg = &self.config.align;
         if !cfg.enabled {
             return (reg, None);
         }
-        let Some((pose, report)) = align::align(&model.image_view(), &target.image_view(), &reg.transform, &cfg) else {
+        let Some((pose, report)) = align::align(&model.image_view(), &target.image_view(), &reg.transform, cfg) else {
             return (reg, None);
         };
         // The registration's bounds hold for its own pose: widened by the alignment's move, they
         // hold for the aligned one.
         (moved_to(reg, pose), Some(report))
-    }
-
-    /// `[align]` for a pair whose model frame is `model`: a scene (by the scene rule,
-    /// [`flowfilter_registration::FlowFilterConfig::is_scene`]) is aligned without raising the noise of a depth that bends
-    /// between views ([`AlignConfig::bent_depth_noise_m`]): over a whole frame the sensor's bends
-    /// average out, over an object's patch they do not. On the shared RealSense sequences the
-    /// raise moved whole frames 0.2-0.3 deg further from the arm's record on the shelves.
-    fn align_config(&self, model: &PreparedFrame) -> Cow<'_, AlignConfig> {
-        let cfg = &self.config.align;
-        let scene_points = self.config.registration.flowfilter.scene_points;
-        let scene = scene_points > 0 && scene_rule_points(model) > scene_points;
-        match scene && cfg.bent_depth_noise_m > 0.0 {
-            true => Cow::Owned(AlignConfig { bent_depth_noise_m: 0.0, ..cfg.clone() }),
-            false => Cow::Borrowed(cfg),
-        }
     }
 
     /// The registration with the flow tracked again from `guide` (where the flow follows the
@@ -967,14 +953,6 @@ fn moved_to(mut reg: Registration, pose: Pose) -> Registration {
     }
     reg.transform = pose;
     reg
-}
-
-/// The points `model`'s surface holds at the scene rule's voxel, counted before any thinning
-/// past the configured voxel (the budget's, or the other frame's density): what the scene rule
-/// ([`flowfilter_registration::FlowFilterConfig::is_scene`]) reads.
-fn scene_rule_points(model: &PreparedFrame) -> usize {
-    let at_voxel = model.thinning.finer.as_ref().map_or(model.cloud.len(), |f| f.len());
-    model.thinning.scene_rule_points(at_voxel)
 }
 
 /// Whether the plain pass followed a small motion: its pairs settled on one rigid motion turning

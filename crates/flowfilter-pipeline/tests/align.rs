@@ -176,35 +176,3 @@ fn the_depth_noise_floor_grows_with_the_turn() {
     assert!(plain < 0.0025, "{plain}");
     assert!((floored - 0.0002 * turn).abs() < 1e-9, "{floored} against {}", 0.0002 * turn);
 }
-
-/// A depth that bends between views (a coded-light sensor's warp: the target's depth scaled by
-/// a smooth field of +-0.4% in waves of 200 depth pixels, about 3 mm at the can) is told from
-/// noise at the aligned pose, and the pair is aligned again with the depth's noise raised
-/// (`bent_depth_noise_m`); the renders' own depth, noise and steps alone, is not. With the
-/// raise off the bend is measured and nothing more.
-#[test]
-fn a_depth_that_bends_between_views_is_aligned_with_its_noise_raised() {
-    let bend = |f: &mut RgbdFrame| {
-        let (w, h) = f.depth.dims();
-        for y in 0..h {
-            for x in 0..w {
-                let wave =
-                    (x as f64 * std::f64::consts::TAU / 200.0).sin() * (y as f64 * std::f64::consts::TAU / 200.0).cos();
-                let d = f.depth.at_mut(x, y);
-                if *d > 0 {
-                    *d = (f64::from(*d) * (1.0 + 0.004 * wave)).round() as u16;
-                }
-            }
-        }
-    };
-    let cfg = AlignConfig::default();
-    let (a, b, t) = can_pair(15, |_| {});
-    let (_, plain) = align(&a.image_view(), &b.image_view(), &t, &cfg).expect("the can has texture");
-    assert!(!plain.bent_depth && plain.depth_bend.is_some_and(|s| s < cfg.bent_depth_share), "{plain:?}");
-    let (a, b, t) = can_pair(15, bend);
-    let (_, bent) = align(&a.image_view(), &b.image_view(), &t, &cfg).expect("the can has texture");
-    assert!(bent.bent_depth && bent.depth_bend.is_some_and(|s| s > cfg.bent_depth_share), "{bent:?}");
-    let off = AlignConfig { bent_depth_noise_m: 0.0, ..cfg.clone() };
-    let (_, measured) = align(&a.image_view(), &b.image_view(), &t, &off).expect("the can has texture");
-    assert!(!measured.bent_depth && measured.depth_bend == bent.depth_bend, "{measured:?}");
-}

@@ -117,7 +117,7 @@ impl Estimate {
         json_object(py, &self.estimate.judge)
     }
     /// What the direct alignment did (pixels, iterations, cost_before, cost_after, turn_deg,
-    /// shift_m, row_shear_px_per_row, accepted, depth_bend, bent_depth), or None for methods without flow and where the
+    /// shift_m, row_shear_px_per_row, accepted), or None for methods without flow and where the
     /// images cannot be aligned.
     #[getter]
     fn align<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {

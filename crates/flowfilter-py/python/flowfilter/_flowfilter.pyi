@@ -191,7 +191,7 @@ class Estimate:
     @property
     def align(self) -> Optional[Dict[str, Any]]:
         """What the direct alignment did (pixels, iterations, cost_before, cost_after, turn_deg,
-        shift_m, row_shear_px_per_row, accepted, depth_bend, bent_depth); None for methods without flow and where the images cannot be aligned."""
+        shift_m, row_shear_px_per_row, accepted); None for methods without flow and where the images cannot be aligned."""
     @property
     def geometry_first(self) -> Optional[Dict[str, Any]]:
         """A scene's geometry-first try (confirmed, registration_converged, score,
