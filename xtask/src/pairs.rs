@@ -109,7 +109,7 @@ pub struct PairResult {
 
 impl PairResult {
     /// `job`'s row for `method`, before anything is scored.
-    fn unscored<K>(job: &PairJob<K>, method: String) -> Self {
+    pub(crate) fn unscored<K>(job: &PairJob<K>, method: String) -> Self {
         PairResult {
             object: job.object.clone(),
             camera: job.camera.clone(),

@@ -574,14 +574,18 @@ mod tests {
     use super::*;
 
     fn row(object: &str, step: u32, motion: f64, method: &str, error: f64) -> PairResult {
-        PairResult {
+        let job = crate::pairs::PairJob {
             object: object.into(),
             camera: "NP3".into(),
             from: 0,
             to: step,
             step,
+            model: 0u32,
+            target: step,
+            truth: Err("given as motion_deg".into()),
+        };
+        PairResult {
             motion_deg: Some(motion),
-            method: method.into(),
             errors: Some(PoseErrors {
                 angle_error_deg: error,
                 geodesic_error_deg: error,
@@ -589,17 +593,9 @@ mod tests {
                 add_s_m: Some(0.001),
                 success: error < 2.0,
             }),
-            transform: None,
             converged: Some(true),
-            uncertainty: None,
             seconds: Some(0.1),
-            stage_ms: None,
-            warnings: vec![],
-            judge: None,
-            judge_other_error_deg: None,
-            judge_chosen_error_deg: None,
-            align: None,
-            failure: None,
+            ..PairResult::unscored(&job, method.into())
         }
     }
 
