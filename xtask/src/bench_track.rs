@@ -20,9 +20,9 @@ use flowfilter_bigbird::SensorId;
 use flowfilter_eval::trajectory::{TrajectoryErrors, trajectory_errors};
 use flowfilter_eval::{geodesic_error_deg, translation_error_m};
 use flowfilter_pipeline::bop::BopScene;
-use flowfilter_pipeline::{MaskSource, Pipeline, PipelineConfig, Pose, RgbdFrame};
+use flowfilter_pipeline::{MaskSource, Pipeline, PipelineConfig, Pose, RgbdFrame, Uncertainty};
 use flowfilter_synth::{NetworkMaskModel, NoiseProfile, Rig, Scene, procedural, render_frame, world_from_table};
-use flowfilter_track::{TrackState, Tracker, TrackerConfig};
+use flowfilter_track::{TrackState, Tracker, TrackerConfig, chained_bound};
 use serde::Serialize;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -111,6 +111,10 @@ struct StreamResult {
     seconds: f64,
     frames_per_second: f64,
     errors: Option<TrajectoryErrors>,
+    /// The frames after the first whose stated rotation bound holds (error at most the bound),
+    /// as a fraction of those with a bound, and how many have one.
+    bound_holds: Option<f64>,
+    bounded_frames: usize,
     /// Each frame's state and error against the truth, in stream order.
     per_frame: Vec<FrameRow>,
 }
@@ -144,6 +148,10 @@ struct Step {
     /// The part of the image the tracker prepared the frame on (`[x, y, width, height]`; none:
     /// the whole image).
     prepared_region: Option<[usize; 4]>,
+    /// The method's bound on the pose's rotation error (degrees): the estimates' bounds
+    /// composed back to the first frame (`flowfilter_track::chained_bound`); none where an
+    /// estimate along the chain has none.
+    bound_deg: Option<f64>,
 }
 
 impl Step {
@@ -156,6 +164,7 @@ impl Step {
             reference: None,
             mask_px,
             prepared_region: None,
+            bound_deg: Some(0.0),
         }
     }
 }
@@ -487,6 +496,7 @@ fn track(pipeline: Pipeline, config: &TrackerConfig, s: &Stream) -> StreamResult
                     reference: r.reference,
                     mask_px: Some(r.mask_px),
                     prepared_region: r.prepared_region.map(|b| [b.x, b.y, b.width, b.height]),
+                    bound_deg: r.bound_from_first.map(|b| b.rotation_deg),
                 });
                 Ok(())
             });
@@ -498,6 +508,7 @@ fn track(pipeline: Pipeline, config: &TrackerConfig, s: &Stream) -> StreamResult
             steps.extend((1..s.frames.len()).map(|_| Step {
                 state: TrackState::Lost,
                 reason: format!("the tracker could not start: {e}"),
+                bound_deg: None,
                 ..Step::first(None)
             }));
         }
@@ -509,22 +520,35 @@ fn track(pipeline: Pipeline, config: &TrackerConfig, s: &Stream) -> StreamResult
 fn chain(pipeline: &Pipeline, s: &Stream) -> StreamResult {
     let t0 = Instant::now();
     let mut steps = vec![Step::first(None)];
+    // The composed estimates' bounds (none once one is missing).
+    let mut bound = Some(Uncertainty { rotation_deg: 0.0, translation_m: 0.0 });
     let prepared: Vec<_> = s.masked.iter().map(|f| pipeline.prepare(f)).collect();
     for k in 1..s.masked.len() {
         let last = steps[k - 1].pose;
-        let lost = |reason: String| Step { pose: last, state: TrackState::Lost, reason, ..Step::first(None) };
+        let lost =
+            |reason: String| Step { pose: last, state: TrackState::Lost, reason, bound_deg: None, ..Step::first(None) };
         steps.push(match (&prepared[k - 1], &prepared[k]) {
             (Ok(a), Ok(b)) => match pipeline.estimate_prepared(a, b) {
-                Ok(e) => Step {
-                    pose: e.pose * last,
-                    state: if e.registration.converged { TrackState::Tracking } else { TrackState::Uncertain },
-                    reason: e.warnings.iter().map(|w| w.code()).collect::<Vec<_>>().join(","),
-                    reference: Some(k - 1),
-                    ..Step::first(None)
-                },
-                Err(e) => lost(e.to_string()),
+                Ok(e) => {
+                    bound = chained_bound(bound, &e);
+                    Step {
+                        pose: e.pose * last,
+                        state: if e.registration.converged { TrackState::Tracking } else { TrackState::Uncertain },
+                        reason: e.warnings.iter().map(|w| w.code()).collect::<Vec<_>>().join(","),
+                        reference: Some(k - 1),
+                        bound_deg: bound.map(|b| b.rotation_deg),
+                        ..Step::first(None)
+                    }
+                }
+                Err(e) => {
+                    bound = None;
+                    lost(e.to_string())
+                }
             },
-            (Err(e), _) | (_, Err(e)) => lost(e.to_string()),
+            (Err(e), _) | (_, Err(e)) => {
+                bound = None;
+                lost(e.to_string())
+            }
         });
     }
     result(s, "chained estimates", &steps, t0.elapsed().as_secs_f64())
@@ -536,7 +560,7 @@ fn record_result(s: &Stream) -> Option<StreamResult> {
     let steps: Vec<Step> = poses
         .iter()
         .enumerate()
-        .map(|(k, pose)| Step { pose: *pose, reference: k.checked_sub(1), ..Step::first(None) })
+        .map(|(k, pose)| Step { pose: *pose, reference: k.checked_sub(1), bound_deg: None, ..Step::first(None) })
         .collect();
     Some(StreamResult { frames_per_second: f64::NAN, ..result(s, name, &steps, 0.0) })
 }
@@ -545,6 +569,7 @@ fn record_result(s: &Stream) -> Option<StreamResult> {
 fn result(s: &Stream, method: &'static str, steps: &[Step], seconds: f64) -> StreamResult {
     let count = |x: TrackState| steps.iter().filter(|s| s.state == x).count();
     let poses: Vec<Pose> = steps.iter().map(|s| s.pose).collect();
+    let (bound_holds, bounded_frames) = bound_holds(steps, &s.truth);
     StreamResult {
         stream: s.name.clone(),
         kind: s.kind,
@@ -557,6 +582,8 @@ fn result(s: &Stream, method: &'static str, steps: &[Step], seconds: f64) -> Str
         seconds,
         frames_per_second: steps.len() as f64 / seconds.max(1e-9),
         errors: trajectory_errors(&poses, &s.truth),
+        bound_holds,
+        bounded_frames,
         per_frame: steps
             .iter()
             .zip(&s.truth)
@@ -569,14 +596,28 @@ fn result(s: &Stream, method: &'static str, steps: &[Step], seconds: f64) -> Str
     }
 }
 
+/// How often the steps' rotation bounds hold against `truth` (frames after the first that have
+/// a bound: the fraction, and their count).
+fn bound_holds(steps: &[Step], truth: &[Pose]) -> (Option<f64>, usize) {
+    let bounded: Vec<bool> = steps
+        .iter()
+        .zip(truth)
+        .skip(1)
+        .filter_map(|(step, truth)| step.bound_deg.map(|b| geodesic_error_deg(&step.pose, truth) <= b))
+        .collect();
+    let held = bounded.iter().filter(|h| **h).count();
+    ((!bounded.is_empty()).then(|| held as f64 / bounded.len() as f64), bounded.len())
+}
+
 fn summary(results: &[StreamResult], seconds: f64, truth: Option<&Truth>, depth_bias: &str) -> String {
     let truth = truth.map_or_else(String::new, |t| {
         format!(" The real sequences' truth: {}; their depth bias: {depth_bias}.", t.describe())
     });
     let mut out = format!(
         "# bench-track\n\n{} stream runs in {seconds:.0} s. States: tracking / uncertain / lost / recovered. \
-         ATE: position RMSE after rigid alignment; RPE: over one frame; last: the last frame's error.{truth}\n\n\
-         | stream | method | frames | states | ATE (mm) | RPE (mm / deg) | last (deg / mm) | frames/s |\n|---|---|---|---|---|---|---|---|\n",
+         ATE: position RMSE after rigid alignment; RPE: over one frame; last: the last frame's error. \
+         Bound holds: the frames whose rotation error is within the method's bound from the first frame (of those with one).{truth}\n\n\
+         | stream | method | frames | states | ATE (mm) | RPE (mm / deg) | last (deg / mm) | bound holds | frames/s |\n|---|---|---|---|---|---|---|---|---|\n",
         results.len()
     );
     for r in results {
@@ -598,8 +639,9 @@ fn summary_row(r: &StreamResult) -> String {
         )
     });
     let rate = if r.frames_per_second.is_finite() { format!("{:.2}", r.frames_per_second) } else { "-".into() };
+    let holds = r.bound_holds.map_or("-".into(), |h| format!("{:.0}% of {}", h * 100.0, r.bounded_frames));
     format!(
-        "| {} | {} | {} | {} / {} / {} / {} | {e} | {rate} |",
+        "| {} | {} | {} | {} / {} / {} / {} | {e} | {holds} | {rate} |",
         r.stream, r.method, r.frames, r.tracking, r.uncertain, r.lost, r.recovered
     )
 }
@@ -639,7 +681,25 @@ mod tests {
         let r = record_result(&s).unwrap();
         assert_eq!((r.method, r.frames, r.tracking), ("arm record", 4, 4));
         assert!((r.per_frame[3].rotation_error_deg - 1.5).abs() < 1e-9, "{:?}", r.per_frame[3]);
-        assert!(summary_row(&r).ends_with("| - |"), "{}", summary_row(&r));
+        assert!(summary_row(&r).ends_with("| - | - |"), "{}", summary_row(&r));
+    }
+
+    /// "Bound holds" counts the frames after the first whose rotation error is within their
+    /// bound, among those that have one.
+    #[test]
+    fn the_bounds_are_scored_where_there_are_some() {
+        let turn = |deg: f64| Pose::new(nalgebra::Vector3::zeros(), nalgebra::Vector3::y() * deg.to_radians());
+        let truth: Vec<Pose> = (0..5).map(|k| turn(10.0 * f64::from(k))).collect();
+        // Errors 0, 1, 1, 2, 3 deg; bounds -, 1.5, none, 1, 4: held on 2 of 3.
+        let (errors, bounds) = ([0.0, 1.0, 1.0, 2.0, 3.0], [Some(0.0), Some(1.5), None, Some(1.0), Some(4.0)]);
+        let steps: Vec<Step> = (0..5)
+            .map(|k| Step { pose: turn(10.0 * k as f64 + errors[k]), bound_deg: bounds[k], ..Step::first(None) })
+            .collect();
+        let (holds, bounded) = bound_holds(&steps, &truth);
+        assert_eq!(bounded, 3);
+        assert!((holds.unwrap() - 2.0 / 3.0).abs() < 1e-12, "{holds:?}");
+        let none: Vec<Step> = steps.iter().map(|s| Step { bound_deg: None, ..s.clone() }).collect();
+        assert_eq!(bound_holds(&none, &truth), (None, 0));
     }
 
     /// `--synthetic-only` leaves every real stream out (and cannot go with `--real-only`);

@@ -28,5 +28,6 @@ pub mod tum;
 
 pub use folder::{FolderError, FrameEntry, FrameFolder};
 pub use tracker::{
-    ReadyFrame, SettingsError, StreamPreparer, TracedPair, TrackError, TrackState, TrackedFrame, Tracker, TrackerConfig,
+    ReadyFrame, SettingsError, StreamPreparer, TracedPair, TrackError, TrackState, TrackedFrame, Tracker,
+    TrackerConfig, chained_bound,
 };

@@ -56,19 +56,35 @@ fn tracker(stream: &Stream) -> Tracker {
     Tracker::new(pipeline, TrackerConfig::default(), &stream.frame(0, true)).unwrap()
 }
 
+/// ... and each frame's bounds from the first frame are its estimate's own composed with its
+/// reference's (equal to the estimate's against the first frame, wider against a later
+/// keyframe), hold on most frames, and are what the estimate from the first frame reports.
 #[test]
 fn an_object_is_tracked_from_its_first_mask_with_keyframes() {
     let stream = Stream::new();
     let mut t = tracker(&stream);
-    let mut worst: f64 = 0.0;
+    assert_eq!(t.first().bound_from_first.map(|b| (b.rotation_deg, b.translation_m)), Some((0.0, 0.0)));
+    let (mut worst, mut held, mut widened): (f64, usize, usize) = (0.0, 0, 0);
     for angle in (3..=30).step_by(3) {
         let r = t.update(Ok(stream.frame(angle, false)));
         assert_eq!(r.state, TrackState::Tracking, "{angle} deg: {:?}", r.reason);
         assert!(r.mask_px > 1000, "{angle} deg: the carried mask has {} pixels", r.mask_px);
         let error = (r.pose * stream.truth(angle).inverse()).rotation.angle().to_degrees();
         worst = worst.max(error);
+        let bound = r.bound_from_first.expect("a tracked frame's pose has bounds");
+        let own = r.estimate.as_ref().and_then(|e| e.registration.uncertainty).expect("the estimate's bounds");
+        if r.reference == Some(0) {
+            assert_eq!(bound, own, "{angle} deg: against the first frame the estimate's own bounds");
+        } else {
+            assert!(bound.rotation_deg > own.rotation_deg && bound.translation_m > own.translation_m, "{angle} deg");
+            widened += 1;
+        }
+        held += usize::from(error <= bound.rotation_deg);
+        assert_eq!(r.from_first("first", "flowfilter").registration.uncertainty, Some(bound));
     }
     assert!(worst < 1.0, "worst rotation error {worst} deg");
+    assert!(widened > 0, "some frames measured against a later keyframe");
+    assert!(held >= 8, "the bounds held on {held} of 10 frames");
     // 30 degrees of turn at a keyframe every 10 degrees or more: the first and 2-3 more.
     let k = t.keyframes();
     assert!(k.len() >= 3 && k[0] == 0, "keyframes {k:?}");
@@ -185,6 +201,7 @@ fn a_bad_stream_gives_a_state_and_a_reason_per_frame_and_recovers() {
     let r = t.update(Ok(empty));
     assert_eq!(r.state, TrackState::Lost, "{:?}", r.reason);
     assert_eq!(r.pose, held, "a lost frame holds the last pose");
+    assert!(r.bound_from_first.is_none(), "a held pose is not bounded");
     // Back in view: recovered against the keyframes, at the right pose.
     let r = t.update(Ok(stream.frame(9, false)));
     assert_eq!(r.state, TrackState::Recovered, "{:?}", r.reason);

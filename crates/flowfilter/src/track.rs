@@ -60,8 +60,10 @@ pub struct TrackArgs {
     pub tracker: Option<PathBuf>,
     /// Write one JSON line per frame (`frame`, `state`, `reason`, `reference`, `keyframe`,
     /// `aligned_only`, `prepared_region` (`[x, y, width, height]` of the image the frame was
-    /// prepared on, null: whole), `pose_from_first`, the errors with --gt, and `estimate`: the
-    /// `estimate --json` fields).
+    /// prepared on, null: whole), `pose_from_first`, `bound_from_first` (`rotation_deg`,
+    /// `translation_m`: bounds on that pose's error, the estimates' bounds composed along the
+    /// chain of references back to the first frame; null where one has none), the errors with
+    /// --gt, and `estimate`: the `estimate --json` fields).
     #[arg(long)]
     pub json: Option<PathBuf>,
     /// Write the trajectory in the TUM format (`timestamp tx ty tz qx qy qz qw`: the object's
@@ -285,6 +287,7 @@ fn json_row(t: &TrackedFrame, f: &FrameEntry, truth: Option<&BTreeMap<u64, Pose>
         "aligned_only": t.aligned_only,
         "prepared_region": t.prepared_region.map(|r| [r.x, r.y, r.width, r.height]),
         "pose_from_first": matrix_rows(&t.pose),
+        "bound_from_first": t.bound_from_first,
         "estimate": t.estimate,
     });
     if let Some(g) = truth.and_then(|m| m.get(&f.number)) {

@@ -107,6 +107,9 @@ fn a_missing_depth_file_is_a_lost_frame_not_a_crash() {
     assert_eq!(rows.len(), 3, "{stdout}");
     assert_eq!(rows[1]["state"], "lost");
     assert!(rows[1]["reason"].as_str().unwrap().contains("frame-000001.depth.png"), "{}", rows[1]);
+    // The first frame's pose is exact; a lost frame's held pose has no bounds.
+    assert_eq!(rows[0]["bound_from_first"], serde_json::json!({"rotation_deg": 0.0, "translation_m": 0.0}));
+    assert!(rows[1]["bound_from_first"].is_null(), "{}", rows[1]);
     // Frame 2 is matched against the keyframes again (frame 0, 25 deg away).
     assert!(["recovered", "uncertain", "lost"].contains(&rows[2]["state"].as_str().unwrap()));
 }
@@ -210,6 +213,9 @@ fn a_bop_scene_object_is_tracked_with_its_annotations_as_the_truth() {
     for r in &rows[1..] {
         assert_eq!(r["state"], "tracking", "{r}");
         assert!(r["errors"]["rotation_deg"].as_f64().unwrap() < 1.0, "{r}");
+        // Bounds on the pose from the first frame: at least the estimate's own.
+        let (bound, own) = (&r["bound_from_first"]["rotation_deg"], &r["estimate"]["registration"]["uncertainty"]);
+        assert!(bound.as_f64().unwrap() >= own["rotation_deg"].as_f64().unwrap(), "{r}");
     }
     // The tracker's settings from a file: the aligned path on (the first motion has nothing to
     // be predicted from); a key the tracker does not have is refused, naming the file.
