@@ -521,7 +521,7 @@ fn chain(pipeline: &Pipeline, s: &Stream) -> StreamResult {
     let t0 = Instant::now();
     let mut steps = vec![Step::first(None)];
     // The composed estimates' bounds (none once one is missing).
-    let mut bound = Some(Uncertainty { rotation_deg: 0.0, translation_m: 0.0 });
+    let mut bound = Some(Uncertainty::EXACT);
     let prepared: Vec<_> = s.masked.iter().map(|f| pipeline.prepare(f)).collect();
     for k in 1..s.masked.len() {
         let last = steps[k - 1].pose;
@@ -569,7 +569,16 @@ fn record_result(s: &Stream) -> Option<StreamResult> {
 fn result(s: &Stream, method: &'static str, steps: &[Step], seconds: f64) -> StreamResult {
     let count = |x: TrackState| steps.iter().filter(|s| s.state == x).count();
     let poses: Vec<Pose> = steps.iter().map(|s| s.pose).collect();
-    let (bound_holds, bounded_frames) = bound_holds(steps, &s.truth);
+    let per_frame: Vec<FrameRow> = steps
+        .iter()
+        .zip(&s.truth)
+        .map(|(step, truth)| FrameRow {
+            rotation_error_deg: geodesic_error_deg(&step.pose, truth),
+            translation_error_m: translation_error_m(&step.pose, truth),
+            step: step.clone(),
+        })
+        .collect();
+    let (bound_holds, bounded_frames) = bound_holds(&per_frame);
     StreamResult {
         stream: s.name.clone(),
         kind: s.kind,
@@ -584,27 +593,15 @@ fn result(s: &Stream, method: &'static str, steps: &[Step], seconds: f64) -> Str
         errors: trajectory_errors(&poses, &s.truth),
         bound_holds,
         bounded_frames,
-        per_frame: steps
-            .iter()
-            .zip(&s.truth)
-            .map(|(step, truth)| FrameRow {
-                rotation_error_deg: geodesic_error_deg(&step.pose, truth),
-                translation_error_m: translation_error_m(&step.pose, truth),
-                step: step.clone(),
-            })
-            .collect(),
+        per_frame,
     }
 }
 
-/// How often the steps' rotation bounds hold against `truth` (frames after the first that have
-/// a bound: the fraction, and their count).
-fn bound_holds(steps: &[Step], truth: &[Pose]) -> (Option<f64>, usize) {
-    let bounded: Vec<bool> = steps
-        .iter()
-        .zip(truth)
-        .skip(1)
-        .filter_map(|(step, truth)| step.bound_deg.map(|b| geodesic_error_deg(&step.pose, truth) <= b))
-        .collect();
+/// How often the frames' rotation bounds hold (frames after the first that have a bound: the
+/// fraction, and their count).
+fn bound_holds(frames: &[FrameRow]) -> (Option<f64>, usize) {
+    let bounded: Vec<bool> =
+        frames.iter().skip(1).filter_map(|f| f.step.bound_deg.map(|b| f.rotation_error_deg <= b)).collect();
     let held = bounded.iter().filter(|h| **h).count();
     ((!bounded.is_empty()).then(|| held as f64 / bounded.len() as f64), bounded.len())
 }
@@ -690,16 +687,19 @@ mod tests {
     fn the_bounds_are_scored_where_there_are_some() {
         let turn = |deg: f64| Pose::new(nalgebra::Vector3::zeros(), nalgebra::Vector3::y() * deg.to_radians());
         let truth: Vec<Pose> = (0..5).map(|k| turn(10.0 * f64::from(k))).collect();
+        let s =
+            Stream { name: "loop".into(), kind: "synthetic loop", frames: vec![], masked: vec![], truth, record: None };
         // Errors 0, 1, 1, 2, 3 deg; bounds -, 1.5, none, 1, 4: held on 2 of 3.
         let (errors, bounds) = ([0.0, 1.0, 1.0, 2.0, 3.0], [Some(0.0), Some(1.5), None, Some(1.0), Some(4.0)]);
         let steps: Vec<Step> = (0..5)
             .map(|k| Step { pose: turn(10.0 * k as f64 + errors[k]), bound_deg: bounds[k], ..Step::first(None) })
             .collect();
-        let (holds, bounded) = bound_holds(&steps, &truth);
-        assert_eq!(bounded, 3);
-        assert!((holds.unwrap() - 2.0 / 3.0).abs() < 1e-12, "{holds:?}");
+        let r = result(&s, "tracker", &steps, 1.0);
+        assert_eq!(r.bounded_frames, 3);
+        assert!((r.bound_holds.unwrap() - 2.0 / 3.0).abs() < 1e-12, "{:?}", r.bound_holds);
         let none: Vec<Step> = steps.iter().map(|s| Step { bound_deg: None, ..s.clone() }).collect();
-        assert_eq!(bound_holds(&none, &truth), (None, 0));
+        let r = result(&s, "tracker", &none, 1.0);
+        assert_eq!((r.bound_holds, r.bounded_frames), (None, 0));
     }
 
     /// `--synthetic-only` leaves every real stream out (and cannot go with `--real-only`);

@@ -158,6 +158,12 @@ pub struct Uncertainty {
     pub translation_m: f64,
 }
 
+impl Uncertainty {
+    /// No error at all: the bounds of a pose known exactly (a stream's first frame against
+    /// itself), from which bounds along a chain of estimates grow.
+    pub const EXACT: Self = Self { rotation_deg: 0.0, translation_m: 0.0 };
+}
+
 /// A rigid registration backend.
 ///
 /// Implementing it plugs a backend into everything that takes one (the pipeline, the CLI):

@@ -219,9 +219,10 @@ pub struct TracedPair {
 impl TrackedFrame {
     /// The frame's result as an estimate of the motion from the first frame (`first`, its
     /// label) to this one: the estimate against the reference with its transform replaced by
-    /// the motion from the first frame (converged only when tracking or recovered); for a frame
-    /// without an estimate (lost), the held pose, not converged, the reason as a warning-free
-    /// estimate of `method`.
+    /// the motion from the first frame and its uncertainty by the bounds from the first frame
+    /// (`bound_from_first`; none without them), converged only when tracking or recovered; for
+    /// a frame without an estimate (lost), the held pose, not converged, the reason as a
+    /// warning-free estimate of `method`.
     pub fn from_first(&self, first: &str, method: &str) -> Estimate {
         let trusted = matches!(self.state, TrackState::Tracking | TrackState::Recovered);
         let mut e = match &self.estimate {
@@ -309,9 +310,6 @@ fn plausible(e: &Estimate) -> bool {
 
 /// Keyframes tried first: this many nearest to the last pose.
 const NEAREST_KEYFRAMES: usize = 2;
-
-/// The first frame's bounds: its pose (identity) is exact.
-const EXACT: Uncertainty = Uncertainty { rotation_deg: 0.0, translation_m: 0.0 };
 
 /// Bounds on a pose from the first frame `e.pose * T_0r` given bounds on the reference's pose
 /// `T_0r` (`reference`) and the estimate's own (`e.pose`, against the reference), each meant
@@ -499,12 +497,23 @@ impl Tracker {
         let frame = pipeline.prepare(first).map_err(TrackError::FirstFrame)?;
         let object = !frame.unmasked;
         let size = frame.gray.dims();
-        let previous =
-            Previous { index: 0, frame: frame.clone(), pose: Pose::identity(), doubtful: false, bound: Some(EXACT) };
+        let previous = Previous {
+            index: 0,
+            frame: frame.clone(),
+            pose: Pose::identity(),
+            doubtful: false,
+            bound: Some(Uncertainty::EXACT),
+        };
         let mut tracker = Self {
             pipeline: Arc::new(pipeline),
             config,
-            keyframes: vec![Keyframe { index: 0, frame, pose: Pose::identity(), doubtful: false, bound: Some(EXACT) }],
+            keyframes: vec![Keyframe {
+                index: 0,
+                frame,
+                pose: Pose::identity(),
+                doubtful: false,
+                bound: Some(Uncertainty::EXACT),
+            }],
             current: 0,
             previous: Some(previous),
             object,
@@ -533,7 +542,7 @@ impl Tracker {
             reference: None,
             keyframe: true,
             estimate: None,
-            bound_from_first: Some(EXACT),
+            bound_from_first: Some(Uncertainty::EXACT),
             mask_px: if self.object { k.frame.mask.count() } else { 0 },
             aligned_only: false,
             traced: None,
@@ -789,7 +798,7 @@ impl Tracker {
                 self.uncertain_run += 1;
                 let pose = e.pose * reference_pose;
                 let reason = warning_codes(&e);
-                let bound = chained_bound(self.reference_bound(reference), &e);
+                let bound = chained_bound(self.reference_standing(reference).1, &e);
                 let (frame, mask_px, _) = self.carried(reference, &e.pose, Target::whole(target));
                 // Not a keyframe, but the next frame's nearest view: it is estimated against this
                 // one (a short motion) when no keyframe converges, as chaining would.
@@ -895,7 +904,8 @@ impl Tracker {
         reference_pose: Pose,
     ) -> TrackedFrame {
         let pose = e.pose * reference_pose;
-        let bound = chained_bound(self.reference_bound(reference), &e);
+        let (rests_on_doubt, reference_bound) = self.reference_standing(reference);
+        let bound = chained_bound(reference_bound, &e);
         let (frame, mask_px, region) = self.carried(reference, &e.pose, target);
         if self.object && mask_px < self.config.min_mask_px {
             return self
@@ -904,7 +914,7 @@ impl Tracker {
         // Converged against a frame whose own pose rests on an uncertain one: the pose from the
         // first frame rests on that doubt too, and the frame is reported uncertain (its
         // estimate and everything else as for a tracked frame).
-        let doubtful = !self.lost && self.rests_on_doubt(reference);
+        let doubtful = !self.lost && rests_on_doubt;
         let state = match (self.lost, doubtful) {
             (true, _) => TrackState::Recovered,
             (false, true) => TrackState::Uncertain,
@@ -946,18 +956,13 @@ impl Tracker {
         }
     }
 
-    /// Whether frame `reference` (the previous frame or a keyframe) has a pose that rests on an
-    /// uncertain frame.
-    fn rests_on_doubt(&self, reference: usize) -> bool {
-        let previous = self.previous.as_ref().filter(|p| p.index == reference).map(|p| p.doubtful);
-        previous.or_else(|| self.keyframes.iter().find(|k| k.index == reference).map(|k| k.doubtful)).unwrap_or(false)
-    }
-
-    /// The bounds on frame `reference`'s pose from the first frame (the previous frame or a
-    /// keyframe).
-    fn reference_bound(&self, reference: usize) -> Option<Uncertainty> {
-        let previous = self.previous.as_ref().filter(|p| p.index == reference).map(|p| p.bound);
-        previous.or_else(|| self.keyframes.iter().find(|k| k.index == reference).map(|k| k.bound)).flatten()
+    /// What the tracker keeps of frame `reference` (the previous frame or a keyframe): whether
+    /// its pose rests on an uncertain frame, and the bounds on its pose from the first frame.
+    fn reference_standing(&self, reference: usize) -> (bool, Option<Uncertainty>) {
+        let previous = self.previous.as_ref().filter(|p| p.index == reference).map(|p| (p.doubtful, p.bound));
+        previous
+            .or_else(|| self.keyframes.iter().find(|k| k.index == reference).map(|k| (k.doubtful, k.bound)))
+            .unwrap_or((false, None))
     }
 
     /// `target` with the object's mask carried from `reference` by `motion`, and the mask's
