@@ -8,6 +8,10 @@ use flowfilter_geometry::fastmath::floor_f32;
 use flowfilter_geometry::{Grid, Mask};
 use image::RgbImage;
 use rayon::prelude::*;
+use warped_window::WarpedWindow;
+use wide::f32x8;
+
+mod warped_window;
 
 /// A grey image with values in [0, 1].
 pub type Gray = Grid<f32>;
@@ -15,8 +19,21 @@ pub type Gray = Grid<f32>;
 /// Luma of an RGB image (Rec. 601 weights), in [0, 1].
 pub fn to_gray(img: &RgbImage) -> Gray {
     let luma = |p: &[u8]| (0.299 * f32::from(p[0]) + 0.587 * f32::from(p[1]) + 0.114 * f32::from(p[2])) / 255.0;
-    // Straight over the raw bytes (a per-pixel `get_pixel` cost a few ms per sensor frame).
-    let data = img.as_raw().chunks_exact(3).map(luma).collect();
+    // Straight over the raw bytes (a per-pixel `get_pixel` cost a few ms per sensor frame),
+    // eight pixels to a vector: each lane sums and divides as `luma` does, the same bits.
+    let raw = img.as_raw();
+    let mut data = vec![0.0f32; raw.len() / 3];
+    let mut pixels = data.chunks_exact_mut(8);
+    let mut bytes = raw.chunks_exact(24);
+    for (out, px) in (&mut pixels).zip(&mut bytes) {
+        let channel = |c: usize| f32x8::new(std::array::from_fn(|l| f32::from(px[3 * l + c])));
+        let sum =
+            f32x8::splat(0.299) * channel(0) + f32x8::splat(0.587) * channel(1) + f32x8::splat(0.114) * channel(2);
+        out.copy_from_slice(&(sum / f32x8::splat(255.0)).to_array());
+    }
+    for (out, px) in pixels.into_remainder().iter_mut().zip(bytes.remainder().chunks_exact(3)) {
+        *out = luma(px);
+    }
     Gray::from_vec(img.width() as usize, img.height() as usize, data).expect("one value per pixel")
 }
 
@@ -34,23 +51,60 @@ pub(crate) fn par_image(w: usize, h: usize, f: impl Fn(usize, usize) -> f32 + Sy
 /// Half-resolution image: separable `[1 4 6 4 1] / 16` blur, then every other pixel.
 pub fn downsample(img: &Gray) -> Gray {
     let (w, h) = img.dims();
-    let k = [1.0f32, 4.0, 6.0, 4.0, 1.0];
-    let at = |x: isize, y: isize| *img.at(x.clamp(0, w as isize - 1) as usize, y.clamp(0, h as isize - 1) as usize);
     let (nw, nh) = (w.div_ceil(2), h.div_ceil(2));
+    let mut data = crate::buffers::zeroed(nw * nh);
+    data.par_chunks_mut(nw.max(1)).enumerate().with_min_len(24).for_each(|(y, row)| downsample_row(img, y, row));
+    Gray::from_vec(nw, nh, data).expect("sizes")
+}
+
+/// Row `y` of [`downsample`]'s image: each pixel the sum over the 5 x 5 taps (rows, then
+/// columns, in order) of the weight times the value, over 256. Away from the border eight
+/// pixels at a time whose taps are all inside, one per lane (the same sums, the same bits);
+/// the rest read clamped taps (inside the image the clamp changes nothing).
+fn downsample_row(img: &Gray, y: usize, row: &mut [f32]) {
+    const K: [f32; 5] = [1.0, 4.0, 6.0, 4.0, 1.0];
+    let (w, h) = img.dims();
     let d = img.as_slice();
-    par_image(nw, nh, |x, y| {
-        let (cx, cy) = (2 * x as isize, 2 * y as isize);
-        // Away from the border no tap is clamped: read directly (the same sum).
-        let interior = cx >= 2 && cy >= 2 && cx + 2 < w as isize && cy + 2 < h as isize;
-        let mut acc = 0.0;
-        for (j, kj) in k.iter().enumerate() {
-            for (i, ki) in k.iter().enumerate() {
-                let (x, y) = (cx + i as isize - 2, cy + j as isize - 2);
-                acc += kj * ki * if interior { d[y as usize * w + x as usize] } else { at(x, y) };
+    let at = |x: isize, y: isize| *img.at(x.clamp(0, w as isize - 1) as usize, y.clamp(0, h as isize - 1) as usize);
+    let cy = 2 * y as isize;
+    let clamped = |x: usize| {
+        let cx = 2 * x as isize;
+        let mut acc = 0.0f32;
+        for (j, kj) in K.iter().enumerate() {
+            for (i, ki) in K.iter().enumerate() {
+                acc += kj * ki * at(cx + i as isize - 2, cy + j as isize - 2);
             }
         }
         acc / 256.0
-    })
+    };
+    // Pixels whose taps are all inside: 2 <= 2x and 2x + 2 < w, on a row with 2 <= 2y and
+    // 2y + 2 < h.
+    let (first, end) = if cy >= 2 && cy + 2 < h as isize { (1, (w.saturating_sub(1) / 2).max(1)) } else { (0, 0) };
+    let inner = first..end.max(first);
+    for (x, v) in row.iter_mut().enumerate().filter(|(x, _)| !inner.contains(x)) {
+        *v = clamped(x);
+    }
+    if inner.is_empty() {
+        return;
+    }
+    let rows: [&[f32]; 5] = std::array::from_fn(|j| &d[(cy as usize + j - 2) * w..][..w]);
+    let mut runs = row[inner.clone()].chunks_exact_mut(8);
+    for (c, out) in (&mut runs).enumerate() {
+        // Eight pixels from `x0`: tap `i` of pixel `x0 + l` is column `2 (x0 + l) + i - 2`.
+        let x0 = inner.start + 8 * c;
+        let mut acc = f32x8::ZERO;
+        for (row, kj) in rows.iter().zip(K) {
+            for (i, ki) in K.iter().enumerate() {
+                let taps = &row[2 * x0 + i - 2..][..15];
+                acc += f32x8::splat(kj * ki) * f32x8::new(std::array::from_fn(|l| taps[2 * l]));
+            }
+        }
+        out.copy_from_slice(&(acc / f32x8::splat(256.0)).to_array());
+    }
+    let done = inner.end - runs.into_remainder().len();
+    for (x, v) in row.iter_mut().enumerate().take(inner.end).skip(done) {
+        *v = clamped(x);
+    }
 }
 
 /// Bilinear sample with clamped borders (shared by the estimators and the pipeline's judge).
@@ -224,10 +278,17 @@ impl Window {
 /// Half-resolution mask: a pixel is set when all four of its children are.
 fn downsample_mask(m: &Mask) -> Mask {
     let (w, h) = m.dims();
-    let get = |x: usize, y: usize| *m.at(x.min(w - 1), y.min(h - 1));
-    Mask::from_fn(w.div_ceil(2), h.div_ceil(2), |x, y| {
-        get(2 * x, 2 * y) && get(2 * x + 1, 2 * y) && get(2 * x, 2 * y + 1) && get(2 * x + 1, 2 * y + 1)
-    })
+    let (nw, nh) = (w.div_ceil(2), h.div_ceil(2));
+    let mut data = Vec::with_capacity(nw * nh);
+    for y in 0..nh {
+        // The children's rows and columns, clamped to the image (an odd side repeats its last).
+        let (top, bottom) = (m.row(2 * y), m.row((2 * y + 1).min(h - 1)));
+        data.extend((0..nw).map(|x| {
+            let (a, b) = (2 * x, (2 * x + 1).min(w - 1));
+            top[a] && top[b] && bottom[a] && bottom[b]
+        }));
+    }
+    Mask::from_vec(nw, nh, data).expect("one value per pixel")
 }
 
 /// [`track`] with the window restricted to `mask` of the `from` image (at every pyramid level):
@@ -330,7 +391,8 @@ pub fn track_in(
 struct Pyramids<'p> {
     from: &'p [Gray],
     to: &'p [Gray],
-    mask: Vec<Mask>,
+    /// The mask at full resolution (the caller's), then its coarser levels.
+    mask: Option<(&'p Mask, Vec<Mask>)>,
     grads: &'p [(Gray, Gray)],
 }
 
@@ -339,16 +401,23 @@ type TemplatePixel = (f32, f32, f32);
 
 impl<'p> Pyramids<'p> {
     /// `levels` levels of `from` and `to` (both at least that deep) and of `mask`.
-    fn new(from: &'p ImagePyramid, to: &'p ImagePyramid, mask: Option<&Mask>, levels: usize) -> Self {
-        let mut pm: Vec<Mask> = mask.map(|m| vec![m.clone()]).unwrap_or_default();
-        for _ in 0..levels {
-            if let Some(last) = pm.last() {
-                let next = downsample_mask(last);
-                pm.push(next);
+    fn new(from: &'p ImagePyramid, to: &'p ImagePyramid, mask: Option<&'p Mask>, levels: usize) -> Self {
+        let mask = mask.map(|m| {
+            let mut coarser: Vec<Mask> = Vec::with_capacity(levels);
+            for _ in 0..levels {
+                let next = downsample_mask(coarser.last().unwrap_or(m));
+                coarser.push(next);
             }
-        }
+            (m, coarser)
+        });
         let (from_levels, to_levels) = (from.levels(), to.levels());
-        Self { from: &from_levels[..=levels], to: &to_levels[..=levels], mask: pm, grads: &from.gradients()[..=levels] }
+        Self { from: &from_levels[..=levels], to: &to_levels[..=levels], mask, grads: &from.gradients()[..=levels] }
+    }
+
+    /// The mask at `level` (`None` without one).
+    fn mask(&self, level: usize) -> Option<&Mask> {
+        let (full, coarser) = self.mask.as_ref()?;
+        if level == 0 { Some(full) } else { coarser.get(level - 1) }
     }
 
     /// The template around `(px, py)` of `level` (row-major, `window` x `window`) and its
@@ -377,12 +446,15 @@ impl<'p> Pyramids<'p> {
             win.for_row(gy, j, window, |i, v| row[i].2 = v);
         }
         // Outside the mask: no gradient, no residual.
-        if let Some(m) = self.mask.get(level) {
+        if let Some(m) = self.mask(level) {
             let (cx, cy) = (px.round() as isize, py.round() as isize);
-            for (k, pixel) in tmpl.iter_mut().enumerate() {
-                let (mx, my) = (cx + (k % window) as isize - r, cy + (k / window) as isize - r);
-                if !(mx >= 0 && my >= 0 && m.get(mx as usize, my as usize).copied().unwrap_or(false)) {
-                    *pixel = (0.0, 0.0, 0.0);
+            for (j, row) in tmpl.chunks_exact_mut(window).enumerate() {
+                let my = cy + j as isize - r;
+                for (i, pixel) in row.iter_mut().enumerate() {
+                    let mx = cx + i as isize - r;
+                    if !(mx >= 0 && my >= 0 && m.get(mx as usize, my as usize).copied().unwrap_or(false)) {
+                        *pixel = (0.0, 0.0, 0.0);
+                    }
                 }
             }
         }
@@ -395,7 +467,7 @@ impl<'p> Pyramids<'p> {
         let r = (window / 2) as isize;
         let mut tmpl = Vec::with_capacity(window * window);
         let inside = |x: f32, y: f32| {
-            self.mask.get(level).is_none_or(|m| {
+            self.mask(level).is_none_or(|m| {
                 let (ix, iy) = (x.round(), y.round());
                 ix >= 0.0 && iy >= 0.0 && m.get(ix as usize, iy as usize).copied().unwrap_or(false)
             })
@@ -444,10 +516,11 @@ impl<'p> Pyramids<'p> {
             return None;
         }
         let det = gxx * gyy - gxy * gxy;
+        let mut warped = warp.map(|m| WarpedWindow::new(m, r));
         let mut d = [0.0f32; 2];
         for _ in 0..p.max_iterations {
             let corner = (px + g[0] + d[0] - r as f32, py + g[1] + d[1] - r as f32);
-            let (bx, by) = mismatch(b, &tmpl, corner, r, warp, moments.as_ref());
+            let (bx, by) = mismatch(b, &tmpl, corner, r, warped.as_mut(), moments.as_ref());
             let step = [(gyy * bx - gxy * by) / det, (gxx * by - gxy * bx) / det];
             // The template's shift, seen through the warp, is the window's.
             let step = warp.map_or(step, |m| [m[0] * step[0] + m[1] * step[1], m[2] * step[0] + m[3] * step[1]]);
@@ -498,7 +571,7 @@ impl TemplateMoments {
 }
 
 /// `sum_k (T_k - I(x_k)) grad T_k` over the window of half-size `r` whose top-left corner in
-/// `b` is `(cx, cy)`, warped by `warp` about its centre. With the template's `moments`, the
+/// `b` is `(cx, cy)`, warped by `warped` (of the same half-size) about its centre. With the template's `moments`, the
 /// window's values are first shifted by the offset that gives its pixels inside the mask the
 /// template's mean ([`LkParams::match_brightness`]): over those pixels, `I -> I + c` with
 /// `n c = sum (T - I)`, so the sum is `sum (T - I) grad T - g sum (T - I)` (`g` the template's
@@ -508,7 +581,7 @@ fn mismatch(
     tmpl: &[TemplatePixel],
     (cx, cy): (f32, f32),
     r: isize,
-    warp: Option<WindowWarp>,
+    warped: Option<&mut WarpedWindow>,
     moments: Option<&TemplateMoments>,
 ) -> (f32, f32) {
     let side = 2 * r as usize + 1;
@@ -525,19 +598,12 @@ fn mismatch(
             si += sample;
         }
     };
-    match (warp, Window::inside(b, cx, cy, side)) {
+    match (warped, Window::inside(b, cx, cy, side)) {
         // A warped window: every sample has its own bilinear weights (unclamped inside the
         // image, see `BilinearTap::new`).
-        (Some(m), _) => {
-            let (ox, oy) = (cx + r as f32, cy + r as f32);
-            let at = |u: f32, v: f32| (ox + m[0] * u + m[1] * v, oy + m[2] * u + m[3] * v);
-            let rf = r as f32;
-            for j in 0..side {
-                let v = j as f32 - rf;
-                for i in 0..side {
-                    let (x, y) = at(i as f32 - rf, v);
-                    add(j * side + i, BilinearTap::new(b.width(), b.height(), x, y).sample(b.as_slice()));
-                }
+        (Some(window), _) => {
+            for (k, &sample) in window.sample(b, cx + r as f32, cy + r as f32).iter().enumerate() {
+                add(k, sample);
             }
         }
         // The whole window in the image: one set of bilinear weights.
@@ -570,20 +636,40 @@ mod tests {
     /// The interior fast path gives the clamped sum's bits.
     #[test]
     fn downsampling_is_the_clamped_binomial_sum() {
-        let img = Gray::from_fn(23, 18, |x, y| ((x * 7 + y * 13) % 17) as f32 / 17.0 + 0.001 * y as f32);
-        let (w, h) = img.dims();
-        let at = |x: isize, y: isize| *img.at(x.clamp(0, w as isize - 1) as usize, y.clamp(0, h as isize - 1) as usize);
-        let k = [1.0f32, 4.0, 6.0, 4.0, 1.0];
-        let half = downsample(&img);
-        for y in 0..half.height() {
-            for x in 0..half.width() {
-                let mut acc = 0.0;
-                for (j, kj) in k.iter().enumerate() {
-                    for (i, ki) in k.iter().enumerate() {
-                        acc += kj * ki * at(2 * x as isize + i as isize - 2, 2 * y as isize + j as isize - 2);
+        for (w, h) in [(23, 18), (24, 17), (1, 1), (2, 3), (3, 2), (4, 5), (5, 6), (6, 7), (64, 9)] {
+            let img = Gray::from_fn(w, h, |x, y| ((x * 7 + y * 13) % 17) as f32 / 17.0 + 0.001 * y as f32);
+            let at =
+                |x: isize, y: isize| *img.at(x.clamp(0, w as isize - 1) as usize, y.clamp(0, h as isize - 1) as usize);
+            let k = [1.0f32, 4.0, 6.0, 4.0, 1.0];
+            let half = downsample(&img);
+            assert_eq!(half.dims(), (w.div_ceil(2), h.div_ceil(2)));
+            for y in 0..half.height() {
+                for x in 0..half.width() {
+                    let mut acc = 0.0;
+                    for (j, kj) in k.iter().enumerate() {
+                        for (i, ki) in k.iter().enumerate() {
+                            acc += kj * ki * at(2 * x as isize + i as isize - 2, 2 * y as isize + j as isize - 2);
+                        }
                     }
+                    assert_eq!(half.at(x, y).to_bits(), (acc / 256.0).to_bits(), "{w} x {h} at ({x}, {y})");
                 }
-                assert_eq!(half.at(x, y).to_bits(), (acc / 256.0).to_bits(), "({x}, {y})");
+            }
+        }
+    }
+
+    /// A half-resolution mask pixel is set where its four children are (an odd side's last
+    /// pixel counting twice).
+    #[test]
+    fn mask_downsampling_keeps_pixels_whose_children_are_all_set() {
+        for (w, h) in [(9, 7), (8, 8), (1, 1), (1, 4), (5, 1)] {
+            let m = Mask::from_fn(w, h, |x, y| (x * 5 + y * 3) % 7 != 0 || (x + y) % 4 == 1);
+            let get = |x: usize, y: usize| *m.at(x.min(w - 1), y.min(h - 1));
+            let half = downsample_mask(&m);
+            assert_eq!(half.dims(), (w.div_ceil(2), h.div_ceil(2)));
+            for (x, y) in (0..half.height()).flat_map(|y| (0..half.width()).map(move |x| (x, y))) {
+                let want =
+                    get(2 * x, 2 * y) && get(2 * x + 1, 2 * y) && get(2 * x, 2 * y + 1) && get(2 * x + 1, 2 * y + 1);
+                assert_eq!(*half.at(x, y), want, "{w} x {h} at ({x}, {y})");
             }
         }
     }
@@ -591,6 +677,7 @@ mod tests {
     /// The raw-byte conversion is the per-pixel Rec. 601 luma.
     #[test]
     fn gray_is_the_per_pixel_luma() {
+        // 91 pixels: eleven vectors of eight and three left over.
         let img = RgbImage::from_fn(13, 7, |x, y| image::Rgb([(x * 19) as u8, (y * 37) as u8, (x * y * 5) as u8]));
         let g = to_gray(&img);
         for (x, y, p) in img.enumerate_pixels() {
