@@ -571,11 +571,11 @@ impl TemplateMoments {
 }
 
 /// `sum_k (T_k - I(x_k)) grad T_k` over the window of half-size `r` whose top-left corner in
-/// `b` is `(cx, cy)`, warped by `warped` (of the same half-size) about its centre. With the template's `moments`, the
-/// window's values are first shifted by the offset that gives its pixels inside the mask the
-/// template's mean ([`LkParams::match_brightness`]): over those pixels, `I -> I + c` with
-/// `n c = sum (T - I)`, so the sum is `sum (T - I) grad T - g sum (T - I)` (`g` the template's
-/// mean gradient), gathered in the same pass.
+/// `b` is `(cx, cy)`, warped by `warped` (of the same half-size) about its centre. With the
+/// template's `moments`, the window's values are first shifted by the offset that gives its
+/// pixels inside the mask the template's mean ([`LkParams::match_brightness`]): over those
+/// pixels, `I -> I + c` with `n c = sum (T - I)`, so the sum is `sum (T - I) grad T - g sum
+/// (T - I)` (`g` the template's mean gradient), gathered in the same pass.
 fn mismatch(
     b: &Gray,
     tmpl: &[TemplatePixel],
