@@ -369,13 +369,15 @@ pub fn track_in(
         .enumerate()
         .map(|(i, pt)| {
             let mut g = guesses.and_then(|gs| gs.get(i)).map_or([0.0f32; 2], |q| [q[0] / top, q[1] / top]);
-            // A linear map is the same at every pyramid level; the identity needs no warping.
+            // A linear map is the same at every pyramid level (one window for all of them); the
+            // identity needs no warping.
             let warp = warps.and_then(|ws| ws.get(i)).copied().filter(|m| *m != IDENTITY_WARP);
+            let mut warped = warp.map(|m| WarpedWindow::new(m, (p.window / 2) as isize));
             for level in (0..=start_level).rev() {
                 // Below the first level the coarser one has placed the window: a correction
                 // beyond a window's width has left the basin its gradients describe.
                 let reach = if level == start_level { f32::INFINITY } else { 2.0 * p.window as f32 };
-                let d = pyramids.refine(level, *pt, g, warp, reach, p)?;
+                let d = pyramids.refine(level, *pt, g, warped.as_mut(), reach, p)?;
                 g = if level > 0 { [2.0 * (g[0] + d[0]), 2.0 * (g[1] + d[1])] } else { [g[0] + d[0], g[1] + d[1]] };
             }
             let (qx, qy) = (pt[0] + g[0], pt[1] + g[1]);
@@ -494,12 +496,13 @@ impl<'p> Pyramids<'p> {
     /// The displacement `d` beyond the guess `g` that Newton's iterations find for point `pt`
     /// at `level`; `None` where the window's gradients are too weak to track, or where the
     /// iterations carry `d` beyond `reach` (pixels of the level, in either coordinate: lost).
+    /// `warped`: the point's window in `to`, warped (of `p.window`'s half-size).
     fn refine(
         &self,
         level: usize,
         pt: [f32; 2],
         g: [f32; 2],
-        warp: Option<WindowWarp>,
+        mut warped: Option<&mut WarpedWindow>,
         reach: f32,
         p: &LkParams,
     ) -> Option<[f32; 2]> {
@@ -516,11 +519,11 @@ impl<'p> Pyramids<'p> {
             return None;
         }
         let det = gxx * gyy - gxy * gxy;
-        let mut warped = warp.map(|m| WarpedWindow::new(m, r));
+        let warp = warped.as_ref().map(|w| w.warp());
         let mut d = [0.0f32; 2];
         for _ in 0..p.max_iterations {
             let corner = (px + g[0] + d[0] - r as f32, py + g[1] + d[1] - r as f32);
-            let (bx, by) = mismatch(b, &tmpl, corner, r, warped.as_mut(), moments.as_ref());
+            let (bx, by) = mismatch(b, &tmpl, corner, r, warped.as_deref_mut(), moments.as_ref());
             let step = [(gyy * bx - gxy * by) / det, (gxx * by - gxy * bx) / det];
             // The template's shift, seen through the warp, is the window's.
             let step = warp.map_or(step, |m| [m[0] * step[0] + m[1] * step[1], m[2] * step[0] + m[3] * step[1]]);
@@ -598,25 +601,21 @@ fn mismatch(
             si += sample;
         }
     };
-    match (warped, Window::inside(b, cx, cy, side)) {
+    if let Some(window) = warped {
         // A warped window: every sample has its own bilinear weights (unclamped inside the
         // image, see `BilinearTap::new`).
-        (Some(window), _) => {
-            for (k, &sample) in window.sample(b, cx + r as f32, cy + r as f32).iter().enumerate() {
-                add(k, sample);
-            }
+        for (k, &sample) in window.sample(b, cx + r as f32, cy + r as f32).iter().enumerate() {
+            add(k, sample);
         }
+    } else if let Some(win) = Window::inside(b, cx, cy, side) {
         // The whole window in the image: one set of bilinear weights.
-        (None, Some(win)) => {
-            for j in 0..side {
-                win.for_row(b, j, side, |i, sample| add(j * side + i, sample));
-            }
+        for j in 0..side {
+            win.for_row(b, j, side, |i, sample| add(j * side + i, sample));
         }
-        (None, None) => {
-            for j in 0..side {
-                for i in 0..side {
-                    add(j * side + i, bilinear(b, cx + i as f32, cy + j as f32));
-                }
+    } else {
+        for j in 0..side {
+            for i in 0..side {
+                add(j * side + i, bilinear(b, cx + i as f32, cy + j as f32));
             }
         }
     }

@@ -19,6 +19,7 @@ const LANES: usize = 8;
 /// centred on `(ox, oy)`) lies at `(ox + m0 u + m1 v, oy + m2 u + m3 v)`, `u = i - r`,
 /// `v = j - r`, summed in that order.
 pub(super) struct WarpedWindow {
+    warp: WindowWarp,
     side: usize,
     /// `m0 u` and `m2 u` per column.
     columns: (Vec<f32>, Vec<f32>),
@@ -35,11 +36,17 @@ impl WarpedWindow {
         let rf = r as f32;
         let offset = |k: usize| k as f32 - rf;
         Self {
+            warp: m,
             side,
             columns: ((0..side).map(|i| m[0] * offset(i)).collect(), (0..side).map(|i| m[2] * offset(i)).collect()),
             rows: (0..side).map(|j| (m[1] * offset(j), m[3] * offset(j))).collect(),
             samples: vec![0.0; side * side],
         }
+    }
+
+    /// The warp.
+    pub(super) fn warp(&self) -> WindowWarp {
+        self.warp
     }
 
     /// The window's samples of `img` about `(ox, oy)`, row-major: those of
